@@ -1,0 +1,42 @@
+"""Load typed configuration from TOML files, with errors that name the file, the field and the expectation.
+
+Shared by the rig, the controller and the supervisor: each decodes the files it reads into its own
+msgspec types, so a wrong field fails at start-up with e.g.
+    configs/robot/pure.toml: Expected `float` > 0.0 - at `$.ball.mass`
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TypeVar
+
+import msgspec
+
+T = TypeVar("T")
+
+
+class ConfigError(ValueError):
+    """A configuration file is missing, not TOML, or does not match its schema."""
+
+    def __init__(self, path: Path | str, detail: str):
+        super().__init__(f"{path}: {detail}")
+        self.path = Path(path)
+        self.detail = detail
+
+
+def load_toml(path: Path | str, type: type[T]) -> T:
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ConfigError(path, f"cannot read: {exc.strerror or exc}") from exc
+    return decode_toml(raw, type, path)
+
+
+def decode_toml(raw: bytes | str, type: type[T], origin: Path | str = "<string>") -> T:
+    try:
+        return msgspec.toml.decode(raw, type=type)
+    except msgspec.ValidationError as exc:
+        raise ConfigError(origin, str(exc)) from exc
+    except msgspec.DecodeError as exc:
+        raise ConfigError(origin, f"not valid TOML: {exc}") from exc

@@ -1,0 +1,374 @@
+"""PURE + rider: two vertical planes and yaw, drives, sensors and the rider, advanced by fixed-step RK4.
+
+The planes are the heading-frame decomposition of physics.md §2 (pitch: about +y, roll: about +x), each a
+three-body model with the rider's torso (plane.py); yaw is a single body on a ball that does not spin on the
+floor (§2.5). Drive torques are held over a tick (zero-order hold, first-order current lag inside).
+Deterministic for a seed; no clock, no I/O: the caller owns time by calling `step()`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from plant.anthropometry import composite, robot_body_segment, seat_rider, yaw_inertia
+from plant.drives import DriveArray
+from plant.omniwheel import motor_jacobian, wheel_inertia_equivalents
+from plant.params import RiderParams, RobotParams, SimParams
+from plant.plane import G0, STICK_TIME_CONSTANT, PlaneDynamics, PlaneParams, Wrench
+from plant.rider import Profile, Segment, TorsoController, TwistController
+from plant.sensors import DriveFeedback, DriveFeedbackModel, ImuModel, ImuSample, TesModel, TesSample
+
+PITCH, ROLL = 0, 1
+PLANES = ("pitch", "roll")
+
+
+def plane_params(
+    robot: RobotParams, rider: RiderParams | None, plane: str, torso: bool = True
+) -> PlaneParams:
+    """Parameters of one plane. With torso=False a rider is lumped rigidly (upright) into the chassis."""
+    b, f, dt = robot.ball, robot.friction, robot.drivetrain
+    theta_w, _ = wheel_inertia_equivalents(b.radius, dt)
+    segments = [robot_body_segment(robot)]
+    hat_mass = hat_com = hat_inertia = hip_fwd = hip_up = 0.0
+    if rider is not None:
+        seated = seat_rider(robot, rider)
+        segments += list(seated.lower_limbs)
+        if torso:
+            hat_mass, hat_com = seated.hat.mass, seated.hat.com_distance
+            hat_inertia = seated.hat.i_pitch if plane == "pitch" else seated.hat.i_roll
+            hip_fwd = seated.hip_x if plane == "pitch" else 0.0
+            hip_up = seated.hip_z
+        else:
+            segments.append(seated.hat_segment())
+    return PlaneParams(
+        ball_radius=b.radius,
+        ball_mass=b.mass,
+        ball_inertia=b.inertia,
+        rho=b.radius / dt.wheel_radius,
+        wheel_inertia=theta_w,
+        chassis=composite(segments, plane),
+        top_height=robot.body.top_height,
+        hat_mass=hat_mass,
+        hat_com_distance=hat_com,
+        hat_inertia=hat_inertia,
+        hip_forward=hip_fwd,
+        hip_up=hip_up,
+        rolling_viscous=f.rolling_viscous,
+        drivetrain_viscous=f.drivetrain_viscous,
+        drivetrain_coulomb=f.drivetrain_coulomb,
+        drivetrain_stiction=f.drivetrain_stiction,
+        stick_velocity=f.stick_velocity,
+    )
+
+
+@dataclass(slots=True)
+class RiderIntent:
+    """What the rider tries to do: lean profiles per plane (degrees) and a twist profile (Nm)."""
+
+    pitch: list[Segment] = field(default_factory=list)
+    roll: list[Segment] = field(default_factory=list)
+    twist: list[Segment] = field(default_factory=list)
+
+
+@dataclass(frozen=True, slots=True)
+class Truth:
+    """The plant's true state after a tick, for metrics, recording and the supervisor's referee."""
+
+    t: float
+    tilt: tuple[float, float]
+    """Chassis tilt (pitch, roll), rad."""
+    tilt_rate: tuple[float, float]
+    ball_angle: tuple[float, float]
+    ball_rate: tuple[float, float]
+    lean: tuple[float, float]
+    """Torso lean relative to the chassis (pitch, roll), rad; 0 without a torso."""
+    velocity: tuple[float, float]
+    """Ground speed in the heading frame (forward, left), m/s."""
+    position: tuple[float, float]
+    """Ball contact point in the world frame (x, y) from the start, m."""
+    yaw: float
+    yaw_rate: float
+    motor_torque: tuple[float, float, float]
+    hip_torque: tuple[float, float]
+    seat_wrench: tuple[float, float, float, float, float, float]
+    """True rider wrench on the seat at P, body axes [Fx, Fy, Fz, Mx, My, Mz]."""
+    fallen: str | None
+
+
+class Plant:
+    """PURE ballbot + rider. Call `drives.set_commands(...)`, then `step()` once per tick, then sample."""
+
+    def __init__(
+        self,
+        robot: RobotParams,
+        rider: RiderParams | None,
+        sim: SimParams,
+        intent: RiderIntent | None = None,
+        initial_tilt: tuple[float, float] = (0.0, 0.0),
+    ):
+        self.robot, self.rider, self.sim = robot, rider, sim
+        self.dt = sim.dt
+        self.h = sim.dt / sim.substeps
+        self.planes = tuple(PlaneDynamics(plane_params(robot, rider, name)) for name in PLANES)
+        self.clamped = sim.fixture == "clamped"
+
+        G = motor_jacobian(robot.ball.radius, robot.drivetrain)
+        self._g = tuple(tuple(float(v) for v in row) for row in G)
+        _, theta_w_yaw = wheel_inertia_equivalents(robot.ball.radius, robot.drivetrain)
+        rho = robot.ball.radius / robot.drivetrain.wheel_radius
+        segments = [robot_body_segment(robot)]
+        intent = intent or RiderIntent()
+        self.seated = seat_rider(robot, rider) if rider is not None else None
+        if self.seated is not None:
+            segments += [*self.seated.lower_limbs, self.seated.hat_segment()]
+            hat = self.seated.hat
+            self.torso = tuple(
+                TorsoController(rider, hat.mass, hat.com_distance, Profile(p))  # type: ignore[arg-type]
+                for p in (intent.pitch, intent.roll)
+            )
+            self.twist = TwistController(rider, Profile(intent.twist))  # type: ignore[arg-type]
+        else:
+            self.torso = None
+            self.twist = None
+        self.yaw_inertia = yaw_inertia(segments) + theta_w_yaw * rho * rho
+
+        self.drives = DriveArray(robot.drive)
+        seeds = np.random.SeedSequence(sim.seed).spawn(3)
+        self.feedback_model = DriveFeedbackModel(robot.encoder, robot.drive, np.random.default_rng(seeds[0]))
+        self.imu_model = ImuModel(robot.imu, np.random.default_rng(seeds[1]))
+        self.tes_model = TesModel(robot.tes, robot.body.seat_height, np.random.default_rng(seeds[2]))
+
+        # State: per plane [φ, θ, γ, φ̇, θ̇, γ̇]; yaw [ψ, ψ̇]. The torso starts upright relative to the chassis
+        # and φ = θ, so the ball-body angle (what the encoders count from power-up) starts at zero.
+        tp, tr = initial_tilt
+        self.x = [tp, tp, tp, 0.0, 0.0, 0.0, tr, tr, tr, 0.0, 0.0, 0.0, 0.0, 0.0]
+        self.position = [0.0, 0.0]
+        self.t = 0.0
+        self.tick = 0
+        self.external: list[Wrench | None] = [None, None]
+        """External wrench on the chassis at P per plane (pushes, tests)."""
+        self.external_yaw = 0.0
+        self.ball_torque = (0.0, 0.0, 0.0)
+        self.fallen: str | None = None
+        self._hip = [0.0, 0.0]
+        self._accel = (0.0,) * 6
+
+    # ------------------------------------------------------------------------------------------ dynamics
+    def _hip_torque(self, plane: int, ga: float, lean: float, lean_rate: float) -> float:
+        return self.torso[plane].hip_torque(ga, lean, lean_rate) if self.torso else 0.0
+
+    def derivative(self, x: list[float] | tuple[float, ...], tau: tuple[float, float, float]) -> list[float]:
+        """ẋ for the 14-state vector under ball torques tau = (τ_x, τ_y, τ_z) in the body frame."""
+        _, th_p, ga_p, dphi_p, dth_p, dga_p, _, th_r, ga_r, dphi_r, dth_r, dga_r, _, dyaw = x
+        if self.torso is not None:
+            u_p = self.torso[PITCH].hip_torque(ga_p, ga_p - th_p, dga_p - dth_p)
+            u_r = self.torso[ROLL].hip_torque(ga_r, ga_r - th_r, dga_r - dth_r)
+        else:
+            u_p = u_r = 0.0
+        pitch, roll = self.planes
+        if self.clamped:
+            return [
+                0.0,
+                0.0,
+                dga_p,
+                0.0,
+                0.0,
+                pitch.clamped_torso_acceleration(ga_p, u_p),
+                0.0,
+                0.0,
+                dga_r,
+                0.0,
+                0.0,
+                roll.clamped_torso_acceleration(ga_r, u_r),
+                0.0,
+                0.0,
+            ]
+        ext_p, ext_r = self.external
+        # Pitch plane turns about +y (τ_y), roll plane about +x (τ_x).
+        a_p = pitch.accelerations(th_p, ga_p, dphi_p, dth_p, dga_p, tau[1], u_p, ext_p)
+        a_r = roll.accelerations(th_r, ga_r, dphi_r, dth_r, dga_r, tau[0], u_r, ext_r)
+        return [
+            dphi_p,
+            dth_p,
+            dga_p,
+            *a_p,
+            dphi_r,
+            dth_r,
+            dga_r,
+            *a_r,
+            dyaw,
+            self._yaw_acceleration(dyaw, tau[2]),
+        ]
+
+    def _yaw_acceleration(self, rate: float, tau_z: float) -> float:
+        """I_z ψ̈ = −τ_z − f_z + M_ext, Karnopp stick-slip on the ball-body relative yaw."""
+        f = self.robot.friction
+        drive = -tau_z + self.external_yaw
+        if abs(rate) < f.stick_velocity:
+            f_stick = drive + self.yaw_inertia * rate / STICK_TIME_CONSTANT
+            fz = f_stick if abs(f_stick) <= f.yaw_stiction else math.copysign(f.yaw_coulomb, f_stick)
+        else:
+            fz = f.yaw_viscous * rate + math.copysign(f.yaw_coulomb, rate)
+        return (drive - fz) / self.yaw_inertia
+
+    def _rk4(self, tau: tuple[float, float, float]) -> None:
+        h, x = self.h, self.x
+        k1 = self.derivative(x, tau)
+        k2 = self.derivative([a + 0.5 * h * b for a, b in zip(x, k1, strict=True)], tau)
+        k3 = self.derivative([a + 0.5 * h * b for a, b in zip(x, k2, strict=True)], tau)
+        k4 = self.derivative([a + h * b for a, b in zip(x, k3, strict=True)], tau)
+        h6 = h / 6.0
+        self.x = [a + h6 * (p + 2.0 * (q + r) + s) for a, p, q, r, s in zip(x, k1, k2, k3, k4, strict=True)]
+
+    # ------------------------------------------------------------------------------------------ one tick
+    def step(self) -> Truth:
+        """Advance one tick: rider decides, drives act (ZOH + lag), RK4 substeps, falls are checked."""
+        if self.torso is not None:
+            for k in (PITCH, ROLL):
+                self.torso[k].update(self.t, self.dt, self.velocity[k])
+            self.twist.update(self.t)
+        for i in range(self.sim.substeps):
+            t_end = self.t + (i + 1) * self.h
+            motor = self.drives.advance(self.h, t_end)
+            g = self._g
+            self.ball_torque = tau = tuple(
+                g[0][j] * motor[0] + g[1][j] * motor[1] + g[2][j] * motor[2] for j in range(3)
+            )
+            v0 = self.velocity
+            yaw0 = self.x[12]
+            self._rk4(tau)  # type: ignore[arg-type]
+            v1 = self.velocity
+            yaw = 0.5 * (yaw0 + self.x[12])
+            vf, vl = 0.5 * (v0[0] + v1[0]), 0.5 * (v0[1] + v1[1])
+            self.position[0] += self.h * (vf * math.cos(yaw) - vl * math.sin(yaw))
+            self.position[1] += self.h * (vf * math.sin(yaw) + vl * math.cos(yaw))
+        self.tick += 1
+        self.t = self.tick * self.dt
+        self._update_accelerations()
+        self._check_fall()
+        return self.truth()
+
+    @property
+    def velocity(self) -> tuple[float, float]:
+        """Ground speed in the heading frame (forward, left): the roll plane's forward is −y."""
+        r = self.robot.ball.radius
+        return r * self.x[3], -r * self.x[9]
+
+    def _update_accelerations(self) -> None:
+        d = self.derivative(self.x, self.ball_torque)  # type: ignore[arg-type]
+        self._accel = (d[3], d[4], d[5], d[9], d[10], d[11])
+        for k in (PITCH, ROLL):
+            o = 6 * k
+            _, th, ga, _, dth, dga = self.x[o : o + 6]
+            self._hip[k] = self._hip_torque(k, ga, ga - th, dga - dth)
+
+    def _check_fall(self) -> None:
+        if self.fallen is not None:
+            return
+        if max(abs(self.x[1]), abs(self.x[7])) > self.sim.fall_tilt:
+            self.fallen = f"tilt beyond {self.sim.fall_tilt_deg:g} deg at t={self.t:.3f} s"
+        elif abs(self.position[0]) > self.sim.floor_half_x or abs(self.position[1]) > self.sim.floor_half_y:
+            self.fallen = f"left the floor envelope at t={self.t:.3f} s"
+
+    # ------------------------------------------------------------------------------------------- outputs
+    def relative_ball_rotation(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """(angle, rate) of the ball relative to the body, body frame: [φ_x − θ_x, φ_y − θ_y, −ψ]."""
+        x = self.x
+        angle = (x[6] - x[7], x[0] - x[1], -x[12])
+        rate = (x[9] - x[10], x[3] - x[4], -x[13])
+        return angle, rate
+
+    def motor_angles_and_rates(self) -> tuple[list[float], list[float]]:
+        angle, rate = self.relative_ball_rotation()
+        g = self._g
+        return (
+            [g[i][0] * angle[0] + g[i][1] * angle[1] + g[i][2] * angle[2] for i in range(3)],
+            [g[i][0] * rate[0] + g[i][1] * rate[1] + g[i][2] * rate[2] for i in range(3)],
+        )
+
+    def sample_drives(self) -> tuple[DriveFeedback, DriveFeedback, DriveFeedback]:
+        angles, rates = self.motor_angles_and_rates()
+        return self.feedback_model.sample(angles, rates, self.drives.torques)
+
+    def imu_truth(
+        self,
+    ) -> tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]:
+        """True (attitude, body rate, body specific force) at the IMU (physics.md §7.1, per plane)."""
+        x, a, r, h = self.x, self._accel, self.robot.ball.radius, self.robot.body.imu_height
+        acc = []
+        for k in (PITCH, ROLL):
+            th, dth = x[6 * k + 1], x[6 * k + 4]
+            ddphi, ddth = a[3 * k], a[3 * k + 1]
+            st, ct = math.sin(th), math.cos(th)
+            acc.append((r * ddphi + h * (ct * ddth - st * dth * dth), -h * (st * ddth + ct * dth * dth)))
+        fx, fy, fz = acc[PITCH][0], -acc[ROLL][0], acc[PITCH][1] + acc[ROLL][1] + G0
+        pitch, roll = x[1], x[7]
+        # Body = (Ry(pitch) Rx(roll))ᵀ world.
+        sp, cp, sr, cr = math.sin(pitch), math.cos(pitch), math.sin(roll), math.cos(roll)
+        wx, wy, wz = cp * fx - sp * fz, fy, sp * fx + cp * fz
+        body = (wx, cr * wy + sr * wz, -sr * wy + cr * wz)
+        return (roll, pitch, x[12]), (x[10], x[4], x[13]), body
+
+    def sample_imu(self) -> ImuSample:
+        return self.imu_model.sample(*self.imu_truth())
+
+    def seat_wrench(self) -> tuple[float, float, float, float, float, float]:
+        """True wrench of the rider on the seat at P, body axes: torso load of both planes + the thighs."""
+        if self.seated is None:
+            return (0.0,) * 6
+        loads = []
+        for k in (PITCH, ROLL):
+            o = 6 * k
+            _, th, ga, _, dth, dga = self.x[o : o + 6]
+            ddphi, ddth, ddga = self._accel[3 * k : 3 * k + 3]
+            loads.append(self.planes[k].torso_load(th, ga, dth, dga, ddphi, ddth, ddga, self._hip[k]))
+        (fp, up_p, mp), (fr, up_r, mr) = loads
+        # Both planes carry the torso's weight; the roll plane adds only its departure from it.
+        fx, fy, fz = fp, -fr, up_p + up_r + self.seated.hat.mass * G0
+        mx, my = mr, mp
+        pitch, roll = self.x[1], self.x[7]
+        sp, cp, sr, cr = math.sin(pitch), math.cos(pitch), math.sin(roll), math.cos(roll)
+        gx, gy, gz = G0 * sp, -G0 * cp * sr, -G0 * cp * cr  # (Ry Rx)ᵀ (0, 0, −g)
+        h_p = self.robot.body.top_height
+        for s in self.seated.thighs:
+            f = (s.mass * gx, s.mass * gy, s.mass * gz)
+            rx, ry, rz = s.x, s.y, s.z - h_p
+            fx, fy, fz = fx + f[0], fy + f[1], fz + f[2]
+            mx += ry * f[2] - rz * f[1]
+            my += rz * f[0] - rx * f[2]
+        mz = self.twist.torque if self.twist else 0.0
+        return fx, fy, fz, mx, my, mz
+
+    def sample_tes(self) -> TesSample:
+        return self.tes_model.sample(self.seat_wrench())
+
+    def truth(self) -> Truth:
+        x = self.x
+        return Truth(
+            t=self.t,
+            tilt=(x[1], x[7]),
+            tilt_rate=(x[4], x[10]),
+            ball_angle=(x[0], x[6]),
+            ball_rate=(x[3], x[9]),
+            lean=((x[2] - x[1], x[8] - x[7]) if self.seated else (0.0, 0.0)),
+            velocity=self.velocity,
+            position=(self.position[0], self.position[1]),
+            yaw=x[12],
+            yaw_rate=x[13],
+            motor_torque=self.drives.torques,
+            hip_torque=(self._hip[0], self._hip[1]),
+            seat_wrench=self.seat_wrench(),
+            fallen=self.fallen,
+        )
+
+    def energy(self) -> float:
+        """Mechanical energy of both planes and yaw (J); conserved without torques and friction."""
+        x = self.x
+        e = sum(
+            self.planes[k].energy(tuple(x[6 * k : 6 * k + 3]), tuple(x[6 * k + 3 : 6 * k + 6]))  # type: ignore[arg-type]
+            for k in (PITCH, ROLL)
+        )
+        return e + 0.5 * self.yaw_inertia * x[13] ** 2

@@ -1,0 +1,84 @@
+"""Motor drives: torque command -> current-loop lag -> torque limit, with enable and a command watchdog.
+
+Time comes in as an argument (the plant has no clock). Torques are at the motor shaft, in Nm; the gear
+ratio and direction live in the omniwheel map.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import IntEnum
+
+from plant.params import Drive
+
+
+class DriveState(IntEnum):
+    DISABLED = 0
+    ENABLED = 1
+    WATCHDOG = 2
+    """Disabled by the drive itself because commands stopped arriving; a fresh command re-arms it."""
+
+
+@dataclass(slots=True)
+class MotorDrive:
+    params: Drive
+    command: float = 0.0
+    torque: float = 0.0
+    """Torque the motor produces now (after lag and limit), Nm."""
+    state: DriveState = DriveState.DISABLED
+    last_command_time: float = -math.inf
+
+    def set_command(self, torque: float, enable: bool, now: float) -> None:
+        """A command frame arrived: store the setpoint and feed the watchdog."""
+        if not math.isfinite(torque):
+            torque = 0.0
+            enable = False
+        self.command = torque
+        self.last_command_time = now
+        self.state = DriveState.ENABLED if enable else DriveState.DISABLED
+
+    def advance(self, dt: float, now: float) -> float:
+        """Advance the current loop by dt ending at `now`; returns the torque held over the interval."""
+        if self.state is DriveState.ENABLED and now - self.last_command_time > self.params.watchdog_timeout:
+            self.state = DriveState.WATCHDOG
+        if self.state is not DriveState.ENABLED:
+            # Power stage off: no torque, at once.
+            self.torque = 0.0
+            return 0.0
+        limit = self.params.torque_limit
+        target = min(max(self.command, -limit), limit)
+        start = self.torque
+        decay = math.exp(-dt / self.params.current_loop_tau)
+        self.torque = target + (start - target) * decay
+        # Mean of the exponential over the interval: the torque the mechanics feel during dt.
+        return target + (start - target) * (1.0 - decay) * self.params.current_loop_tau / dt
+
+    def force_off(self) -> None:
+        """Drives lost their permission to run (e-stop asserted or supervisor silent)."""
+        self.state = DriveState.DISABLED
+        self.torque = 0.0
+
+
+class DriveArray:
+    """The three drives of the robot."""
+
+    def __init__(self, params: Drive):
+        self.motors = tuple(MotorDrive(params) for _ in range(3))
+
+    def set_commands(self, torques: tuple[float, float, float], enable: bool, now: float) -> None:
+        for m, t in zip(self.motors, torques, strict=True):
+            m.set_command(t, enable, now)
+
+    def advance(self, dt: float, now: float) -> tuple[float, float, float]:
+        a, b, c = self.motors
+        return a.advance(dt, now), b.advance(dt, now), c.advance(dt, now)
+
+    def force_off(self) -> None:
+        for m in self.motors:
+            m.force_off()
+
+    @property
+    def torques(self) -> tuple[float, float, float]:
+        a, b, c = self.motors
+        return a.torque, b.torque, c.torque

@@ -1,0 +1,213 @@
+"""Typed parameter records of the plant: robot, rider and simulation settings.
+
+Plain msgspec Structs (data only, no I/O): the rig decodes them from TOML under `configs/`, tests build
+them in code. Every field is SI unless its name says otherwise (`_deg`, `_hz`). Sources and estimates
+for the defaults are in `docs/plant.md` and `../shared/physics.md` §6.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Literal
+
+import msgspec
+
+Positive = Annotated[float, msgspec.Meta(gt=0)]
+NonNegative = Annotated[float, msgspec.Meta(ge=0)]
+Sign = Literal[-1, 1]
+
+
+class _Record(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """Immutable, strict record: an unknown key in a config file is a typo, not an extension."""
+
+
+# --------------------------------------------------------------------------------------------- robot
+class Ball(_Record):
+    radius: Positive = 0.1145
+    """r_K, m."""
+    mass: Positive = 3.6
+    """m_K, kg."""
+    inertia: Positive = 0.047
+    """Θ_K about the ball centre, kg m²."""
+
+
+class Body(_Record):
+    """Everything above the ball that is not the rider: chassis, drivetrain, seat, TES, battery, footrest."""
+
+    mass: Positive = 30.0
+    """kg."""
+    com_height: Positive = 0.25
+    """COM above the ball centre along the body axis, m."""
+    inertia_pitch: Positive = 0.5
+    """About the COM, about body y, kg m²."""
+    inertia_roll: Positive = 0.5
+    """About the COM, about body x, kg m²."""
+    inertia_yaw: Positive = 0.3
+    """About the body axis, kg m²."""
+    top_height: Positive = 0.386
+    """h_P: point P (top centre of the chassis, TES origin) above the ball centre, m."""
+    seat_height: NonNegative = 0.03
+    """Seat surface above P, m."""
+    imu_height: NonNegative = 0.20
+    """Body IMU above the ball centre on the body axis, m."""
+
+
+class Drivetrain(_Record):
+    wheel_radius: Positive = 0.0625
+    """r_W, m."""
+    zenith_deg: Annotated[float, msgspec.Meta(gt=0, lt=90)] = 45.0
+    """α: angle between the body z axis and the ball-centre-to-contact line, deg."""
+    azimuth0_deg: float = 0.0
+    """β_0: azimuth of wheel 1 from body +x, deg; wheels follow at +120° and +240°."""
+    motor_sign: tuple[Sign, Sign, Sign] = (1, 1, 1)
+    """Per-motor direction: +1 when positive motor rotation is the positive wheel rate of the model."""
+    gear_ratio: Positive = 8.0
+    """N, motor turns per wheel turn."""
+    wheel_inertia: NonNegative = 0.0015
+    """Omniwheel inertia at the wheel shaft, kg m²."""
+    rotor_inertia: NonNegative = 1.2e-4
+    """Motor rotor inertia at the motor shaft, kg m²."""
+
+
+class Drive(_Record):
+    torque_limit: Positive = 3.75
+    """Motor-shaft torque limit, Nm (× gear ratio at the wheel)."""
+    current_loop_tau: Positive = 0.0005
+    """First-order lag of the torque (current) loop, s."""
+    watchdog_timeout: Positive = 0.02
+    """The drive disables itself when no command arrives for this long, s."""
+    torque_noise: NonNegative = 0.005
+    """1σ of the measured-torque feedback, Nm."""
+    velocity_noise: NonNegative = 0.05
+    """1σ of the motor velocity feedback, rad/s."""
+
+
+class Friction(_Record):
+    rolling_viscous: NonNegative = 0.75
+    """b_φ: ball-floor rolling resistance, Nm s/rad on φ."""
+    drivetrain_viscous: NonNegative = 0.5
+    """b_ψ: ball-equivalent drivetrain viscous friction, Nm s/rad on ψ = φ - θ."""
+    drivetrain_coulomb: NonNegative = 1.5
+    """τ_c: ball-equivalent kinetic (Coulomb) friction, Nm."""
+    drivetrain_stiction: NonNegative = 2.0
+    """τ_s: breakaway torque; ψ stays stuck while the torque needed to hold it is below this, Nm."""
+    stick_velocity: Positive = 0.01
+    """|ψ̇| below which the drivetrain may stick, rad/s (Karnopp band)."""
+    yaw_viscous: NonNegative = 0.5
+    """b_z: ball-body relative yaw viscous friction, Nm s/rad."""
+    yaw_coulomb: NonNegative = 0.5
+    """Yaw kinetic friction, Nm."""
+    yaw_stiction: NonNegative = 0.8
+    """Yaw breakaway torque, Nm."""
+
+    def __post_init__(self) -> None:
+        if self.drivetrain_stiction < self.drivetrain_coulomb:
+            raise ValueError("drivetrain_stiction must be >= drivetrain_coulomb (breakaway exceeds kinetic)")
+        if self.yaw_stiction < self.yaw_coulomb:
+            raise ValueError("yaw_stiction must be >= yaw_coulomb (breakaway exceeds kinetic)")
+
+
+class Encoder(_Record):
+    counts_per_rev: Annotated[int, msgspec.Meta(gt=0)] = 8192
+    """Quadrature counts per motor revolution."""
+    word_bits: Annotated[int, msgspec.Meta(ge=8, le=64)] = 32
+    """The count wraps as a signed integer of this width."""
+
+
+class Imu(_Record):
+    rate_hz: Positive = 400.0
+    gyro_noise_density: NonNegative = 6.1e-5
+    """rad/s/√Hz (VN-100 class)."""
+    accel_noise_density: NonNegative = 1.37e-3
+    """m/s²/√Hz (VN-100 class)."""
+    gyro_bias_sigma: NonNegative = 1e-4
+    """1σ of the turn-on gyro bias, rad/s."""
+    gyro_bias_walk: NonNegative = 1e-5
+    """Gyro bias random walk, rad/s/√s."""
+    accel_bias_sigma: NonNegative = 0.02
+    """1σ of the turn-on accelerometer bias, m/s²."""
+    accel_bias_walk: NonNegative = 5e-5
+    """Accelerometer bias random walk, m/s²/√s (m/s³/√Hz)."""
+    attitude_noise_deg: NonNegative = 0.05
+    """1σ white noise of the AHRS attitude output, deg."""
+
+
+class Tes(_Record):
+    """Force-sensing seat: six uniaxial load cells (three vertical, three tangential) under the seat plate."""
+
+    rate_hz: Positive = 400.0
+    cell_radius: Positive = 0.12
+    """Radius of the circle of load cells around P, m."""
+    cell_azimuth0_deg: float = 90.0
+    """Azimuth of the first pair of cells from body +x, deg; the others at +120°, +240°."""
+    cell_noise: NonNegative = 0.5
+    """1σ white noise per load cell, N."""
+    calibration_error: NonNegative = 0.0
+    """Relative 1σ error of each entry of the calibration matrix (0: perfect calibration)."""
+
+
+class RobotParams(_Record):
+    name: str = "PURE"
+    ball: Ball = Ball()
+    body: Body = Body()
+    drivetrain: Drivetrain = Drivetrain()
+    drive: Drive = Drive()
+    friction: Friction = Friction()
+    encoder: Encoder = Encoder()
+    imu: Imu = Imu()
+    tes: Tes = Tes()
+
+
+# --------------------------------------------------------------------------------------------- rider
+class RiderParams(_Record):
+    """A seated rider: anthropometry (Winter fractions of mass and height) and torso capability."""
+
+    name: str
+    mass: Annotated[float, msgspec.Meta(gt=20, lt=250)]
+    """Body mass, kg."""
+    height: Annotated[float, msgspec.Meta(gt=1.0, lt=2.3)]
+    """Standing height, m."""
+    max_lean_deg: Annotated[float, msgspec.Meta(gt=0, le=60)] = 30.0
+    """Largest torso lean relative to the chassis the rider can reach, deg (fore-aft and sideways)."""
+    max_hip_torque: Positive = 150.0
+    """Largest hip torque the rider can produce on the torso, Nm."""
+    max_twist_torque: NonNegative = 20.0
+    """Largest twisting moment the rider can put on the seat, Nm."""
+    max_lean_rate_deg: Positive = 40.0
+    """Fastest change of the intended lean, deg/s."""
+    trunk_stiffness: Positive = 800.0
+    """Proportional gain of the rider's lean control, Nm/rad."""
+    trunk_damping: Positive = 120.0
+    """Derivative gain of the rider's lean control, Nm s/rad."""
+    hip_x: float | None = None
+    """Hip joint along body x from the ball axis, m; None places the seat so that the upright
+    rider + robot COM lies over the ball."""
+    hip_half_width: Positive = 0.085
+    """Half the distance between the hip joint centres, m."""
+    notes: str = ""
+
+
+# ----------------------------------------------------------------------------------------------- sim
+class SimParams(_Record):
+    tick_hz: Positive = 400.0
+    """Bus tick: rate of sensor frames and SYNC."""
+    substeps: Annotated[int, msgspec.Meta(ge=1, le=100)] = 1
+    """Fixed RK4 steps per tick (internal rate = tick_hz × substeps). One step at 400 Hz already agrees
+    with eight to ~1e-5 on task metrics (tests/test_plant_dynamics.py::test_rk4_converges)."""
+    seed: int = 0
+    fixture: Literal["free", "clamped"] = "free"
+    """free: the robot rolls on the floor; clamped: chassis held upright on a stand (only the torso moves)."""
+    fall_tilt_deg: Annotated[float, msgspec.Meta(gt=0, lt=90)] = 30.0
+    """A chassis tilt beyond this in either plane is a fall."""
+    floor_half_x: Positive = 25.0
+    """The ball must stay within ±floor_half_x of the start along world x, m."""
+    floor_half_y: Positive = 25.0
+    """... and within ±floor_half_y along world y, m."""
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.tick_hz
+
+    @property
+    def fall_tilt(self) -> float:
+        return math.radians(self.fall_tilt_deg)

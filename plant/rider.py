@@ -1,0 +1,137 @@
+"""The rider's intent and torso control: lean/twist profiles, the adversarial policy, and a bounded PD.
+
+A profile is a sequence of segments (ramp, hold, step, sine, adversarial) played from t = 0; after the last
+segment the final value holds. Lean values are degrees of torso lean relative to the chassis (positive:
+forward in the pitch plane, toward −y in the roll plane); twist values are the twisting moment on the
+seat in Nm (positive: about +z). The rider cannot exceed their capability (RiderParams): lean targets are
+clipped to ±max_lean and change no faster than max_lean_rate; hip torque saturates at max_hip_torque.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Literal
+
+import msgspec
+
+from plant.params import RiderParams
+
+_Positive = Annotated[float, msgspec.Meta(gt=0)]
+
+
+class _Segment(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True, tag_field="kind"):
+    pass
+
+
+class Ramp(_Segment, tag="ramp"):
+    to: float
+    duration: _Positive
+
+
+class Hold(_Segment, tag="hold"):
+    duration: _Positive
+
+
+class Step(_Segment, tag="step"):
+    to: float
+
+
+class Sine(_Segment, tag="sine"):
+    """Oscillation about the value reached so far."""
+
+    amplitude: float
+    frequency_hz: _Positive
+    duration: _Positive
+
+
+class Adversarial(_Segment, tag="adversarial"):
+    """Lean as far as the rider can in the direction the robot is moving (defeating a speed cap or idle);
+    at standstill, lean toward `direction`. Lean profiles only."""
+
+    duration: _Positive
+    direction: Literal[-1, 1] = 1
+    speed_threshold: _Positive = 0.05
+    """|speed| in m/s above which the rider follows the motion instead of `direction`."""
+
+
+Segment = Ramp | Hold | Step | Sine | Adversarial
+
+
+class Profile:
+    """A compiled segment sequence: target(t, speed) -> value, or None while adversarial."""
+
+    def __init__(self, segments: list[Segment] | tuple[Segment, ...] = ()):
+        self._spans: list[tuple[float, float, Segment, float]] = []  # (start, end, segment, start value)
+        t, value = 0.0, 0.0
+        for seg in segments:
+            if isinstance(seg, Step):
+                self._spans.append((t, t, seg, value))
+                value = seg.to
+                continue
+            end = t + seg.duration
+            self._spans.append((t, end, seg, value))
+            if isinstance(seg, Ramp):
+                value = seg.to
+            t = end
+        self.end_time = t
+        self.final_value = value
+
+    def target(self, t: float, speed: float, limit: float) -> float:
+        """The value the rider aims at, at time t; `limit` is the largest they can reach."""
+        for start, end, seg, v0 in self._spans:
+            if t >= end:
+                continue
+            # A step has start == end, so reaching here means it has not happened yet: v0 holds.
+            if isinstance(seg, Ramp):
+                return v0 + (seg.to - v0) * (t - start) / (end - start)
+            if isinstance(seg, Sine):
+                return v0 + seg.amplitude * math.sin(2.0 * math.pi * seg.frequency_hz * (t - start))
+            if isinstance(seg, Adversarial):
+                direction = math.copysign(1.0, speed) if abs(speed) > seg.speed_threshold else seg.direction
+                return direction * limit
+            return v0
+        return self.final_value
+
+
+class TorsoController:
+    """One plane of the rider: rate-limited lean command and the bounded PD that produces hip torque."""
+
+    def __init__(self, rider: RiderParams, hat_mass: float, hat_com: float, profile: Profile):
+        self.profile = profile
+        self.max_lean = math.radians(rider.max_lean_deg)
+        self.max_rate = math.radians(rider.max_lean_rate_deg)
+        self.kp, self.kd = rider.trunk_stiffness, rider.trunk_damping
+        self.max_torque = rider.max_hip_torque
+        self.gravity = 9.80665 * hat_mass * hat_com
+        self.lean_cmd = 0.0
+        self.lean_rate_cmd = 0.0
+
+    def update(self, t: float, dt: float, speed: float) -> None:
+        """Move the lean command toward the profile's target (once per tick)."""
+        target = math.radians(self.profile.target(t, speed, math.degrees(self.max_lean)))
+        target = min(max(target, -self.max_lean), self.max_lean)
+        step = min(max(target - self.lean_cmd, -self.max_rate * dt), self.max_rate * dt)
+        self.lean_cmd += step
+        self.lean_rate_cmd = step / dt
+
+    def hip_torque(self, torso_angle: float, lean: float, lean_rate: float) -> float:
+        """Hip torque on the torso: gravity compensation of the rider's own torso + PD, saturated."""
+        u = (
+            -self.gravity * math.sin(torso_angle)
+            + self.kp * (self.lean_cmd - lean)
+            + self.kd * (self.lean_rate_cmd - lean_rate)
+        )
+        return min(max(u, -self.max_torque), self.max_torque)
+
+
+class TwistController:
+    """The rider's twisting moment on the seat, from a profile, bounded by capability."""
+
+    def __init__(self, rider: RiderParams, profile: Profile):
+        self.profile = profile
+        self.max_torque = rider.max_twist_torque
+        self.torque = 0.0
+
+    def update(self, t: float) -> None:
+        target = self.profile.target(t, 0.0, self.max_torque)
+        self.torque = min(max(target, -self.max_torque), self.max_torque)

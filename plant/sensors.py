@@ -1,0 +1,155 @@
+"""Sensor models: motor encoders and drive feedback, the body IMU, and the TES force-sensing seat.
+
+Each model owns a numpy Generator (seeded by the plant) so results are reproducible for a seed. White noise
+is converted from a density to a per-sample σ as σ = ND · √(f_s / 2): the sensor band-limits to its Nyquist
+frequency. Bias random walks advance with √dt.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from plant.params import Drive, Encoder, Imu, Tes
+
+
+def counts_from_angle(angle: float, encoder: Encoder) -> int:
+    """Motor angle (rad, from power-up) -> quantised count, wrapped to a signed word like the hardware."""
+    raw = round(angle * encoder.counts_per_rev / (2.0 * math.pi))
+    half = 1 << (encoder.word_bits - 1)
+    return (raw + half) % (2 * half) - half
+
+
+@dataclass(frozen=True, slots=True)
+class DriveFeedback:
+    counts: int
+    velocity: float
+    """Motor velocity, rad/s."""
+    torque: float
+    """Measured motor torque, Nm."""
+
+
+class DriveFeedbackModel:
+    def __init__(self, encoder: Encoder, drive: Drive, rng: np.random.Generator):
+        self.encoder, self.drive, self.rng = encoder, drive, rng
+
+    def sample(self, angles, velocities, torques) -> tuple[DriveFeedback, DriveFeedback, DriveFeedback]:
+        noise = self.rng.standard_normal(6)
+        return tuple(  # type: ignore[return-value]
+            DriveFeedback(
+                counts_from_angle(angles[i], self.encoder),
+                velocities[i] + self.drive.velocity_noise * noise[i],
+                torques[i] + self.drive.torque_noise * noise[3 + i],
+            )
+            for i in range(3)
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class ImuSample:
+    attitude: tuple[float, float, float]
+    """Roll, pitch, yaw (ZYX Euler), rad."""
+    rate: tuple[float, float, float]
+    """Angular rate in the body frame, rad/s."""
+    accel: tuple[float, float, float]
+    """Specific force in the body frame, m/s² (at rest upright: (0, 0, +g))."""
+
+
+class ImuModel:
+    def __init__(self, params: Imu, rng: np.random.Generator):
+        self.p, self.rng = params, rng
+        self.gyro_bias = params.gyro_bias_sigma * rng.standard_normal(3)
+        self.accel_bias = params.accel_bias_sigma * rng.standard_normal(3)
+        band = math.sqrt(params.rate_hz / 2.0)
+        self.gyro_sigma = params.gyro_noise_density * band
+        self.accel_sigma = params.accel_noise_density * band
+        self.attitude_sigma = math.radians(params.attitude_noise_deg)
+        self.period = 1.0 / params.rate_hz
+
+    def sample(self, attitude, rate, accel) -> ImuSample:
+        """One output sample from the true attitude, body rate and body specific force."""
+        n = self.rng.standard_normal(15)
+        root_dt = math.sqrt(self.period)
+        self.gyro_bias += self.p.gyro_bias_walk * root_dt * n[9:12]
+        self.accel_bias += self.p.accel_bias_walk * root_dt * n[12:15]
+        gb, ab = self.gyro_bias, self.accel_bias
+        return ImuSample(
+            tuple(attitude[i] + self.attitude_sigma * n[i] for i in range(3)),  # type: ignore[arg-type]
+            tuple(rate[i] + gb[i] + self.gyro_sigma * n[3 + i] for i in range(3)),  # type: ignore[arg-type]
+            tuple(accel[i] + ab[i] + self.accel_sigma * n[6 + i] for i in range(3)),  # type: ignore[arg-type]
+        )
+
+
+def load_cell_geometry(tes: Tes) -> np.ndarray:
+    """A (6×6): seat wrench at P [Fx, Fy, Fz, Mx, My, Mz] = A @ cell forces.
+
+    Three vertical cells and three tangential cells share three azimuths on a circle around P; column i is
+    [n_i; p_i × n_i] for cell position p_i and measuring axis n_i.
+    """
+    cols = []
+    for axis in ("vertical", "tangential"):
+        for k in range(3):
+            a = math.radians(tes.cell_azimuth0_deg) + k * 2.0 * math.pi / 3.0
+            p = np.array([tes.cell_radius * math.cos(a), tes.cell_radius * math.sin(a), 0.0])
+            n = (
+                np.array([0.0, 0.0, 1.0])
+                if axis == "vertical"
+                else np.array([-math.sin(a), math.cos(a), 0.0])
+            )
+            cols.append(np.concatenate([n, np.cross(p, n)]))
+    return np.array(cols).T
+
+
+@dataclass(frozen=True, slots=True)
+class TesSample:
+    force: tuple[float, float, float]
+    """Force of the rider on the seat, body axes at P, N (seated upright: Fz < 0)."""
+    moment: tuple[float, float, float]
+    """Moment of the rider on the seat about P, body axes, Nm."""
+    cop: tuple[float, float]
+    """Centre of pressure on the seat surface, body x and y from P's axis, m; (0, 0) when unloaded."""
+    cells: tuple[float, float, float, float, float, float]
+    """Raw load-cell readings m, N (PURE convention: wrench = −E m)."""
+
+
+MIN_SEATED_LOAD = 20.0
+"""Below this vertical load (N) the seat is empty and the COP is undefined (reported as 0, 0)."""
+
+
+class TesModel:
+    """The force-sensing seat: true wrench -> six cell forces + noise -> calibration matrix -> wrench, COP."""
+
+    def __init__(self, params: Tes, seat_height: float, rng: np.random.Generator):
+        self.p, self.rng, self.seat_height = params, rng, seat_height
+        self.geometry = load_cell_geometry(params)
+        self.to_cells = np.linalg.inv(self.geometry)
+        error = params.calibration_error * rng.standard_normal((6, 6))
+        self.calibration = -self.geometry * (1.0 + error)
+        """E: the calibration the seat firmware applies (wrench = −E m)."""
+
+    def sample(self, wrench) -> TesSample:
+        """wrench: true [Fx, Fy, Fz, Mx, My, Mz] of the rider on the seat at P, body axes."""
+        cells = self.to_cells @ np.asarray(
+            wrench, dtype=float
+        ) + self.p.cell_noise * self.rng.standard_normal(6)
+        w = -self.calibration @ cells
+        fx, fy, fz, mx, my, mz = (float(v) for v in w)
+        return TesSample(
+            (fx, fy, fz),
+            (mx, my, mz),
+            cop(fx, fy, fz, mx, my, self.seat_height),
+            tuple(float(c) for c in cells),
+        )  # type: ignore[arg-type]
+
+
+def cop(fx: float, fy: float, fz: float, mx: float, my: float, seat_height: float) -> tuple[float, float]:
+    """Centre of pressure on the seat surface (seat_height above P) for a wrench at P, z up.
+
+    The load acts at (x, y, h): M = r × F gives Mx = y Fz − h Fy and My = h Fx − x Fz. This is the AMTI
+    formula of physics.md §1.4 written for a z-up frame with the surface above the origin.
+    """
+    if abs(fz) < MIN_SEATED_LOAD:
+        return 0.0, 0.0
+    return (seat_height * fx - my) / fz, (mx + seat_height * fy) / fz

@@ -1,0 +1,33 @@
+"""Builders shared by the plant tests."""
+
+from __future__ import annotations
+
+import math
+
+import msgspec
+
+from plant.params import Friction, RiderParams, RobotParams, SimParams
+
+NO_FRICTION = Friction(
+    rolling_viscous=0.0,
+    drivetrain_viscous=0.0,
+    drivetrain_coulomb=0.0,
+    drivetrain_stiction=0.0,
+    yaw_viscous=0.0,
+    yaw_coulomb=0.0,
+    yaw_stiction=0.0,
+)
+RIDER_75 = RiderParams(name="winter_75kg_175", mass=75.0, height=1.75)
+"""The worked example of physics.md §5.2 / §6.1."""
+
+
+def robot(**sections) -> RobotParams:
+    return msgspec.structs.replace(RobotParams(), **sections)
+
+
+def sim(**fields) -> SimParams:
+    return msgspec.structs.replace(SimParams(), **fields)
+
+
+def deg(x: float) -> float:
+    return math.radians(x)
