@@ -61,7 +61,8 @@ def run_plant(
     truth = plant.truth()
     for _ in range(ticks):
         balancer.drive()
-        truth = plant.step()
+        plant.step()
+        truth = plant.truth()
         plant.sample_drives()
         plant.sample_imu()
         tes = plant.sample_tes()

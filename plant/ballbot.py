@@ -99,7 +99,7 @@ class Truth:
 
 
 class Plant:
-    """PURE ballbot + rider. Call `drives.set_commands(...)`, then `step()` once per tick, then sample."""
+    """PURE ballbot + rider. Per tick: `drives.set_commands(...)`, `step()`, then sample or read `truth()`."""
 
     def __init__(
         self,
@@ -153,56 +153,10 @@ class Plant:
         self.external_yaw = 0.0
         self.ball_torque = (0.0, 0.0, 0.0)
         self.fallen: str | None = None
-        self._hip = [0.0, 0.0]
-        self._accel = (0.0,) * 6
+        self._outputs_tick = -1
+        self._accel_cache: tuple[tuple[float, ...], tuple[float, float]] = ((0.0,) * 6, (0.0, 0.0))
 
     # ------------------------------------------------------------------------------------------ dynamics
-    def _hip_torque(self, plane: int, ga: float, lean: float, lean_rate: float) -> float:
-        return self.torso[plane].hip_torque(ga, lean, lean_rate) if self.torso else 0.0
-
-    def derivative(self, x: list[float] | tuple[float, ...], tau: tuple[float, float, float]) -> list[float]:
-        """ẋ for the 14-state vector under ball torques tau = (τ_x, τ_y, τ_z) in the body frame."""
-        _, th_p, ga_p, dphi_p, dth_p, dga_p, _, th_r, ga_r, dphi_r, dth_r, dga_r, _, dyaw = x
-        if self.torso is not None:
-            u_p = self.torso[PITCH].hip_torque(ga_p, ga_p - th_p, dga_p - dth_p)
-            u_r = self.torso[ROLL].hip_torque(ga_r, ga_r - th_r, dga_r - dth_r)
-        else:
-            u_p = u_r = 0.0
-        pitch, roll = self.planes
-        if self.clamped:
-            return [
-                0.0,
-                0.0,
-                dga_p,
-                0.0,
-                0.0,
-                pitch.clamped_torso_acceleration(ga_p, u_p),
-                0.0,
-                0.0,
-                dga_r,
-                0.0,
-                0.0,
-                roll.clamped_torso_acceleration(ga_r, u_r),
-                0.0,
-                0.0,
-            ]
-        ext_p, ext_r = self.external
-        # Pitch plane turns about +y (τ_y), roll plane about +x (τ_x).
-        a_p = pitch.accelerations(th_p, ga_p, dphi_p, dth_p, dga_p, tau[1], u_p, ext_p)
-        a_r = roll.accelerations(th_r, ga_r, dphi_r, dth_r, dga_r, tau[0], u_r, ext_r)
-        return [
-            dphi_p,
-            dth_p,
-            dga_p,
-            *a_p,
-            dphi_r,
-            dth_r,
-            dga_r,
-            *a_r,
-            dyaw,
-            self._yaw_acceleration(dyaw, tau[2]),
-        ]
-
     def _yaw_acceleration(self, rate: float, tau_z: float) -> float:
         """I_z ψ̈ = −τ_z − f_z + M_ext, Karnopp stick-slip on the ball-body relative yaw."""
         f = self.robot.friction
@@ -214,56 +168,78 @@ class Plant:
             fz = f.yaw_viscous * rate + math.copysign(f.yaw_coulomb, rate)
         return (drive - fz) / self.yaw_inertia
 
-    def _rk4(self, tau: tuple[float, float, float]) -> None:
-        h, x = self.h, self.x
-        k1 = self.derivative(x, tau)
-        k2 = self.derivative([a + 0.5 * h * b for a, b in zip(x, k1, strict=True)], tau)
-        k3 = self.derivative([a + 0.5 * h * b for a, b in zip(x, k2, strict=True)], tau)
-        k4 = self.derivative([a + h * b for a, b in zip(x, k3, strict=True)], tau)
-        h6 = h / 6.0
-        self.x = [a + h6 * (p + 2.0 * (q + r) + s) for a, p, q, r, s in zip(x, k1, k2, k3, k4, strict=True)]
+    def _yaw_rk4(self, yaw: float, rate: float, h: float, tau_z: float) -> tuple[float, float]:
+        f = self._yaw_acceleration
+        hh = 0.5 * h
+        k1 = f(rate, tau_z)
+        k2 = f(rate + hh * k1, tau_z)
+        k3 = f(rate + hh * k2, tau_z)
+        k4 = f(rate + h * k3, tau_z)
+        yaw += h / 6.0 * (rate + 2.0 * (rate + hh * k1) + 2.0 * (rate + hh * k2) + (rate + h * k3))
+        return yaw, rate + h / 6.0 * (k1 + 2.0 * (k2 + k3) + k4)
+
+    def _hip_policies(self):
+        if self.torso is None:
+            return None, None
+        return self.torso[PITCH].hip_torque, self.torso[ROLL].hip_torque
 
     # ------------------------------------------------------------------------------------------ one tick
-    def step(self) -> Truth:
-        """Advance one tick: rider decides, drives act (ZOH + lag), RK4 substeps, falls are checked."""
+    def step(self) -> None:
+        """Advance one tick: the rider decides, drives act (ZOH + current lag), RK4 substeps, fall check."""
         if self.torso is not None:
             for k in (PITCH, ROLL):
                 self.torso[k].update(self.t, self.dt, self.velocity[k])
             self.twist.update(self.t)
+        hip_pitch, hip_roll = self._hip_policies()
+        pitch, roll = self.planes
+        g, h, x = self._g, self.h, self.x
         for i in range(self.sim.substeps):
-            t_end = self.t + (i + 1) * self.h
-            motor = self.drives.advance(self.h, t_end)
-            g = self._g
-            self.ball_torque = tau = tuple(
-                g[0][j] * motor[0] + g[1][j] * motor[1] + g[2][j] * motor[2] for j in range(3)
+            motor = self.drives.advance(h, self.t + (i + 1) * h)
+            self.ball_torque = tau = (
+                g[0][0] * motor[0] + g[1][0] * motor[1] + g[2][0] * motor[2],
+                g[0][1] * motor[0] + g[1][1] * motor[1] + g[2][1] * motor[2],
+                g[0][2] * motor[0] + g[1][2] * motor[1] + g[2][2] * motor[2],
             )
-            v0 = self.velocity
-            yaw0 = self.x[12]
-            self._rk4(tau)  # type: ignore[arg-type]
-            v1 = self.velocity
-            yaw = 0.5 * (yaw0 + self.x[12])
+            v0, yaw0 = self.velocity, x[12]
+            if self.clamped:
+                x[0:6] = pitch.rk4_step_clamped(x[0:6], h, hip_pitch)
+                x[6:12] = roll.rk4_step_clamped(x[6:12], h, hip_roll)
+            else:
+                # Pitch plane turns about +y (τ_y), roll plane about +x (τ_x).
+                x[0:6] = pitch.rk4_step(x[0:6], h, tau[1], hip_pitch, self.external[PITCH])
+                x[6:12] = roll.rk4_step(x[6:12], h, tau[0], hip_roll, self.external[ROLL])
+                x[12], x[13] = self._yaw_rk4(x[12], x[13], h, tau[2])
+            v1, yaw = self.velocity, 0.5 * (yaw0 + x[12])
             vf, vl = 0.5 * (v0[0] + v1[0]), 0.5 * (v0[1] + v1[1])
-            self.position[0] += self.h * (vf * math.cos(yaw) - vl * math.sin(yaw))
-            self.position[1] += self.h * (vf * math.sin(yaw) + vl * math.cos(yaw))
+            self.position[0] += h * (vf * math.cos(yaw) - vl * math.sin(yaw))
+            self.position[1] += h * (vf * math.sin(yaw) + vl * math.cos(yaw))
         self.tick += 1
         self.t = self.tick * self.dt
-        self._update_accelerations()
+        self._outputs_tick = -1
         self._check_fall()
-        return self.truth()
+
+    def _outputs(self) -> tuple[tuple[float, ...], tuple[float, float]]:
+        """Accelerations (pitch φ̈ θ̈ γ̈, roll φ̈ θ̈ γ̈) and hip torques at the current state, once per tick."""
+        if self._outputs_tick != self.tick:
+            accel, hips = [], []
+            for k, policy in zip((PITCH, ROLL), self._hip_policies(), strict=True):
+                _, th, ga, dphi, dth, dga = self.x[6 * k : 6 * k + 6]
+                u = policy(ga, ga - th, dga - dth) if policy else 0.0
+                if self.clamped:
+                    accel += [0.0, 0.0, self.planes[k].clamped_torso_acceleration(ga, u)]
+                else:
+                    tau = self.ball_torque[1 - k]
+                    accel += self.planes[k].accelerations(th, ga, dphi, dth, dga, tau, u, self.external[k])
+                hips.append(u)
+            self._accel_cache = (tuple(accel), (hips[0], hips[1]))
+            self._outputs_tick = self.tick
+        return self._accel_cache
 
     @property
     def velocity(self) -> tuple[float, float]:
         """Ground speed in the heading frame (forward, left): the roll plane's forward is −y."""
         r = self.robot.ball.radius
         return r * self.x[3], -r * self.x[9]
-
-    def _update_accelerations(self) -> None:
-        d = self.derivative(self.x, self.ball_torque)  # type: ignore[arg-type]
-        self._accel = (d[3], d[4], d[5], d[9], d[10], d[11])
-        for k in (PITCH, ROLL):
-            o = 6 * k
-            _, th, ga, _, dth, dga = self.x[o : o + 6]
-            self._hip[k] = self._hip_torque(k, ga, ga - th, dga - dth)
 
     def _check_fall(self) -> None:
         if self.fallen is not None:
@@ -297,7 +273,8 @@ class Plant:
         self,
     ) -> tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]:
         """True (attitude, body rate, body specific force) at the IMU (physics.md §7.1, per plane)."""
-        x, a, r, h = self.x, self._accel, self.robot.ball.radius, self.robot.body.imu_height
+        x, r, h = self.x, self.robot.ball.radius, self.robot.body.imu_height
+        a, _ = self._outputs()
         acc = []
         for k in (PITCH, ROLL):
             th, dth = x[6 * k + 1], x[6 * k + 4]
@@ -319,12 +296,12 @@ class Plant:
         """True wrench of the rider on the seat at P, body axes: torso load of both planes + the thighs."""
         if self.seated is None:
             return (0.0,) * 6
+        accel, hips = self._outputs()
         loads = []
         for k in (PITCH, ROLL):
-            o = 6 * k
-            _, th, ga, _, dth, dga = self.x[o : o + 6]
-            ddphi, ddth, ddga = self._accel[3 * k : 3 * k + 3]
-            loads.append(self.planes[k].torso_load(th, ga, dth, dga, ddphi, ddth, ddga, self._hip[k]))
+            _, th, ga, _, dth, dga = self.x[6 * k : 6 * k + 6]
+            ddphi, ddth, ddga = accel[3 * k : 3 * k + 3]
+            loads.append(self.planes[k].torso_load(th, ga, dth, dga, ddphi, ddth, ddga, hips[k]))
         (fp, up_p, mp), (fr, up_r, mr) = loads
         # Both planes carry the torso's weight; the roll plane adds only its departure from it.
         fx, fy, fz = fp, -fr, up_p + up_r + self.seated.hat.mass * G0
@@ -359,7 +336,7 @@ class Plant:
             yaw=x[12],
             yaw_rate=x[13],
             motor_torque=self.drives.torques,
-            hip_torque=(self._hip[0], self._hip[1]),
+            hip_torque=self._outputs()[1],
             seat_wrench=self.seat_wrench(),
             fallen=self.fallen,
         )

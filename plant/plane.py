@@ -74,8 +74,8 @@ class Wrench:
     moment: float = 0.0
 
 
-HipTorque = Callable[[float, float], float]
-"""Rider policy: (lean, lean rate) -> hip torque on the torso, where lean = γ − θ."""
+HipPolicy = Callable[[float, float, float], float]
+"""Rider policy: (torso angle γ, lean γ − θ, lean rate) -> hip torque on the torso."""
 
 
 class PlaneDynamics:
@@ -176,6 +176,62 @@ class PlaneDynamics:
             ddth,
             i13 * r1 + i23 * r2 + i33 * r3 if self.has_torso else ddth,
         )
+
+    def rk4_step(
+        self, s: list[float], h: float, tau: float, hip: HipPolicy | None, ext: Wrench | None
+    ) -> list[float]:
+        """One RK4 step of [φ, θ, γ, φ̇, θ̇, γ̇] under a held drive torque; hip(γ, lean, lean rate) -> u_h."""
+        acc = self.accelerations
+        phi, th, ga, dphi, dth, dga = s
+        hh = 0.5 * h
+        u = hip(ga, ga - th, dga - dth) if hip else 0.0
+        a1, b1, c1 = acc(th, ga, dphi, dth, dga, tau, u, ext)
+        th2, ga2, dphi2, dth2, dga2 = (
+            th + hh * dth,
+            ga + hh * dga,
+            dphi + hh * a1,
+            dth + hh * b1,
+            dga + hh * c1,
+        )
+        u = hip(ga2, ga2 - th2, dga2 - dth2) if hip else 0.0
+        a2, b2, c2 = acc(th2, ga2, dphi2, dth2, dga2, tau, u, ext)
+        th3, ga3, dphi3, dth3, dga3 = (
+            th + hh * dth2,
+            ga + hh * dga2,
+            dphi + hh * a2,
+            dth + hh * b2,
+            dga + hh * c2,
+        )
+        u = hip(ga3, ga3 - th3, dga3 - dth3) if hip else 0.0
+        a3, b3, c3 = acc(th3, ga3, dphi3, dth3, dga3, tau, u, ext)
+        th4, ga4, dphi4, dth4, dga4 = th + h * dth3, ga + h * dga3, dphi + h * a3, dth + h * b3, dga + h * c3
+        u = hip(ga4, ga4 - th4, dga4 - dth4) if hip else 0.0
+        a4, b4, c4 = acc(th4, ga4, dphi4, dth4, dga4, tau, u, ext)
+        h6 = h / 6.0
+        return [
+            phi + h6 * (dphi + 2.0 * (dphi2 + dphi3) + dphi4),
+            th + h6 * (dth + 2.0 * (dth2 + dth3) + dth4),
+            ga + h6 * (dga + 2.0 * (dga2 + dga3) + dga4),
+            dphi + h6 * (a1 + 2.0 * (a2 + a3) + a4),
+            dth + h6 * (b1 + 2.0 * (b2 + b3) + b4),
+            dga + h6 * (c1 + 2.0 * (c2 + c3) + c4),
+        ]
+
+    def rk4_step_clamped(self, s: list[float], h: float, hip: HipPolicy | None) -> list[float]:
+        """RK4 of the torso alone with the chassis held upright and still (the `clamped` fixture)."""
+        phi, th, ga, _, _, dga = s
+        hh = 0.5 * h
+
+        def f(g, dg):
+            return self.clamped_torso_acceleration(g, hip(g, g - th, dg) if hip else 0.0)
+
+        c1 = f(ga, dga)
+        c2 = f(ga + hh * dga, dga + hh * c1)
+        c3 = f(ga + hh * (dga + hh * c1), dga + hh * c2)
+        c4 = f(ga + h * (dga + hh * c2), dga + h * c3)
+        h6 = h / 6.0
+        ga_next = ga + h6 * (dga + 2.0 * ((dga + hh * c1) + (dga + hh * c2)) + (dga + h * c3))
+        return [phi, th, ga_next, 0.0, 0.0, dga + h6 * (c1 + 2.0 * (c2 + c3) + c4)]
 
     def clamped_torso_acceleration(self, ga: float, u_hip: float) -> float:
         """γ̈ with the chassis held upright and still (the `clamped` fixture): only the torso moves."""

@@ -15,6 +15,23 @@ import numpy as np
 from plant.params import Drive, Encoder, Imu, Tes
 
 
+class NoiseStream:
+    """Standard normal draws as Python floats, generated in blocks (one numpy call per block)."""
+
+    def __init__(self, rng: np.random.Generator, width: int, block: int = 1024):
+        self.rng, self.width, self.block = rng, width, block
+        self._rows: list[list[float]] = []
+        self._next = 0
+
+    def draw(self) -> list[float]:
+        if self._next == len(self._rows):
+            self._rows = self.rng.standard_normal((self.block, self.width)).tolist()
+            self._next = 0
+        row = self._rows[self._next]
+        self._next += 1
+        return row
+
+
 def counts_from_angle(angle: float, encoder: Encoder) -> int:
     """Motor angle (rad, from power-up) -> quantised count, wrapped to a signed word like the hardware."""
     raw = round(angle * encoder.counts_per_rev / (2.0 * math.pi))
@@ -33,15 +50,17 @@ class DriveFeedback:
 
 class DriveFeedbackModel:
     def __init__(self, encoder: Encoder, drive: Drive, rng: np.random.Generator):
-        self.encoder, self.drive, self.rng = encoder, drive, rng
+        self.encoder, self.drive = encoder, drive
+        self.noise = NoiseStream(rng, 6)
 
     def sample(self, angles, velocities, torques) -> tuple[DriveFeedback, DriveFeedback, DriveFeedback]:
-        noise = self.rng.standard_normal(6)
+        n = self.noise.draw()
+        sv, st = self.drive.velocity_noise, self.drive.torque_noise
         return tuple(  # type: ignore[return-value]
             DriveFeedback(
                 counts_from_angle(angles[i], self.encoder),
-                velocities[i] + self.drive.velocity_noise * noise[i],
-                torques[i] + self.drive.torque_noise * noise[3 + i],
+                velocities[i] + sv * n[i],
+                torques[i] + st * n[3 + i],
             )
             for i in range(3)
         )
@@ -59,26 +78,30 @@ class ImuSample:
 
 class ImuModel:
     def __init__(self, params: Imu, rng: np.random.Generator):
-        self.p, self.rng = params, rng
-        self.gyro_bias = params.gyro_bias_sigma * rng.standard_normal(3)
-        self.accel_bias = params.accel_bias_sigma * rng.standard_normal(3)
+        self.p = params
+        self.gyro_bias = (params.gyro_bias_sigma * rng.standard_normal(3)).tolist()
+        self.accel_bias = (params.accel_bias_sigma * rng.standard_normal(3)).tolist()
+        self.noise = NoiseStream(rng, 15)
         band = math.sqrt(params.rate_hz / 2.0)
         self.gyro_sigma = params.gyro_noise_density * band
         self.accel_sigma = params.accel_noise_density * band
         self.attitude_sigma = math.radians(params.attitude_noise_deg)
-        self.period = 1.0 / params.rate_hz
+        period = 1.0 / params.rate_hz
+        self.gyro_step = params.gyro_bias_walk * math.sqrt(period)
+        self.accel_step = params.accel_bias_walk * math.sqrt(period)
 
     def sample(self, attitude, rate, accel) -> ImuSample:
         """One output sample from the true attitude, body rate and body specific force."""
-        n = self.rng.standard_normal(15)
-        root_dt = math.sqrt(self.period)
-        self.gyro_bias += self.p.gyro_bias_walk * root_dt * n[9:12]
-        self.accel_bias += self.p.accel_bias_walk * root_dt * n[12:15]
+        n = self.noise.draw()
         gb, ab = self.gyro_bias, self.accel_bias
+        for i in range(3):
+            gb[i] += self.gyro_step * n[9 + i]
+            ab[i] += self.accel_step * n[12 + i]
+        sa, sg, sf = self.attitude_sigma, self.gyro_sigma, self.accel_sigma
         return ImuSample(
-            tuple(attitude[i] + self.attitude_sigma * n[i] for i in range(3)),  # type: ignore[arg-type]
-            tuple(rate[i] + gb[i] + self.gyro_sigma * n[3 + i] for i in range(3)),  # type: ignore[arg-type]
-            tuple(accel[i] + ab[i] + self.accel_sigma * n[6 + i] for i in range(3)),  # type: ignore[arg-type]
+            (attitude[0] + sa * n[0], attitude[1] + sa * n[1], attitude[2] + sa * n[2]),
+            (rate[0] + gb[0] + sg * n[3], rate[1] + gb[1] + sg * n[4], rate[2] + gb[2] + sg * n[5]),
+            (accel[0] + ab[0] + sf * n[6], accel[1] + ab[1] + sf * n[7], accel[2] + ab[2] + sf * n[8]),
         )
 
 
@@ -122,26 +145,21 @@ class TesModel:
     """The force-sensing seat: true wrench -> six cell forces + noise -> calibration matrix -> wrench, COP."""
 
     def __init__(self, params: Tes, seat_height: float, rng: np.random.Generator):
-        self.p, self.rng, self.seat_height = params, rng, seat_height
+        self.p, self.seat_height = params, seat_height
         self.geometry = load_cell_geometry(params)
         self.to_cells = np.linalg.inv(self.geometry)
         error = params.calibration_error * rng.standard_normal((6, 6))
         self.calibration = -self.geometry * (1.0 + error)
         """E: the calibration the seat firmware applies (wrench = −E m)."""
+        self._neg_calibration = -self.calibration
+        self.noise = NoiseStream(rng, 6)
 
     def sample(self, wrench) -> TesSample:
         """wrench: true [Fx, Fy, Fz, Mx, My, Mz] of the rider on the seat at P, body axes."""
-        cells = self.to_cells @ np.asarray(
-            wrench, dtype=float
-        ) + self.p.cell_noise * self.rng.standard_normal(6)
-        w = -self.calibration @ cells
-        fx, fy, fz, mx, my, mz = (float(v) for v in w)
-        return TesSample(
-            (fx, fy, fz),
-            (mx, my, mz),
-            cop(fx, fy, fz, mx, my, self.seat_height),
-            tuple(float(c) for c in cells),
-        )  # type: ignore[arg-type]
+        cells = self.to_cells @ np.array(wrench) + self.p.cell_noise * np.array(self.noise.draw())
+        fx, fy, fz, mx, my, mz = (self._neg_calibration @ cells).tolist()
+        cop_xy = cop(fx, fy, fz, mx, my, self.seat_height)
+        return TesSample((fx, fy, fz), (mx, my, mz), cop_xy, tuple(cells.tolist()))  # type: ignore[arg-type]
 
 
 def cop(fx: float, fy: float, fz: float, mx: float, my: float, seat_height: float) -> tuple[float, float]:

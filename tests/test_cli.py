@@ -1,0 +1,33 @@
+"""The `pure-hil` command: the plant-only main job runs, reports, and fails cleanly on bad input."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+from hil.cli import main
+
+
+def test_simulate_runs_and_reports(capsys):
+    assert main(["simulate", "--duration", "3", "--lean", "10"]) == 0
+    out = capsys.readouterr().out
+    assert "balanced to the end" in out and "max |speed|" in out and "1200 ticks" in out
+
+
+def test_simulate_exits_1_when_the_robot_falls(capsys):
+    # A 40 deg initial tilt is beyond what the balancer can catch: the run fails, it does not crash.
+    assert main(["simulate", "--duration", "3", "--tilt", "40"]) == 1
+    assert "FELL: tilt beyond" in capsys.readouterr().out
+
+
+def test_bad_config_exits_2_naming_file_and_field(tmp_path, capsys):
+    bad = tmp_path / "rider.toml"
+    bad.write_text('name = "x"\nmass = 70.0\nheight = 3.5\n')
+    assert main(["simulate", "--rider", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert str(bad) in err and "$.height" in err and "< 2.3" in err
+
+
+def test_console_script_is_installed():
+    script = Path(sys.executable).with_name("pure-hil")
+    out = subprocess.run([str(script), "--help"], capture_output=True, text=True, check=True)
+    assert "simulate" in out.stdout

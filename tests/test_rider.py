@@ -1,0 +1,123 @@
+"""The rider: profiles, capability limits, the adversarial policy, and the seat wrench of a leaning torso."""
+
+import math
+
+import msgspec
+import pytest
+
+from hil.truth_balancer import TruthBalancer
+from plant.anthropometry import seat_rider
+from plant.ballbot import Plant, RiderIntent
+from plant.params import RobotParams
+from plant.rider import Adversarial, Hold, Profile, Ramp, Sine, Step
+from tests.helpers import RIDER_75, deg, sim
+
+G = 9.80665
+
+
+def test_profile_segments():
+    p = Profile(
+        [
+            Ramp(to=10.0, duration=2.0),
+            Hold(duration=1.0),
+            Step(to=-5.0),
+            Sine(amplitude=2.0, frequency_hz=0.5, duration=2.0),
+        ]
+    )
+    assert p.target(0.0, 0.0, 30.0) == 0.0
+    assert p.target(1.0, 0.0, 30.0) == pytest.approx(5.0)
+    assert p.target(2.5, 0.0, 30.0) == pytest.approx(10.0)
+    assert p.target(3.0, 0.0, 30.0) == pytest.approx(-5.0)  # the step happened at t = 3
+    assert p.target(3.5, 0.0, 30.0) == pytest.approx(-5.0 + 2.0 * math.sin(math.pi * 0.5))
+    assert p.target(10.0, 0.0, 30.0) == pytest.approx(-5.0)  # after the end the last value holds
+    assert Profile().target(3.0, 0.0, 30.0) == 0.0
+
+
+def test_adversarial_segment_follows_the_motion():
+    p = Profile([Adversarial(duration=5.0, direction=1)])
+    assert p.target(1.0, 0.0, 25.0) == 25.0  # at standstill: the preferred direction
+    assert p.target(1.0, -0.3, 25.0) == -25.0  # moving backward: lean backward to go faster
+    assert p.target(1.0, 0.02, 25.0) == 25.0  # below the threshold: still the preferred direction
+    assert p.target(6.0, -0.3, 25.0) == 0.0  # after the segment
+
+
+def held_lean(lean_deg, rider=RIDER_75, fixture="clamped", seconds=4.0):
+    intent = RiderIntent(pitch=[Ramp(to=lean_deg, duration=1.0)])
+    plant = Plant(RobotParams(), rider, sim(fixture=fixture), intent)
+    for _ in range(int(seconds * 400)):
+        plant.step()
+    return plant
+
+
+@pytest.mark.parametrize(("lean", "moment"), [(5.0, 13.7), (10.0, 27.3), (20.0, 53.8)])
+def test_forward_lean_produces_the_seat_moment_of_physics_md(lean, moment):
+    # physics.md §4.3 (75 kg / 1.75 m): τ_py ≈ m_HAT g d_HAT sin β, on top of the upright tare.
+    upright = held_lean(0.0).seat_wrench()
+    plant = held_lean(lean)
+    wrench = plant.seat_wrench()
+    assert math.degrees(plant.truth().lean[0]) == pytest.approx(lean, abs=0.01)
+    assert wrench[4] - upright[4] == pytest.approx(moment, abs=0.05)
+    hat = seat_rider(RobotParams(), RIDER_75).hat
+    assert wrench[4] - upright[4] == pytest.approx(
+        hat.mass * G * hat.com_distance * math.sin(deg(lean)), rel=1e-6
+    )
+    # Statically the seat carries the torso and thighs: Fz = −(m_HAT + 2 m_thigh) g, no shear.
+    assert wrench[2] == pytest.approx(-(0.678 + 0.2) * 75.0 * G, rel=1e-9)
+    assert abs(wrench[0]) < 1e-6 and abs(wrench[3]) < 1e-9
+
+
+def test_sideways_lean_moves_the_roll_moment():
+    intent = RiderIntent(roll=[Ramp(to=10.0, duration=1.0)])  # toward −y
+    plant = Plant(RobotParams(), RIDER_75, sim(fixture="clamped"), intent)
+    for _ in range(1600):
+        plant.step()
+    hat = seat_rider(RobotParams(), RIDER_75).hat
+    assert plant.seat_wrench()[3] == pytest.approx(
+        hat.mass * G * hat.com_distance * math.sin(deg(10.0)), rel=1e-6
+    )
+
+
+def test_lean_is_clipped_to_capability_and_rate_limited():
+    rider = msgspec.structs.replace(RIDER_75, max_lean_deg=15.0, max_lean_rate_deg=10.0)
+    intent = RiderIntent(pitch=[Step(to=40.0)])
+    plant = Plant(RobotParams(), rider, sim(fixture="clamped"), intent)
+    for _ in range(400):
+        plant.step()
+    assert math.degrees(plant.torso[0].lean_cmd) == pytest.approx(10.0, abs=0.03)  # 1 s at 10 deg/s
+    for _ in range(800):
+        plant.step()
+    assert math.degrees(plant.truth().lean[0]) == pytest.approx(15.0, abs=0.05)
+
+
+def test_hip_torque_saturates_at_capability():
+    # A rider too weak for the lean they want cannot hold it: the torso sinks past the target.
+    weak = msgspec.structs.replace(RIDER_75, max_hip_torque=30.0, max_lean_deg=40.0)
+    plant = held_lean(30.0, rider=weak, seconds=3.0)
+    assert max(abs(u) for u in plant.truth().hip_torque) == pytest.approx(30.0)
+    assert math.degrees(plant.truth().lean[0]) > 35.0
+
+
+def test_twist_is_measured_on_the_seat_within_capability():
+    rider = msgspec.structs.replace(RIDER_75, max_twist_torque=12.0)
+    intent = RiderIntent(twist=[Ramp(to=8.0, duration=0.5), Hold(duration=0.5), Step(to=-30.0)])
+    plant = Plant(RobotParams(), rider, sim(fixture="clamped"), intent)
+    for _ in range(300):
+        plant.step()
+    assert plant.seat_wrench()[5] == pytest.approx(8.0)
+    for _ in range(200):
+        plant.step()
+    assert plant.seat_wrench()[5] == pytest.approx(-12.0)
+
+
+def test_adversarial_rider_drives_a_balanced_robot():
+    # Against a balancer that holds zero speed, leaning as far as possible in the direction of motion
+    # pushes the robot along (the paper's motivation for iHACS).
+    intent = RiderIntent(pitch=[Adversarial(duration=6.0, direction=-1)])
+    plant = Plant(RobotParams(), RIDER_75, sim(), intent)
+    bal = TruthBalancer(plant)
+    for _ in range(6 * 400):
+        bal.drive()
+        plant.step()
+    assert plant.fallen is None
+    assert math.degrees(plant.truth().lean[0]) == pytest.approx(-30.0, abs=1.0)
+    assert plant.truth().velocity[0] < -0.3
