@@ -59,6 +59,7 @@ def run_plant(
     n_tes = n_imu = n_enc = 0
     ticks = round(duration * sim.tick_hz)
     truth = plant.truth()
+    tare = plant.sample_tes().moment[1]  # upright rider at rest: what a seat tare removes
     for _ in range(ticks):
         balancer.drive()
         plant.step()
@@ -70,7 +71,7 @@ def run_plant(
         max_speed = max(max_speed, math.hypot(*truth.velocity))
         max_tilt = max(max_tilt, abs(truth.tilt[0]), abs(truth.tilt[1]))
         max_lean = max(max_lean, abs(truth.lean[0]), abs(truth.lean[1]))
-        max_moment = max(max_moment, abs(tes.moment[1]))
+        max_moment = max(max_moment, abs(tes.moment[1] - tare))
         if truth.fallen:
             break
     return PlantRunSummary(
@@ -97,7 +98,7 @@ def format_summary(s: PlantRunSummary) -> str:
         ("max |speed|", f"{s.max_speed:.3f} m/s"),
         ("max |chassis tilt|", f"{s.max_tilt_deg:.2f} deg"),
         ("max |torso lean|", f"{s.max_lean_deg:.2f} deg"),
-        ("max |TES seat moment My|", f"{s.max_seat_moment:.1f} Nm"),
+        ("max |tared seat moment My|", f"{s.max_seat_moment:.1f} Nm"),
         ("distance travelled", f"{s.distance:.2f} m"),
         ("final speed", f"{s.final_speed:.3f} m/s"),
         ("sensor samples", f"{s.encoder_samples} encoder, {s.imu_samples} IMU, {s.tes_samples} TES"),
