@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import time
 
 import msgspec
 
@@ -31,3 +32,13 @@ def sim(**fields) -> SimParams:
 
 def deg(x: float) -> float:
     return math.radians(x)
+
+
+def wait_for(predicate, timeout: float = 5.0, step: float = 0.01):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(step)
+    return predicate()

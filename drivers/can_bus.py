@@ -1,0 +1,207 @@
+"""CAN buses in python-can's own terms, and a node's typed, E2E-protected view of one.
+
+`BusConfig` names a python-can interface, channel, bitrate and extra kwargs; `open_bus` hands them to
+`can.Bus`, which picks and imports the backend lazily by name. `CanNode` sends catalog messages with their
+alive counter and CRC filled in, and turns received frames into typed results, counting (never raising on)
+unknown ids, wrong lengths, error frames and E2E events. `BusRecorder` tees all traffic of a channel into a
+python-can logger (.blf, .asc, .log candump format, ... chosen by file suffix).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import can
+import msgspec
+
+from drivers.can_codec import CanCodecError, Catalog, MessageCodec
+from drivers.e2e import E2EChecker, E2EEvent, E2EProtector, E2EStatus, is_protected
+
+log = logging.getLogger(__name__)
+
+FORBIDDEN_INTERFACES = {
+    "udp_multicast": "it sends multicast UDP off this machine; use 'virtual' or 'socketcan'"
+}
+
+
+class BusConfigError(ValueError):
+    pass
+
+
+class BusConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """A bus in python-can's terms (`can.Bus(interface=..., channel=..., bitrate=..., **kwargs)`)."""
+
+    interface: str = "virtual"
+    channel: str = "pure"
+    bitrate: int = 1_000_000
+    kwargs: dict[str, Any] = {}
+    max_load: float = 0.70
+    """Refuse a tick rate whose worst-case bus load exceeds this fraction of the bitrate."""
+
+    def __post_init__(self) -> None:
+        if self.interface in FORBIDDEN_INTERFACES:
+            raise ValueError(
+                f"interface {self.interface!r} is not allowed: {FORBIDDEN_INTERFACES[self.interface]}"
+            )
+        if not 0.0 < self.max_load <= 1.0:
+            raise ValueError("max_load must be in (0, 1]")
+
+
+def parse_can_spec(spec: str, base: BusConfig | None = None) -> BusConfig:
+    """`virtual`, `virtual:NAME`, `socketcan:vcan0`, `pcan:PCAN_USBBUS1`, ... -> BusConfig."""
+    interface, _, channel = spec.partition(":")
+    if not interface:
+        raise BusConfigError(f"bad CAN spec {spec!r}: expected INTERFACE[:CHANNEL], e.g. socketcan:vcan0")
+    base = base or BusConfig()
+    try:
+        return msgspec.structs.replace(base, interface=interface, channel=channel or base.channel)
+    except ValueError as exc:
+        raise BusConfigError(f"bad CAN spec {spec!r}: {exc}") from exc
+
+
+def open_bus(config: BusConfig) -> can.BusABC:
+    return can.Bus(
+        interface=config.interface, channel=config.channel, bitrate=config.bitrate, **config.kwargs
+    )
+
+
+class Received(NamedTuple):
+    name: str
+    signals: dict[str, float | int]
+    timestamp: float
+    e2e: E2EEvent | None
+    """None for unprotected messages (SYNC)."""
+
+    @property
+    def ok(self) -> bool:
+        """Content can be trusted (unprotected, or E2E OK or LOST: a fresh frame after a gap)."""
+        return self.e2e is None or self.e2e.status in (E2EStatus.OK, E2EStatus.LOST)
+
+
+@dataclass(slots=True)
+class BusStats:
+    received: Counter[str] = field(default_factory=Counter)
+    """Frames decoded, per message."""
+    e2e: Counter[tuple[str, str]] = field(default_factory=Counter)
+    """(message, E2E status) for every status other than OK."""
+    lost_frames: Counter[str] = field(default_factory=Counter)
+    malformed: Counter[str] = field(default_factory=Counter)
+    """Undecodable frames by reason: unknown_id, wrong_length, error_frame, remote, extended_id."""
+    sent: Counter[str] = field(default_factory=Counter)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "sent": dict(self.sent),
+            "received": dict(self.received),
+            "e2e": {f"{m}:{s}": n for (m, s), n in self.e2e.items()},
+            "lost_frames": dict(self.lost_frames),
+            "malformed": dict(self.malformed),
+        }
+
+
+class CanNode:
+    """One node on a bus: typed send with E2E protection, typed receive that never raises."""
+
+    def __init__(self, bus: can.BusABC, catalog: Catalog | None = None, name: str = "node"):
+        self.bus = bus
+        self.catalog = catalog or Catalog()
+        self.name = name
+        self.stats = BusStats()
+        self._protector = E2EProtector()
+        self._checker = E2EChecker()
+        self._warned: set[tuple[str, int]] = set()
+
+    def message(self, name: str, values: dict[str, float]) -> can.Message:
+        codec = self.catalog[name]
+        raw = codec.encode_int(values)
+        if is_protected(codec):
+            payload = self._protector.seal(codec, raw)
+        else:
+            payload = raw.to_bytes(codec.length, "little")
+        return can.Message(arbitration_id=codec.frame_id, is_extended_id=False, data=payload)
+
+    def send(self, name: str, values: dict[str, float]) -> None:
+        self.bus.send(self.message(name, values))
+        self.stats.sent[name] += 1
+
+    def decode(self, msg: can.Message) -> Received | None:
+        """A received frame -> Received, or None (counted and logged) if it is not a catalog frame."""
+        if msg.is_error_frame:
+            return self._reject("error_frame", msg)
+        if msg.is_remote_frame:
+            return self._reject("remote", msg)
+        if msg.is_extended_id:
+            return self._reject("extended_id", msg)
+        codec = self.catalog.by_id(msg.arbitration_id)
+        if codec is None:
+            return self._reject("unknown_id", msg)
+        try:
+            signals = codec.decode(msg.data)
+        except CanCodecError:
+            return self._reject("wrong_length", msg)
+        event = self._check(codec, msg.data) if is_protected(codec) else None
+        self.stats.received[codec.name] += 1
+        return Received(codec.name, signals, msg.timestamp, event)
+
+    def recv(self, timeout: float | None = None) -> Received | None:
+        """The next catalog frame within `timeout` seconds (None: wait forever), else None."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            remaining = None if deadline is None else max(deadline - time.monotonic(), 0.0)
+            msg = self.bus.recv(remaining)
+            if msg is None:
+                return None
+            frame = self.decode(msg)
+            if frame is not None:
+                return frame
+            if deadline is not None and remaining == 0.0:
+                return None
+
+    def _check(self, codec: MessageCodec, data: bytes | bytearray) -> E2EEvent:
+        event = self._checker.check(codec, data)
+        if event.status is not E2EStatus.OK:
+            self.stats.e2e[(codec.name, event.status.name)] += 1
+            self.stats.lost_frames[codec.name] += event.lost
+            self._warn(f"e2e_{event.status.name}", codec.frame_id, event)
+        return event
+
+    def _reject(self, reason: str, msg: can.Message) -> None:
+        self.stats.malformed[reason] += 1
+        self._warn(reason, msg.arbitration_id, msg)
+        return None
+
+    def _warn(self, reason: str, frame_id: int, detail: object) -> None:
+        # First occurrence per (reason, id) at WARNING; a flood must not flood the log too.
+        key = (reason, frame_id)
+        level = logging.DEBUG if key in self._warned else logging.WARNING
+        self._warned.add(key)
+        log.log(level, "%s: %s on 0x%03X: %s", self.name, reason, frame_id, detail)
+
+
+class BusRecorder:
+    """Tee everything on a channel into a python-can logger, from a monitor bus of its own (like candump)."""
+
+    def __init__(self, config: BusConfig, path: Path | str):
+        self.path = Path(path)
+        self.bus = open_bus(config)
+        self.writer = can.Logger(str(self.path))
+        self.frames = 0
+        self.notifier = can.Notifier(self.bus, [self.writer, self._count], timeout=0.1)
+
+    def _count(self, _msg: can.Message) -> None:
+        self.frames += 1
+
+    def stop(self) -> None:
+        self.notifier.stop()  # also stops (flushes and closes) the writer
+        self.bus.shutdown()
+
+    def __enter__(self) -> BusRecorder:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()

@@ -1,0 +1,60 @@
+"""zenoh key expressions of the rig (DESIGN.md §5), all under one configurable prefix."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+DEFAULT_PREFIX = "pure"
+
+
+@dataclass(frozen=True, slots=True)
+class Keys:
+    prefix: str = DEFAULT_PREFIX
+
+    def __post_init__(self) -> None:
+        p = self.prefix
+        if not p or p.startswith("/") or p.endswith("/") or any(c in p for c in "*$?#"):
+            raise ValueError(f"zenoh key prefix {p!r}: expected a plain path like 'pure' or 'bench2/pure'")
+
+    @property
+    def tes_wrench(self) -> str:
+        """TesWrench: the rider's wrench on the seat, from the emulated TES."""
+        return f"{self.prefix}/tes/wrench"
+
+    @property
+    def sc_request(self) -> str:
+        """ScRequest: what a shared-controller agent asks for."""
+        return f"{self.prefix}/sc/request"
+
+    @property
+    def sc_command(self) -> str:
+        """ScCommand: what the supervisor lets through; the only SC input the controller reads."""
+        return f"{self.prefix}/sc/command"
+
+    @property
+    def safety_state(self) -> str:
+        """SafetyState: the supervisor's state on every transition and periodically."""
+        return f"{self.prefix}/safety/state"
+
+    @property
+    def safety_estop(self) -> str:
+        """EstopCommand: operator e-stop and reset."""
+        return f"{self.prefix}/safety/estop"
+
+    @property
+    def rig_telemetry(self) -> str:
+        """RigTelemetry: the rig's periodic summary of the plant's truth."""
+        return f"{self.prefix}/rig/telemetry"
+
+    @property
+    def rig_status(self) -> str:
+        """Queryable: the rig service's status."""
+        return f"{self.prefix}/rig/status"
+
+    def rig(self, name: str) -> str:
+        """Queryables and topics of the rig service's control API (start, stop, intent, ...)."""
+        return f"{self.prefix}/rig/{name}"
+
+    @property
+    def everything(self) -> str:
+        return f"{self.prefix}/**"

@@ -1,0 +1,142 @@
+"""zenoh payloads: versioned msgspec Structs, encoded as msgpack maps (field name -> value).
+
+Decodable from any language with a msgpack library: a map with the field names below, floats as float64,
+ints as integers, strings as UTF-8. Every float has bounds, which also rejects NaN and infinities.
+`decode()` never lets a msgspec exception escape: bad payloads raise `PayloadError` with a reason kind.
+
+Time stamps (`stamp`) are the producing node's clock in seconds: simulated time for payloads made inside a
+rig run (TES, supervisor), the wall clock (time.time) for operator tools.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, ClassVar, Literal, TypeVar
+
+import msgspec
+
+VERSION = 1
+
+Seq = Annotated[int, msgspec.Meta(ge=0, le=2**32 - 1, description="sequence number, +1 per message")]
+Stamp = Annotated[float, msgspec.Meta(ge=0.0, le=1e10, description="seconds")]
+Force = Annotated[float, msgspec.Meta(ge=-1e4, le=1e4, description="N")]
+Moment = Annotated[float, msgspec.Meta(ge=-2e3, le=2e3, description="Nm")]
+Metres = Annotated[float, msgspec.Meta(ge=-1.0, le=1.0, description="m")]
+Speed = Annotated[float, msgspec.Meta(ge=0.0, le=5.0, description="m/s")]
+Angle = Annotated[float, msgspec.Meta(ge=-7.0, le=7.0, description="rad")]
+Rate = Annotated[float, msgspec.Meta(ge=-100.0, le=100.0, description="rad/s or m/s")]
+Source = Annotated[str, msgspec.Meta(min_length=1, max_length=64, description="who sent it")]
+Text = Annotated[str, msgspec.Meta(max_length=200)]
+
+ScMode = Literal["free", "idle", "limit"]
+SafetyStateName = Literal["NORMAL", "LIMITING", "STOPPING", "ESTOP"]
+
+
+class Payload(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    version: int = VERSION
+    seq: Seq
+    stamp: Stamp
+
+    def __post_init__(self) -> None:
+        if self.version != VERSION:
+            raise ValueError(f"unsupported version {self.version} (this build speaks {VERSION})")
+
+
+class TesWrench(Payload, frozen=True, kw_only=True):
+    """The rider's wrench on the seat at P (chassis top centre), body axes: x forward, y left, z up.
+    A seated rider pushes down: force[2] < 0. Untared: subtract the upright tare for lean control."""
+
+    force: tuple[Force, Force, Force]
+    """N."""
+    moment: tuple[Moment, Moment, Moment]
+    """Nm, about P."""
+    cop: tuple[Metres, Metres]
+    """Centre of pressure on the seat surface, body x and y, m; (0, 0) when the seat is empty."""
+
+
+class ScRequest(Payload, frozen=True, kw_only=True):
+    """What a shared-controller agent asks for (pure/sc/request)."""
+
+    mode: ScMode
+    """free: rider in charge; idle: command speed 0 whatever the rider does; limit: clamp to speed_cap."""
+    speed_cap: Speed = 0.0
+    """m/s; used in `limit` mode."""
+    source: Source
+
+
+class ScCommand(Payload, frozen=True, kw_only=True):
+    """What the supervisor lets through (pure/sc/command): the only SC input the controller reads."""
+
+    mode: ScMode
+    speed_cap: Speed = 0.0
+    source: Source
+    """The request's source, or `supervisor` when the supervisor imposed it."""
+    reason: Text = ""
+    """Why the supervisor changed the request (empty when forwarded as asked)."""
+
+
+class SafetyState(Payload, frozen=True, kw_only=True):
+    state: SafetyStateName
+    reason: Text
+    cap: Speed
+    """The speed cap in force, m/s."""
+    since: Stamp
+    """When the supervisor entered this state, s."""
+
+
+class EstopCommand(Payload, frozen=True, kw_only=True):
+    """Operator e-stop or reset (pure/safety/estop). A reset permits motion; it never causes it."""
+
+    action: Literal["estop", "reset"]
+    source: Source
+
+
+class RigTelemetry(Payload, frozen=True, kw_only=True):
+    """A periodic summary of the plant's truth (for operators and dashboards, never for control)."""
+
+    tick: Annotated[int, msgspec.Meta(ge=0)]
+    velocity: tuple[Rate, Rate]
+    """Ground speed in the heading frame (forward, left), m/s."""
+    tilt: tuple[Angle, Angle]
+    """Chassis tilt (pitch, roll), rad."""
+    lean: tuple[Angle, Angle]
+    """Torso lean relative to the chassis (pitch, roll), rad."""
+    yaw_rate: Rate
+    fallen: bool = False
+
+
+P = TypeVar("P", bound=Payload)
+
+_encoder = msgspec.msgpack.Encoder()
+_decoders: dict[type, msgspec.msgpack.Decoder] = {}
+
+
+class PayloadError(ValueError):
+    """A payload that cannot be accepted. kind: 'garbage' (not msgpack / wrong shape), 'schema' (a field is
+    missing, mistyped, out of range or not finite), 'version' (another protocol version)."""
+
+    KINDS: ClassVar[tuple[str, ...]] = ("garbage", "schema", "version")
+
+    def __init__(self, kind: str, detail: str):
+        super().__init__(f"{kind}: {detail}")
+        self.kind, self.detail = kind, detail
+
+
+def encode(payload: Payload) -> bytes:
+    return _encoder.encode(payload)
+
+
+def decode(data: bytes | bytearray | memoryview, type: type[P]) -> P:
+    decoder = _decoders.get(type)
+    if decoder is None:
+        decoder = _decoders[type] = msgspec.msgpack.Decoder(type)
+    try:
+        return decoder.decode(data)
+    except msgspec.ValidationError as exc:
+        text = str(exc)
+        kind = "version" if text.startswith("unsupported version") else "schema"
+        if kind == "schema" and text.startswith("Expected `object`"):
+            kind = "garbage"
+        raise PayloadError(kind, text) from None
+    except (msgspec.DecodeError, UnicodeDecodeError) as exc:
+        # msgspec lets invalid UTF-8 in map keys escape as UnicodeDecodeError (found by fuzzing).
+        raise PayloadError("garbage", str(exc)) from None

@@ -1,0 +1,180 @@
+"""zenoh sessions opened only from the project's configs, declared-once publishers, non-blocking subscribers.
+
+Network rule: a session opens from a config file of `configs/zenoh/`; multicast scouting must be off and,
+unless the caller passes allow_network=True (a multi-host bench with a router), every endpoint must be on
+loopback. The default `zenoh.Config()` (multicast scouting on, listening on all interfaces) is never used.
+
+Roles: the *hub* (the rig) listens on the config's endpoint; *members* (controller, supervisor, operator
+tools) listen on an ephemeral loopback port and connect to the hub; gossip then introduces members to
+each other over those loopback sessions.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections import Counter
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Generic, Literal, TypeVar
+
+import zenoh
+
+from drivers.keys import Keys
+from drivers.schemas import Payload, PayloadError, decode, encode
+
+log = logging.getLogger(__name__)
+
+CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs" / "zenoh"
+LOOPBACK = CONFIG_DIR / "loopback.json5"
+Role = Literal["hub", "member"]
+MEMBER_LISTEN = "tcp/127.0.0.1:0"
+LOOPBACK_PREFIXES = ("tcp/127.", "tcp/[::1]", "udp/127.", "unixsock-stream/")
+
+
+class ZenohConfigError(ValueError):
+    pass
+
+
+def _get(config: zenoh.Config, key: str):
+    return json.loads(config.get_json(key))
+
+
+def _endpoints(value) -> list[str]:
+    # listen/connect endpoints are a list, or a per-mode map {"peer": [...], "router": [...]}.
+    if isinstance(value, dict):
+        return [e for v in value.values() for e in (v or [])]
+    return list(value or [])
+
+
+def is_loopback(endpoint: str) -> bool:
+    return endpoint.startswith(LOOPBACK_PREFIXES)
+
+
+def load_config(
+    path: Path | str = LOOPBACK,
+    role: Role = "member",
+    hub_endpoint: str | None = None,
+    allow_network: bool = False,
+) -> zenoh.Config:
+    """A zenoh Config from a project file, with the role applied and the network rule checked.
+
+    hub_endpoint replaces the file's hub endpoint (tests use a free port per test).
+    """
+    path = Path(path)
+    try:
+        config = zenoh.Config.from_file(str(path))
+    except Exception as exc:  # zenoh raises its own ZError for unreadable or invalid files
+        raise ZenohConfigError(f"{path}: cannot load zenoh config: {exc}") from exc
+    if hub_endpoint is not None:
+        config.insert_json5("listen/endpoints", json.dumps([hub_endpoint]))
+        config.insert_json5("connect/endpoints", json.dumps([hub_endpoint]))
+    if _get(config, "mode") == "peer":
+        if role == "hub":
+            config.insert_json5("connect/endpoints", "[]")
+        else:
+            config.insert_json5("listen/endpoints", json.dumps([MEMBER_LISTEN]))
+    check_config(config, path, allow_network)
+    return config
+
+
+def check_config(config: zenoh.Config, origin: Path | str = "<config>", allow_network: bool = False) -> None:
+    if _get(config, "scouting/multicast/enabled") is not False:
+        raise ZenohConfigError(
+            f"{origin}: scouting/multicast/enabled must be false (multicast leaves the machine)"
+        )
+    # zenoh fills missing endpoints with its defaults (listen on tcp/[::]: all interfaces): refused below.
+    endpoints = _endpoints(_get(config, "listen/endpoints")) + _endpoints(_get(config, "connect/endpoints"))
+    outside = [e for e in endpoints if not is_loopback(e)]
+    if outside and not allow_network:
+        raise ZenohConfigError(
+            f"{origin}: endpoints {outside} are not on loopback "
+            "(allow_network=True is for a bench network with a router only)"
+        )
+
+
+def open_session(
+    path: Path | str = LOOPBACK,
+    role: Role = "member",
+    hub_endpoint: str | None = None,
+    allow_network: bool = False,
+) -> zenoh.Session:
+    return zenoh.open(load_config(path, role, hub_endpoint, allow_network))
+
+
+P = TypeVar("P", bound=Payload)
+
+
+class Subscription(Generic[P]):
+    """Samples land in a ring buffer (zenoh's threads never block; the oldest drop when it is full);
+    the consumer decodes them on its own thread with `drain()` (all new) or `latest()`."""
+
+    def __init__(self, session: zenoh.Session, key: str, payload_type: type[P], capacity: int = 256):
+        self.key, self.type = key, payload_type
+        self._sub = session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
+        self.accepted = 0
+        self.rejected: Counter[str] = Counter()
+        self.last_rejection = ""
+        self._latest: P | None = None
+
+    def drain(self) -> list[P]:
+        out: list[P] = []
+        while (sample := self._sub.try_recv()) is not None:
+            try:
+                out.append(decode(sample.payload.to_bytes(), self.type))
+            except PayloadError as exc:
+                self._reject(exc)
+        self.accepted += len(out)
+        if out:
+            self._latest = out[-1]
+        return out
+
+    def latest(self) -> P | None:
+        """The newest valid payload received so far (draining what is pending)."""
+        self.drain()
+        return self._latest
+
+    def _reject(self, exc: PayloadError) -> None:
+        level = logging.DEBUG if self.rejected[exc.kind] else logging.WARNING
+        self.rejected[exc.kind] += 1
+        self.last_rejection = str(exc)
+        log.log(level, "rejected payload on %s: %s", self.key, exc)
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+class ZenohLink:
+    """A node's zenoh side: publishers declared once per key, typed subscriptions."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys | None = None):
+        self.session = session
+        self.keys = keys or Keys()
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._subscriptions: list[Subscription] = []
+
+    def declare_publishers(self, keys: Iterable[str]) -> None:
+        for key in keys:
+            self.publisher(key)
+
+    def publisher(self, key: str) -> zenoh.Publisher:
+        pub = self._publishers.get(key)
+        if pub is None:
+            pub = self._publishers[key] = self.session.declare_publisher(key)
+        return pub
+
+    def put(self, key: str, payload: Payload) -> None:
+        self.publisher(key).put(encode(payload))
+
+    def subscribe(self, key: str, payload_type: type[P], capacity: int = 256) -> Subscription[P]:
+        sub = Subscription(self.session, key, payload_type, capacity)
+        self._subscriptions.append(sub)
+        return sub
+
+    def close(self) -> None:
+        for sub in self._subscriptions:
+            sub.close()
+        for pub in self._publishers.values():
+            pub.undeclare()
+        self._subscriptions.clear()
+        self._publishers.clear()

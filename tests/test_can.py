@@ -1,0 +1,233 @@
+"""CAN catalog, codecs, E2E protection, bus load and buses (python-can `virtual`)."""
+
+import itertools
+import uuid
+
+import can
+import pytest
+from crccheck.crc import Crc8SaeJ1850
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from drivers.bus_load import BusLoadError, bus_load, check_bus_load, frame_bits
+from drivers.can_bus import BusConfig, BusConfigError, BusRecorder, CanNode, open_bus, parse_can_spec
+from drivers.can_codec import Catalog
+from drivers.e2e import E2EStatus, crc8, is_protected
+from tests.helpers import wait_for
+
+CATALOG = Catalog()
+DB = CATALOG.database
+
+
+def raw_strategy(sig):
+    lo = -(1 << (sig.length - 1)) if sig.is_signed else 0
+    hi = (1 << (sig.length - 1)) - 1 if sig.is_signed else (1 << sig.length) - 1
+    if sig.minimum is not None:
+        lo = max(lo, round((sig.minimum - sig.offset) / sig.scale))
+    if sig.maximum is not None:
+        hi = min(hi, round((sig.maximum - sig.offset) / sig.scale))
+    return st.integers(lo, hi)
+
+
+@st.composite
+def message_values(draw, message):
+    return {s.name: draw(raw_strategy(s)) * s.scale + s.offset for s in message.signals}
+
+
+@pytest.mark.parametrize("message", DB.messages, ids=lambda m: m.name)
+def test_codec_is_identical_to_cantools(message):
+    codec = CATALOG[message.name]
+
+    @settings(max_examples=150, deadline=None)
+    @given(
+        values=message_values(message), payload=st.binary(min_size=message.length, max_size=message.length)
+    )
+    def check(values, payload):
+        assert codec.encode(values) == message.encode(values, strict=True)
+        ours = codec.decode(payload)
+        ref = message.decode(payload, decode_choices=False)
+        assert ours.keys() == ref.keys()
+        for k in ours:
+            assert ours[k] == pytest.approx(ref[k], rel=1e-12, abs=1e-12)
+
+    check()
+
+
+def test_out_of_range_values_saturate():
+    codec = CATALOG["DRIVE1_FEEDBACK"]
+    out = codec.decode(codec.encode({"Velocity": 1e6, "Position": -1e12}))
+    assert out["Velocity"] == pytest.approx(327.67) and out["Position"] == -(2**31)
+
+
+def test_crc8_is_sae_j1850():
+    assert crc8(b"123456789") == 0x4B
+
+    @given(st.binary(max_size=16))
+    def same_as_crccheck(data):
+        assert crc8(data) == Crc8SaeJ1850.calc(data)
+
+    same_as_crccheck()
+
+
+def test_every_safety_frame_is_protected():
+    unprotected = {c.name for c in CATALOG if not is_protected(c)}
+    assert unprotected == {"SYNC"}
+    ids = sorted(c.frame_id for c in CATALOG)
+    assert ids[:2] == [CATALOG["SUPERVISOR_ESTOP"].frame_id, CATALOG["OPERATOR_ESTOP"].frame_id]
+
+
+# ------------------------------------------------------------------------------------------ buses
+@pytest.fixture
+def pair():
+    config = BusConfig(channel=f"test-{uuid.uuid4().hex}")
+    a, b = open_bus(config), open_bus(config)
+    yield CanNode(a, CATALOG, "a"), CanNode(b, CATALOG, "b"), config
+    a.shutdown()
+    b.shutdown()
+
+
+@pytest.mark.parametrize("message", DB.messages, ids=lambda m: m.name)
+def test_round_trip_over_the_virtual_bus(pair, message):
+    tx, rx, _ = pair
+
+    @settings(max_examples=20, deadline=None)
+    @given(values=message_values(message))
+    def check(values):
+        values = {k: v for k, v in values.items() if k not in ("Counter", "Crc")}
+        tx.send(message.name, values)
+        got = rx.recv(timeout=1.0)
+        assert got is not None and got.name == message.name and got.ok
+        for k, v in values.items():
+            assert got.signals[k] == pytest.approx(v, abs=1e-9)
+
+    check()
+    assert rx.stats.e2e == {} and rx.stats.malformed == {}
+
+
+def frames(tx, name, n):
+    return [tx.message(name, {"Torque": 0.1 * i, "Tick": i, "Enable": 1}) for i in range(n)]
+
+
+def statuses(rx, msgs):
+    return [rx.decode(m).e2e.status for m in msgs]
+
+
+def test_e2e_detects_loss_repeat_reorder_and_corruption(pair):
+    tx, rx, _ = pair
+    m = frames(tx, "DRIVE1_COMMAND", 8)
+    assert statuses(rx, [m[0], m[1]]) == [E2EStatus.OK, E2EStatus.OK]
+    lost = rx.decode(m[4])  # m[2], m[3] never arrive
+    assert lost.e2e.status is E2EStatus.LOST and lost.e2e.lost == 2 and lost.ok
+    assert statuses(rx, [m[4]]) == [E2EStatus.REPEATED]
+    assert statuses(rx, [m[6], m[5]]) == [E2EStatus.LOST, E2EStatus.OUT_OF_ORDER]
+    flipped = m[7].data[:]
+    flipped[0] ^= 0x04
+    bad = rx.decode(can.Message(arbitration_id=m[7].arbitration_id, is_extended_id=False, data=flipped))
+    assert bad.e2e.status is E2EStatus.CRC_ERROR and not bad.ok
+    assert statuses(rx, [m[7]]) == [E2EStatus.OK]  # a CRC failure does not disturb the counter
+    assert rx.stats.e2e == {
+        ("DRIVE1_COMMAND", "LOST"): 2,
+        ("DRIVE1_COMMAND", "REPEATED"): 1,
+        ("DRIVE1_COMMAND", "OUT_OF_ORDER"): 1,
+        ("DRIVE1_COMMAND", "CRC_ERROR"): 1,
+    }
+    assert rx.stats.lost_frames["DRIVE1_COMMAND"] == 3
+
+
+def test_e2e_detects_a_masquerading_node(pair):
+    # A valid DRIVE1 command replayed under DRIVE2's id fails the CRC (the data id is part of it).
+    tx, rx, _ = pair
+    m = tx.message("DRIVE1_COMMAND", {"Torque": 1.0, "Tick": 5, "Enable": 1})
+    fake = rx.decode(
+        can.Message(arbitration_id=CATALOG["DRIVE2_COMMAND"].frame_id, is_extended_id=False, data=m.data)
+    )
+    assert fake.name == "DRIVE2_COMMAND" and fake.e2e.status is E2EStatus.CRC_ERROR
+
+
+frame_strategy = st.builds(
+    lambda fid, ext, data, err, rtr: can.Message(
+        arbitration_id=fid if ext else fid & 0x7FF,
+        is_extended_id=ext,
+        data=b"" if rtr else data,
+        is_error_frame=err,
+        is_remote_frame=rtr,
+        dlc=len(data),
+    ),
+    st.one_of(st.sampled_from([c.frame_id for c in CATALOG]), st.integers(0, 0x1FFFFFFF)),
+    st.booleans(),
+    st.binary(max_size=8),
+    st.booleans(),
+    st.booleans(),
+)
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.lists(frame_strategy, max_size=30))
+def test_fuzzed_frames_never_raise_and_are_all_counted(frames_in):
+    node = CanNode(None, CATALOG, "fuzz")  # decode only: no bus needed
+    results = [node.decode(f) for f in frames_in]
+    decoded = sum(r is not None for r in results)
+    assert decoded == sum(node.stats.received.values())
+    assert len(frames_in) - decoded == sum(node.stats.malformed.values())
+    e2e_bad = sum(1 for r in results if r is not None and not r.ok)
+    assert e2e_bad <= sum(node.stats.e2e.values())
+
+
+# --------------------------------------------------------------------------------------- bus load
+def test_frame_bits_by_hand():
+    # 8 data bytes, 11-bit id: 44 + 64 + 3 = 111 bits + worst stuffing floor((34 + 64 − 1)/4) = 24 -> 135.
+    assert frame_bits(8) == 135
+    assert frame_bits(0) == 55
+    assert frame_bits(8, extended=True) == 160
+    with pytest.raises(ValueError):
+        frame_bits(9)
+
+
+def test_catalog_load_at_400_hz_by_hand():
+    # Per tick: SYNC(2 B) 75 + 3 feedback 135 + 3 IMU 135 + 3 commands(6 B) 115 + heartbeat(4 B) 95
+    # = 1325 bits;
+    # periodic: e-stop(4 B) 95 @ 100 Hz, 3 torque(4 B) 95 @ 100 Hz, operator e-stop(3 B) 85 @ 10 Hz.
+    expected = 1325 * 400 + 95 * 100 + 3 * 95 * 100 + 85 * 10
+    load = bus_load(CATALOG, 400.0, 1_000_000)
+    assert load.bits_per_second == expected
+    assert check_bus_load(CATALOG, 400.0, 1_000_000).fraction == pytest.approx(0.56885)
+
+
+def test_overloaded_configuration_is_refused_with_the_figure():
+    with pytest.raises(
+        BusLoadError, match=r"worst-case bus load 83\.4% at 600 Hz tick on 1000 kbit/s exceeds the 70%"
+    ):
+        check_bus_load(CATALOG, 600.0, 1_000_000)
+    with pytest.raises(BusLoadError, match="exceeds the 50% bound"):
+        check_bus_load(CATALOG, 400.0, 1_000_000, max_fraction=0.5)
+
+
+# ---------------------------------------------------------------------------------------- config
+def test_can_specs():
+    assert parse_can_spec("socketcan:vcan0") == BusConfig(interface="socketcan", channel="vcan0")
+    assert parse_can_spec("virtual").interface == "virtual"
+    with pytest.raises(BusConfigError, match="not allowed"):
+        parse_can_spec("udp_multicast:239.74.163.2")
+    with pytest.raises(BusConfigError, match="expected INTERFACE"):
+        parse_can_spec(":vcan0")
+
+
+@pytest.mark.parametrize("suffix", [".log", ".blf", ".asc"])
+def test_recorder_tees_all_traffic_into_python_can_logs(pair, tmp_path, suffix):
+    tx, rx, config = pair
+    path = tmp_path / f"can{suffix}"
+    with BusRecorder(config, path) as recorder:
+        sent = [tx.message("SYNC", {"Tick": i}) for i in range(5)] + frames(tx, "DRIVE2_COMMAND", 5)
+        for m in sent:
+            tx.bus.send(m)
+        for _ in sent:
+            assert rx.bus.recv(1.0) is not None
+        assert wait_for(lambda: recorder.frames == len(sent))
+    logged = [m for m in can.LogReader(str(path)) if not m.is_error_frame]
+    assert [(m.arbitration_id, bytes(m.data)) for m in logged] == [
+        (m.arbitration_id, bytes(m.data)) for m in sent
+    ]
+    if suffix == ".log":  # candump -L format: "(time) channel ID#DATA"
+        first = path.read_text().splitlines()[0]
+        assert first.startswith("(") and " 080#0000" in first
+    assert list(itertools.islice(can.LogReader(str(path)), 1))

@@ -1,0 +1,263 @@
+"""zenoh: loopback-only sessions, key expressions, payload schemas over real sessions, malformed payloads."""
+
+import contextlib
+import math
+
+import msgspec
+import pytest
+import zenoh
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from drivers.keys import Keys
+from drivers.schemas import (
+    EstopCommand,
+    PayloadError,
+    RigTelemetry,
+    SafetyState,
+    ScCommand,
+    ScRequest,
+    TesWrench,
+    decode,
+)
+from drivers.zenoh_link import (
+    CONFIG_DIR,
+    LOOPBACK,
+    ZenohConfigError,
+    ZenohLink,
+    check_config,
+    load_config,
+    open_session,
+)
+from tests.helpers import wait_for
+from tests.zenoh_helpers import hub_endpoint, own_sockets, wait_matching
+
+SAMPLES = [
+    TesWrench(seq=1, stamp=2.5, force=(12.0, -3.0, -640.0), moment=(1.5, 27.3, -4.0), cop=(0.04, -0.01)),
+    ScRequest(seq=2, stamp=3.0, mode="limit", speed_cap=0.5, source="sc-agent"),
+    ScCommand(seq=3, stamp=3.0, mode="idle", speed_cap=0.0, source="supervisor", reason="speed above cap"),
+    SafetyState(seq=4, stamp=3.1, state="LIMITING", reason="SPEED_OVER_CAP", cap=0.5, since=3.05),
+    EstopCommand(seq=5, stamp=1.7e9, action="reset", source="operator"),
+    RigTelemetry(
+        seq=6, stamp=4.0, tick=1600, velocity=(0.4, -0.1), tilt=(0.02, 0.0), lean=(0.3, 0.0), yaw_rate=0.1
+    ),
+]
+
+
+# ---------------------------------------------------------------------------------- network rule
+@pytest.mark.parametrize("role", ["hub", "member"])
+def test_loopback_config_has_no_multicast_and_only_loopback_endpoints(role):
+    raw = zenoh.Config.from_file(str(LOOPBACK))
+    assert raw.get_json("scouting/multicast/enabled") == "false"
+    config = load_config(LOOPBACK, role)
+    assert config.get_json("mode") == '"peer"'
+    assert config.get_json("scouting/multicast/enabled") == "false"
+    listen = msgspec.json.decode(config.get_json("listen/endpoints"))
+    connect = msgspec.json.decode(config.get_json("connect/endpoints"))
+    assert all(e.startswith("tcp/127.0.0.1:") for e in listen + connect)
+    assert (listen, connect) == (
+        (["tcp/127.0.0.1:7447"], []) if role == "hub" else (["tcp/127.0.0.1:0"], ["tcp/127.0.0.1:7447"])
+    )
+
+
+def test_configs_that_leave_the_machine_are_refused():
+    multicast = zenoh.Config.from_json5('{mode: "peer", listen: {endpoints: ["tcp/127.0.0.1:7447"]}}')
+    with pytest.raises(ZenohConfigError, match="multicast/enabled must be false"):
+        check_config(multicast)
+    lan = zenoh.Config.from_json5(
+        '{mode: "peer", scouting: {multicast: {enabled: false}}, listen: {endpoints: ["tcp/0.0.0.0:7447"]}}'
+    )
+    with pytest.raises(ZenohConfigError, match="not on loopback"):
+        check_config(lan)
+    with pytest.raises(ZenohConfigError, match="not on loopback"):
+        load_config(CONFIG_DIR / "router.json5", "hub")  # the bench router config is never opened here
+    # Without explicit endpoints zenoh listens on every interface (tcp/[::]): refused.
+    bare = zenoh.Config.from_json5('{mode: "peer", scouting: {multicast: {enabled: false}}}')
+    with pytest.raises(ZenohConfigError, match=r"tcp/\[::\]"):
+        check_config(bare)
+
+
+def test_sessions_bind_only_to_loopback_and_open_no_udp():
+    before = own_sockets()
+    endpoint = hub_endpoint()
+    hub = open_session(role="hub", hub_endpoint=endpoint)
+    member = open_session(role="member", hub_endpoint=endpoint)
+    try:
+        assert wait_for(lambda: list(member.info.peers_zid()))
+        sockets = own_sockets()
+        new_tcp = set(sockets["tcp"]) - set(before["tcp"])
+        listening = [port for _, port, state in new_tcp if state == "LISTEN"]
+        assert int(endpoint.rsplit(":", 1)[1]) in listening and len(listening) == 2  # hub + member
+        assert all(ip == "127.0.0.1" for ip, _, _ in new_tcp)
+        assert set(sockets["udp"]) == set(before["udp"])  # no scouting sockets
+    finally:
+        member.close()
+        hub.close()
+
+
+# ------------------------------------------------------------------------------------------- keys
+def test_key_expressions_follow_the_prefix():
+    k = Keys("bench2/pure")
+    assert (k.tes_wrench, k.sc_request, k.sc_command, k.safety_state, k.safety_estop) == (
+        "bench2/pure/tes/wrench",
+        "bench2/pure/sc/request",
+        "bench2/pure/sc/command",
+        "bench2/pure/safety/state",
+        "bench2/pure/safety/estop",
+    )
+    assert Keys().rig_status == "pure/rig/status" and Keys().rig("start") == "pure/rig/start"
+    for bad in ("", "/pure", "pure/", "pure/*"):
+        with pytest.raises(ValueError):
+            Keys(bad)
+
+
+# ----------------------------------------------------------------------------- over real sessions
+@pytest.fixture
+def hub_and_member():
+    endpoint = hub_endpoint()
+    hub = open_session(role="hub", hub_endpoint=endpoint)
+    member = open_session(role="member", hub_endpoint=endpoint)
+    yield ZenohLink(hub), ZenohLink(member), endpoint
+    member.close()
+    hub.close()
+
+
+def test_every_payload_round_trips_between_two_sessions(hub_and_member):
+    tx, rx, _ = hub_and_member
+    keys = Keys()
+    for key, sample in zip(
+        [
+            keys.tes_wrench,
+            keys.sc_request,
+            keys.sc_command,
+            keys.safety_state,
+            keys.safety_estop,
+            keys.rig_telemetry,
+        ],
+        SAMPLES,
+        strict=True,
+    ):
+        sub = rx.subscribe(key, type(sample))
+        assert wait_matching(tx.publisher(key))
+        tx.put(key, sample)
+        got = wait_for(sub.drain)
+        assert got == [sample]
+    assert tx.publisher(keys.tes_wrench) is tx.publisher(keys.tes_wrench)  # declared once
+
+
+def test_members_reach_each_other_through_the_hub(hub_and_member):
+    # Controller and supervisor are both members: gossip over loopback introduces them.
+    _, _, endpoint = hub_and_member
+    a = ZenohLink(open_session(role="member", hub_endpoint=endpoint))
+    b = ZenohLink(open_session(role="member", hub_endpoint=endpoint))
+    try:
+        sub = b.subscribe(Keys().sc_command, ScCommand)
+        assert wait_matching(a.publisher(Keys().sc_command))
+        a.put(Keys().sc_command, SAMPLES[2])
+        assert wait_for(sub.drain) == [SAMPLES[2]]
+    finally:
+        a.session.close()
+        b.session.close()
+
+
+def test_latest_and_all_new(hub_and_member):
+    tx, rx, _ = hub_and_member
+    key = Keys().tes_wrench
+    sub = rx.subscribe(key, TesWrench)
+    assert wait_matching(tx.publisher(key))
+    for i in range(5):
+        tx.put(key, msgspec.structs.replace(SAMPLES[0], seq=i))
+    assert wait_for(lambda: sub.latest() is not None and sub.accepted == 5)
+    assert sub.latest().seq == 4
+    assert sub.drain() == [] and sub.latest().seq == 4
+
+
+MALFORMED = {
+    "garbage": b"\xc1\xff\x00garbage",
+    "not a map": msgspec.msgpack.encode([1, 2, 3]),
+    "wrong type": msgspec.msgpack.encode(
+        {"seq": "one", "stamp": 0.0, "force": [0, 0, 0], "moment": [0, 0, 0], "cop": [0, 0]}
+    ),
+    "missing field": msgspec.msgpack.encode(
+        {"seq": 1, "stamp": 0.0, "force": [0, 0, 0], "moment": [0, 0, 0]}
+    ),
+    "nan": msgspec.msgpack.encode(
+        {"seq": 1, "stamp": 0.0, "force": [math.nan, 0, 0], "moment": [0, 0, 0], "cop": [0, 0]}
+    ),
+    "inf": msgspec.msgpack.encode(
+        {"seq": 1, "stamp": 0.0, "force": [0, 0, 0], "moment": [math.inf, 0, 0], "cop": [0, 0]}
+    ),
+    "out of range": msgspec.msgpack.encode(
+        {"seq": 1, "stamp": 0.0, "force": [0, 0, -5e4], "moment": [0, 0, 0], "cop": [0, 0]}
+    ),
+    "wrong version": msgspec.msgpack.encode(
+        {"version": 2, "seq": 1, "stamp": 0.0, "force": [0, 0, 0], "moment": [0, 0, 0], "cop": [0, 0]}
+    ),
+    "unknown field": msgspec.msgpack.encode(
+        {"seq": 1, "stamp": 0.0, "force": [0, 0, 0], "moment": [0, 0, 0], "cop": [0, 0], "extra": 1}
+    ),
+}
+EXPECTED_KIND = {"garbage": "garbage", "not a map": "garbage", "wrong version": "version"}
+
+
+@pytest.mark.parametrize("case", list(MALFORMED))
+def test_malformed_payloads_raise_payload_error_with_a_kind(case):
+    with pytest.raises(PayloadError) as err:
+        decode(MALFORMED[case], TesWrench)
+    assert err.value.kind == EXPECTED_KIND.get(case, "schema")
+
+
+def test_malformed_payloads_are_counted_and_dropped_by_the_subscriber(hub_and_member):
+    tx, rx, _ = hub_and_member
+    key = Keys().tes_wrench
+    sub = rx.subscribe(key, TesWrench)
+    pub = tx.publisher(key)
+    assert wait_matching(pub)
+    for raw in MALFORMED.values():
+        pub.put(raw)
+    tx.put(key, SAMPLES[0])  # positive control: the valid one still gets through
+    wait_for(lambda: sub.drain() or sum(sub.rejected.values()) + sub.accepted == len(MALFORMED) + 1)
+    assert sub.accepted == 1 and sub.latest() == SAMPLES[0]
+    assert sub.rejected == {"garbage": 2, "version": 1, "schema": len(MALFORMED) - 3}
+    assert sub.last_rejection
+
+
+@settings(max_examples=500, deadline=None)
+@given(st.binary(max_size=200))
+def test_fuzzed_bytes_never_escape_as_anything_but_payload_error(data):
+    for t in (TesWrench, ScRequest, ScCommand, SafetyState, EstopCommand, RigTelemetry):
+        with contextlib.suppress(PayloadError):  # anything else escaping fails the test
+            decode(data, t)
+
+
+finite = st.floats(allow_nan=True, allow_infinity=True)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    force=st.tuples(finite, finite, finite),
+    moment=st.tuples(finite, finite, finite),
+    cop=st.tuples(finite, finite),
+    seq=st.integers(-(2**40), 2**40),
+    stamp=finite,
+)
+def test_extreme_values_are_accepted_exactly_when_in_range(force, moment, cop, seq, stamp):
+    raw = msgspec.msgpack.encode({"seq": seq, "stamp": stamp, "force": force, "moment": moment, "cop": cop})
+
+    def ok(x, lim):
+        return not math.isnan(x) and -lim <= x <= lim
+
+    valid = (
+        all(ok(f, 1e4) for f in force)
+        and all(ok(m, 2e3) for m in moment)
+        and all(ok(c, 1.0) for c in cop)
+        and 0 <= seq <= 2**32 - 1
+        and ok(stamp, 1e10)
+        and stamp >= 0
+    )
+    try:
+        got = decode(raw, TesWrench)
+    except PayloadError as exc:
+        assert not valid and exc.kind == "schema"
+    else:
+        assert valid and got.force == tuple(force)
