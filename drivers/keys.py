@@ -42,6 +42,16 @@ class Keys:
         return f"{self.prefix}/safety/estop"
 
     @property
+    def controller_command(self) -> str:
+        """ControllerCommand: operator enable/disable of the controller (enable is needed after an e-stop)."""
+        return f"{self.prefix}/controller/command"
+
+    @property
+    def controller_telemetry(self) -> str:
+        """ControllerTelemetry: the controller's internal commands per tick, for recording and metrics."""
+        return f"{self.prefix}/controller/telemetry"
+
+    @property
     def rig_telemetry(self) -> str:
         """RigTelemetry: the rig's periodic summary of the plant's truth."""
         return f"{self.prefix}/rig/telemetry"

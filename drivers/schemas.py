@@ -90,6 +90,29 @@ class EstopCommand(Payload, frozen=True, kw_only=True):
     source: Source
 
 
+class ControllerCommand(Payload, frozen=True, kw_only=True):
+    """Operator request to the controller (pure/controller/command). After an e-stop or a fault the
+    controller stays disabled until it receives `enable`."""
+
+    action: Literal["enable", "disable"]
+    source: Source
+
+
+class ControllerTelemetry(Payload, frozen=True, kw_only=True):
+    """What the controller commanded at a tick (pure/controller/telemetry), for recording and metrics.
+    `seq` is the controller's tick count; `stamp` its time (tick / tick rate)."""
+
+    state: Annotated[int, msgspec.Meta(ge=0, le=15)]
+    mode: Literal["hacs", "ihacs"]
+    command_speed: tuple[Rate, Rate]
+    """Command speed (pitch forward, roll forward = −y), m/s."""
+    tilt_command: tuple[Angle, Angle]
+    """θ_EQ per plane (0 for HACS), rad."""
+    yaw_rate_command: Rate
+    ball_torque: tuple[Moment, Moment, Moment]
+    """Ball torque (x, y, z body axes) before the motor map, Nm."""
+
+
 class RigTelemetry(Payload, frozen=True, kw_only=True):
     """A periodic summary of the plant's truth (for operators and dashboards, never for control)."""
 

@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import json
 import logging
-from collections import Counter
+import threading
+from collections import Counter, deque
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Generic, Literal, TypeVar
@@ -106,22 +107,39 @@ P = TypeVar("P", bound=Payload)
 
 
 class Subscription(Generic[P]):
-    """Samples land in a ring buffer (zenoh's threads never block; the oldest drop when it is full);
-    the consumer decodes them on its own thread with `drain()` (all new) or `latest()`."""
+    """Samples land in a bounded buffer from zenoh's callback (never blocking it; the oldest drop when
+    full); the consumer decodes them on its own thread with `drain()` (all new) or `latest()`, and can
+    block in `wait()` until something arrives."""
 
     def __init__(self, session: zenoh.Session, key: str, payload_type: type[P], capacity: int = 256):
         self.key, self.type = key, payload_type
-        self._sub = session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
+        self._buffer: deque[bytes] = deque(maxlen=capacity)
+        self._arrived = threading.Condition()
+        self._sub = session.declare_subscriber(key, self._on_sample)
         self.accepted = 0
         self.rejected: Counter[str] = Counter()
         self.last_rejection = ""
         self._latest: P | None = None
 
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        data = sample.payload.to_bytes()
+        with self._arrived:
+            self._buffer.append(data)
+            self._arrived.notify_all()
+
+    def wait(self, timeout: float) -> bool:
+        """Block until at least one undrained sample is buffered (True) or the timeout passes (False)."""
+        with self._arrived:
+            return self._arrived.wait_for(lambda: self._buffer, timeout)
+
     def drain(self) -> list[P]:
+        with self._arrived:
+            pending = list(self._buffer)
+            self._buffer.clear()
         out: list[P] = []
-        while (sample := self._sub.try_recv()) is not None:
+        for data in pending:
             try:
-                out.append(decode(sample.payload.to_bytes(), self.type))
+                out.append(decode(data, self.type))
             except PayloadError as exc:
                 self._reject(exc)
         self.accepted += len(out)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import time
+from pathlib import Path
 
 import msgspec
 
@@ -18,6 +19,7 @@ NO_FRICTION = Friction(
     yaw_coulomb=0.0,
     yaw_stiction=0.0,
 )
+ROOT = Path(__file__).resolve().parents[1]
 RIDER_75 = RiderParams(name="winter_75kg_175", mass=75.0, height=1.75)
 """The worked example of physics.md §5.2 / §6.1."""
 

@@ -1,0 +1,247 @@
+"""The reference PURE controller, one SYNC tick at a time: no I/O (the node feeds it frames and samples).
+
+States (CONTROLLER_HEARTBEAT.State): INIT until the sensors have spoken, BALANCING, DISABLED (e-stopped
+or never enabled: zero torque, drives disabled), FAULT (a sensor stream went silent: drives disabled).
+After an e-stop or a fault the controller stays down until an explicit enable: a reset of the e-stop
+permits motion, it never causes it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numpy as np
+
+from controller.balance import PlaneBalancer, equilibrium
+from controller.command import CommandSpeed, YawCommand
+from controller.config import ControllerConfig, RiderInfo, RobotModel
+from controller.estimator import PITCH, ROLL, Estimator
+from controller.model import G0, lqr_gain, motor_jacobian, plane_model, seat_load_height
+
+PLANES = ("pitch", "roll")
+YAW_RATE_GAIN = 20.0
+"""Nm of ball yaw torque per rad/s of yaw-rate error."""
+
+
+class State(IntEnum):
+    INIT = 0
+    DISABLED = 1
+    PARKED = 2
+    BALANCING = 3
+    FAULT = 4
+
+
+class Fault(IntEnum):
+    NONE = 0
+    SENSOR_TIMEOUT = 1
+    ESTOP = 2
+    TES_STALE = 3
+    """Not fatal: the rider's input is ignored (command speed 0) until the seat speaks again."""
+    INTERNAL = 4
+    """The controller's own code failed; drives disabled until an explicit enable."""
+
+
+@dataclass(frozen=True, slots=True)
+class Wrench:
+    force: tuple[float, float, float]
+    moment: tuple[float, float, float]
+
+
+@dataclass(frozen=True, slots=True)
+class ScInput:
+    mode: str
+    speed_cap: float
+    stamp: float
+
+
+@dataclass(slots=True)
+class Output:
+    motor_torque: tuple[float, float, float]
+    enable: bool
+    state: State
+    fault: Fault
+    command_speed: tuple[float, float] = (0.0, 0.0)
+    tilt_command: tuple[float, float] = (0.0, 0.0)
+    yaw_rate_command: float = 0.0
+    ball_torque: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+class Controller:
+    def __init__(self, config: ControllerConfig, robot: RobotModel, rider: RiderInfo):
+        self.config, self.robot, self.rider = config, robot, rider
+        self.dt = 1.0 / config.timing.tick_hz
+        g = motor_jacobian(robot)
+        self.torque_to_motor = np.linalg.inv(g.T)
+        self.estimator = Estimator(g, robot.encoder.counts_per_rev, config.timing.sensor_hold)
+        self.motor_limit = robot.drive.torque_limit
+        # Largest ball torque in one plane alone that keeps every motor within its limit.
+        self.plane_limit = tuple(
+            self.motor_limit / np.abs(self.torque_to_motor[:, axis]).max() for axis in (1, 0)
+        )
+        models = self._models(config.reference_rider_mass, config.reference_rider_height)
+        self.balancers = tuple(
+            PlaneBalancer(m, lqr_gain(m, config.lqr), config.pi, self.dt, lim)
+            for m, lim in zip(models, self.plane_limit, strict=True)
+        )
+        hacs = config.hacs_for(rider.name)
+        self.commands = (CommandSpeed(hacs, self.dt), CommandSpeed(hacs, self.dt))
+        self.yaw = YawCommand(hacs, self.dt)
+        self.state = State.INIT
+        self.fault = Fault.NONE
+        self.enable_requested = False
+        self.ever_stopped = False
+        self.balancing_since: float | None = None
+        self._tare_sum = np.zeros(6)
+        self._tare_n = 0
+        self.tare: np.ndarray | None = None
+        self.rider_mass: float | None = None
+        self._wrench_filtered = np.zeros(6)
+        self.seat_load_height = seat_load_height(robot, rider.height)
+        self._alpha = 1.0 - math.exp(-2.0 * math.pi * hacs.filter_hz * self.dt)
+
+    def _models(self, mass: float, height: float):
+        return tuple(plane_model(self.robot, mass, height, p) for p in PLANES)
+
+    # ---------------------------------------------------------------------------------------- control
+    def request_enable(self) -> None:
+        self.enable_requested = True
+
+    def step(
+        self, t: float, wrench: Wrench | None, wrench_age: float, sc: ScInput | None, estop: bool
+    ) -> Output:
+        if estop:
+            if self.state is State.BALANCING:
+                self.ever_stopped = True
+            self.state, self.fault, self.enable_requested = State.DISABLED, Fault.ESTOP, False
+            return self._off()
+        estimate = self.estimator.estimate(t)
+        if estimate.fault is not None:
+            if self.state is State.BALANCING:
+                self.ever_stopped = True
+                self.state, self.fault = State.FAULT, Fault.SENSOR_TIMEOUT
+            return self._off()
+        if self.state is not State.BALANCING:
+            if not (self.enable_requested or (self.config.auto_enable and not self.ever_stopped)):
+                if self.state is State.INIT:
+                    self.state = State.DISABLED
+                return self._off()
+            self._start(t, estimate)
+
+        planes = estimate.planes
+        taring = t - self.balancing_since < self.config.timing.tare_time
+        rider_wrench = self._rider_wrench(wrench, wrench_age, taring)
+        cap = 0.0 if taring else self._cap(t, sc)
+        self.fault = (
+            Fault.TES_STALE if wrench is None or wrench_age > self.config.timing.tes_hold else Fault.NONE
+        )
+
+        # Command speeds: pitch forward from My, roll "forward" (−y) from Mx.
+        v = [
+            self.commands[PITCH].update(rider_wrench[4], cap),
+            self.commands[ROLL].update(rider_wrench[3], cap),
+        ]
+        norm = math.hypot(*v)
+        if norm > cap:  # the cap bounds the speed vector, not each plane
+            v = [x * cap / norm for x in v]
+            for c, x in zip(self.commands, v, strict=True):
+                c.speed = x
+        r = self.robot.ball.radius
+        yaw_cmd = 0.0 if taring else self.yaw.update(rider_wrench[5])
+
+        tilt_cmd, tau = [0.0, 0.0], [0.0, 0.0]
+        for k in (PITCH, ROLL):
+            s = planes[k].vector()
+            rate_cmd = v[k] / r
+            feedforward = 0.0
+            if (
+                self.config.mode == "ihacs"
+                and PLANES[k] in self.config.ihacs.planes
+                and self.tare is not None
+            ):
+                tilt_cmd[k], feedforward = self._compensation(k, rider_wrench, planes[k].tilt, rate_cmd)
+            tau[k] = self.balancers[k].torque(s, rate_cmd, tilt_cmd[k], feedforward)
+        tau_z = YAW_RATE_GAIN * (estimate.yaw_rate - yaw_cmd)
+        ball = np.array([tau[ROLL], tau[PITCH], tau_z])
+        motor = self.torque_to_motor @ ball
+        peak = np.abs(motor).max()
+        if peak > self.motor_limit:
+            motor *= self.motor_limit / peak
+        return Output(
+            (float(motor[0]), float(motor[1]), float(motor[2])),
+            True,
+            self.state,
+            self.fault,
+            (v[0], v[1]),
+            (tilt_cmd[0], tilt_cmd[1]),
+            yaw_cmd,
+            (float(ball[0]), float(ball[1]), float(ball[2])),
+        )
+
+    def _off(self) -> Output:
+        return Output((0.0, 0.0, 0.0), False, self.state, self.fault)
+
+    def _start(self, t: float, estimate) -> None:
+        self.state, self.fault, self.enable_requested = State.BALANCING, Fault.NONE, False
+        self.balancing_since = t
+        for b, plane in zip(self.balancers, estimate.planes, strict=True):
+            b.reset(plane.ball_rate)
+        for c in self.commands:
+            c.reset()
+
+    def _cap(self, t: float, sc: ScInput | None) -> float:
+        if sc is None or t - sc.stamp > self.config.timing.sc_max_age or sc.mode == "idle":
+            return 0.0
+        return sc.speed_cap if sc.mode == "limit" else math.inf
+
+    # ------------------------------------------------------------------------------------ rider input
+    def _rider_wrench(self, wrench: Wrench | None, age: float, taring: bool) -> np.ndarray:
+        """Tared, low-passed seat wrench [Fx, Fy, Fz, Mx, My, Mz] in body axes; zero while taring or stale."""
+        if wrench is None or age > self.config.timing.tes_hold:
+            self._wrench_filtered[:] = 0.0
+            return self._wrench_filtered
+        raw = np.array([*wrench.force, *wrench.moment])
+        if taring:
+            self._tare_sum += raw
+            self._tare_n += 1
+            return np.zeros(6)
+        if self.tare is None:
+            self._finish_tare()
+            self._wrench_filtered[:] = 0.0
+        self._wrench_filtered += self._alpha * (raw - self.tare - self._wrench_filtered)
+        return self._wrench_filtered
+
+    def _finish_tare(self) -> None:
+        self.tare = self._tare_sum / max(self._tare_n, 1)
+        weight = -self.tare[2]
+        if weight > 20.0:
+            self.rider_mass = weight / (G0 * self.config.ihacs.seat_mass_fraction)
+        if (
+            self.config.mode == "ihacs"
+            and self.config.ihacs.personalise_gains
+            and self.rider_mass is not None
+        ):
+            for b, m in zip(self.balancers, self._models(self.rider_mass, self.rider.height), strict=True):
+                b.set_model(m, lqr_gain(m, self.config.lqr))
+
+    def _compensation(
+        self, plane: int, tared: np.ndarray, tilt: float, ball_rate: float
+    ) -> tuple[float, float]:
+        """θ_EQ, τ_EQ for one plane from the rider's interaction moment at P.
+
+        Convention (a) of physics.md §4.3: the model's body includes the upright rider, so the interaction
+        is the seat moment beyond that of a rigid upright rider at the current chassis tilt (tilting rotates
+        that rider's weight in the seat frame: moment W (x_c cos θ + z_c sin θ) about P, with x_c from the
+        tare and z_c the seat load's COM height from the rider model). The seat *forces* are left out: at
+        a steady lean they are only the rider's weight, and their dynamic part is the inertia of a rider
+        moving with the chassis, which the lumped model already has; feeding it back closes a loop from the
+        chassis motion into θ_EQ (the stability pitfall of physics.md §10).
+        """
+        weight = -self.tare[2]
+        axis = 4 if plane == PITCH else 3
+        moment0 = self.tare[axis]
+        moment = tared[axis] + moment0
+        c, s = math.cos(tilt), math.sin(tilt)
+        interaction = moment - (moment0 * c + weight * self.seat_load_height * s)
+        return equilibrium(self.balancers[plane].model, 0.0, 0.0, interaction, ball_rate)

@@ -1,0 +1,44 @@
+"""Start the reference controller on a thread, from a DutSpec (the rig's `pure_hil.controllers` plugin)."""
+
+from __future__ import annotations
+
+import msgspec
+
+from controller.config import ControllerConfig, RiderInfo, RobotModel
+from controller.core import Controller
+from controller.node import ControllerNode, ControllerThread
+from drivers.can_bus import CanNode, open_bus
+from drivers.config import load_toml
+from drivers.dut import DutSpec
+from drivers.keys import Keys
+from drivers.zenoh_link import ZenohLink, open_session
+
+
+def build_controller(spec: DutSpec) -> Controller:
+    config = (
+        load_toml(spec.controller_config, ControllerConfig) if spec.controller_config else ControllerConfig()
+    )
+    timing = msgspec.structs.replace(config.timing, tick_hz=spec.tick_hz)
+    config = msgspec.structs.replace(config, mode=spec.mode, timing=timing)
+    return Controller(config, load_toml(spec.robot, RobotModel), load_toml(spec.rider, RiderInfo))
+
+
+class EmbeddedController:
+    def __init__(self, spec: DutSpec):
+        self.bus = open_bus(spec.can)
+        self.session = open_session(spec.zenoh_config, "member", spec.hub_endpoint)
+        self.link = ZenohLink(self.session, Keys(spec.keys_prefix))
+        self.node = ControllerNode(
+            build_controller(spec), CanNode(self.bus, name="controller"), self.link, lockstep=spec.lockstep
+        )
+        self.thread = ControllerThread(self.node).start()
+
+    def stop(self) -> None:
+        self.thread.stop()
+        self.link.close()
+        self.session.close()
+        self.bus.shutdown()
+
+
+def start(spec: DutSpec) -> EmbeddedController:
+    return EmbeddedController(spec)

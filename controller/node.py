@@ -1,0 +1,165 @@
+"""The controller on the wire: CAN frames in, SYNC-triggered computation, torque commands and heartbeat out;
+seat wrench, SC commands and operator commands from zenoh.
+
+Lockstep: before computing tick k the node waits (bounded) for the seat sample of tick k, which the rig
+publishes before SYNC(k); zenoh delivers one session's samples in order, so any SC command the rig side
+published earlier has arrived too. That makes a lockstep run deterministic. In real time it never waits.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+from controller.core import Controller, Fault, Output, ScInput, State, Wrench
+from drivers.can_bus import CanNode, Received
+from drivers.keys import Keys
+from drivers.schemas import ControllerCommand, ControllerTelemetry, ScCommand, TesWrench
+from drivers.zenoh_link import ZenohLink
+
+log = logging.getLogger(__name__)
+
+TICK_MODULO = 1 << 16
+DRIVE_COMMANDS = ("DRIVE1_COMMAND", "DRIVE2_COMMAND", "DRIVE3_COMMAND")
+FEEDBACK = {"DRIVE1_FEEDBACK": 0, "DRIVE2_FEEDBACK": 1, "DRIVE3_FEEDBACK": 2}
+
+
+class ControllerNode:
+    def __init__(
+        self,
+        controller: Controller,
+        can: CanNode,
+        link: ZenohLink,
+        keys: Keys | None = None,
+        lockstep: bool = False,
+        tes_wait: float = 0.5,
+    ):
+        self.controller, self.can, self.link = controller, can, link
+        self.keys = keys = keys or link.keys
+        self.lockstep, self.tes_wait = lockstep, tes_wait
+        self.tes = link.subscribe(keys.tes_wrench, TesWrench, capacity=64)
+        self.sc = link.subscribe(keys.sc_command, ScCommand, capacity=16)
+        self.operator = link.subscribe(keys.controller_command, ControllerCommand, capacity=16)
+        self.estop = False
+        self.tick: int | None = None
+        self.tes_late = 0
+        """Lockstep ticks computed without the seat sample of that tick (the wait timed out)."""
+        self.last_output: Output | None = None
+        self._wrench: TesWrench | None = None
+        self._sc: ScCommand | None = None
+
+    # ------------------------------------------------------------------------------------------ frames
+    def handle(self, rx: Received) -> None:
+        if rx.name == "SYNC":
+            self.on_sync(int(rx.signals["Tick"]))
+            return
+        if not rx.ok:
+            return  # untrusted (CRC, repeat, out of order): the estimator holds the last good value
+        s, t = rx.signals, self._time()
+        est = self.controller.estimator
+        if rx.name in FEEDBACK:
+            est.drive(FEEDBACK[rx.name], int(s["Position"]), s["Velocity"], t)
+        elif rx.name == "IMU_ATTITUDE" and s["Valid"]:
+            est.imu_attitude(s["Roll"], s["Pitch"], s["Yaw"], t)
+        elif rx.name == "IMU_RATE" and s["Valid"]:
+            est.imu_rate(s["RateX"], s["RateY"], s["RateZ"], t)
+        elif rx.name == "IMU_ACCEL" and s["Valid"]:
+            est.imu_accel(s["AccX"], s["AccY"], s["AccZ"])
+        elif rx.name == "SUPERVISOR_ESTOP":
+            self.estop = bool(s["Estop"])
+
+    def _time(self) -> float:
+        return 0.0 if self.tick is None else self.tick * self.controller.dt
+
+    def on_sync(self, raw_tick: int) -> Output:
+        if self.tick is None:
+            self.tick = raw_tick
+        else:
+            self.tick += (raw_tick - self.tick) % TICK_MODULO
+        t = self._time()
+        self._update_zenoh(self.tick)
+        wrench, age = None, float("inf")
+        if self._wrench is not None:
+            wrench = Wrench(self._wrench.force, self._wrench.moment)
+            age = max(t - self._wrench.stamp, 0.0)
+        sc = None if self._sc is None else ScInput(self._sc.mode, self._sc.speed_cap, self._sc.stamp)
+        try:
+            out = self.controller.step(t, wrench, age, sc, self.estop)
+        except Exception:  # a bug in the controller must fail safe (drives off), not kill the node
+            log.exception("controller step failed at tick %d: drives disabled", self.tick)
+            self.controller.state, self.controller.fault = State.FAULT, Fault.INTERNAL
+            out = Output((0.0, 0.0, 0.0), False, State.FAULT, Fault.INTERNAL)
+        for name, torque in zip(DRIVE_COMMANDS, out.motor_torque, strict=True):
+            self.can.send(name, {"Torque": torque, "Tick": raw_tick, "Enable": int(out.enable)})
+        mode = self.controller.config.mode
+        self.can.send(
+            "CONTROLLER_HEARTBEAT",
+            {"State": int(out.state), "Mode": int(mode == "ihacs"), "FaultCode": int(out.fault)},
+        )
+        self.link.put(
+            self.keys.controller_telemetry,
+            ControllerTelemetry(
+                seq=self.tick,
+                stamp=t,
+                state=int(out.state),
+                mode=mode,
+                command_speed=out.command_speed,
+                tilt_command=out.tilt_command,
+                yaw_rate_command=out.yaw_rate_command,
+                ball_torque=out.ball_torque,
+            ),
+        )
+        self.last_output = out
+        return out
+
+    def _update_zenoh(self, tick: int) -> None:
+        for cmd in self.operator.drain():
+            if cmd.action == "enable":
+                self.controller.request_enable()
+        if self.lockstep:
+            deadline = time.monotonic() + self.tes_wait
+            while self._wrench is None or self._wrench.seq < tick:
+                self._take_wrench()
+                if self._wrench is not None and self._wrench.seq >= tick:
+                    break
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or not self.tes.wait(remaining):
+                    self.tes_late += 1
+                    break
+        self._take_wrench()
+        latest_sc = self.sc.latest()
+        if latest_sc is not None:
+            self._sc = latest_sc
+
+    def _take_wrench(self) -> None:
+        samples = self.tes.drain()
+        if samples:
+            self._wrench = samples[-1]
+
+    # -------------------------------------------------------------------------------------------- loop
+    def run(self, stop: threading.Event, poll: float = 0.1) -> None:
+        """Receive until `stop` is set (recv blocks at most `poll` seconds, so stopping is prompt)."""
+        while not stop.is_set():
+            rx = self.can.recv(timeout=poll)
+            if rx is not None:
+                self.handle(rx)
+
+
+class ControllerThread:
+    """The controller node on a thread of its own (the embedded default: in the rig's process)."""
+
+    def __init__(self, node: ControllerNode):
+        self.node = node
+        self.stop_event = threading.Event()
+        self.thread = threading.Thread(
+            target=node.run, args=(self.stop_event,), name="controller", daemon=True
+        )
+
+    def start(self) -> ControllerThread:
+        self.thread.start()
+        return self
+
+    def stop(self, timeout: float = 2.0) -> None:
+        self.stop_event.set()
+        self.thread.join(timeout)

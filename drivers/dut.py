@@ -1,0 +1,48 @@
+"""How the rig starts a controller under test that runs in its own process space or thread.
+
+A controller package registers a start function under the entry-point group `pure_hil.controllers`
+(the reference controller: `reference = "controller.embedded:start"`). The rig looks it up by name, as
+python-can picks a backend by name, and hands it a `DutSpec`: where the bus and zenoh are and which
+robot and rider files describe the world. The rig never imports a controller.
+"""
+
+from __future__ import annotations
+
+from importlib.metadata import entry_points
+from typing import Literal, Protocol
+
+import msgspec
+
+from drivers.can_bus import BusConfig
+
+GROUP = "pure_hil.controllers"
+
+
+class DutSpec(msgspec.Struct, frozen=True, kw_only=True):
+    can: BusConfig
+    zenoh_config: str
+    hub_endpoint: str | None = None
+    """Overrides the zenoh config's hub endpoint (tests pick a free port)."""
+    keys_prefix: str = "pure"
+    mode: Literal["hacs", "ihacs"] = "hacs"
+    robot: str
+    """Robot TOML the controller builds its model from (may differ from the plant's: model mismatch)."""
+    rider: str
+    controller_config: str | None = None
+    lockstep: bool = True
+    tick_hz: float = 400.0
+
+
+class DutHandle(Protocol):
+    def stop(self) -> None: ...
+
+
+class DutNotFound(LookupError):
+    pass
+
+
+def start_dut(name: str, spec: DutSpec) -> DutHandle:
+    found = {ep.name: ep for ep in entry_points(group=GROUP)}
+    if name not in found:
+        raise DutNotFound(f"no controller {name!r} in entry points {GROUP!r} (have: {sorted(found)})")
+    return found[name].load()(spec)

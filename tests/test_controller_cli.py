@@ -1,0 +1,51 @@
+"""`pure-controller` as its own process: it joins zenoh over loopback, stops cleanly on SIGTERM/SIGINT,
+and refuses bad configuration with exit code 2."""
+
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from drivers.keys import Keys
+from drivers.zenoh_link import ZenohLink, open_session
+from tests.helpers import ROOT
+from tests.zenoh_helpers import hub_endpoint, wait_matching
+
+SCRIPT = str(Path(sys.executable).with_name("pure-controller"))
+RIDER = str(ROOT / "configs/riders/s04_abi_50kg_164.toml")
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_runs_as_its_own_process_and_stops_cleanly(sig):
+    endpoint = hub_endpoint()
+    hub = open_session(role="hub", hub_endpoint=endpoint)
+    proc = subprocess.Popen(
+        [SCRIPT, "--can", "virtual", "--hub", endpoint, "--rider", RIDER, "--mode", "ihacs"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        link = ZenohLink(hub)
+        # The controller process subscribes to the seat wrench: our publisher sees the match over loopback.
+        assert wait_matching(link.publisher(Keys().tes_wrench), timeout=30.0)
+        proc.send_signal(sig)
+        out, _ = proc.communicate(timeout=15)
+        assert proc.returncode == 0, out
+        assert "running" in out and "stopped" in out
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        hub.close()
+
+
+def test_bad_config_exits_2(tmp_path):
+    bad = tmp_path / "controller.toml"
+    bad.write_text("[lqr]\nq_tilt = -1.0\n")
+    proc = subprocess.run(
+        [SCRIPT, "--rider", RIDER, "--config", str(bad)], capture_output=True, text=True, timeout=60
+    )
+    assert proc.returncode == 2
+    assert str(bad) in proc.stderr and "$.lqr.q_tilt" in proc.stderr
