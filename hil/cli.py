@@ -46,6 +46,59 @@ def _simulate(args: argparse.Namespace) -> int:
     return 1 if summary.fallen else 0
 
 
+def _progress(t: float, duration: float) -> None:
+    width = 30
+    done = int(width * min(t / duration, 1.0))
+    print(
+        f"\r  [{'#' * done}{'.' * (width - done)}] {t:6.2f} / {duration:g} s",
+        end="",
+        file=sys.stderr,
+        flush=True,
+    )
+
+
+def _run(args: argparse.Namespace) -> int:
+    from drivers.can_bus import BusConfigError, parse_can_spec
+    from hil.runner import format_table, load_scenario, run_scenario
+    from hil.session import ControllerUnavailable
+
+    scenario = load_scenario(config_path(args.scenario))
+    try:
+        can = parse_can_spec(args.can) if args.can else None
+    except BusConfigError as exc:
+        print(f"pure-hil: {exc}", file=sys.stderr)
+        return 2
+    controller = args.controller or scenario.controller
+    if controller == "external" and (can is None or can.interface == "virtual"):
+        print(
+            "pure-hil: --controller external needs a bus shared with another process "
+            "(e.g. --can socketcan:vcan0)",
+            file=sys.stderr,
+        )
+        return 2
+    out = Path(args.out) if args.out else Path("runs") / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    show_progress = sys.stderr.isatty() and not args.quiet
+    print(f"pure-hil run: {scenario.name} ({controller}, {args.clock or scenario.clock}) -> {out}")
+    try:
+        result = run_scenario(
+            scenario,
+            controller=controller,
+            can=can,
+            clock=args.clock,
+            seed=args.seed,
+            out=out,
+            progress=_progress if show_progress else None,
+        )
+    except ControllerUnavailable as exc:
+        print(f"\npure-hil: {exc}", file=sys.stderr)
+        return 1
+    if show_progress:
+        print(file=sys.stderr)
+    print(format_table(result))
+    print(f"outputs: {out}/summary.json, can.log, recording.rrd, plots.png")
+    return 0 if result.passed else 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="pure-hil", description="Hardware-in-the-loop rig for the PURE ballbot"
@@ -61,6 +114,18 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--tilt", type=float, default=3.0, help="initial chassis tilt, deg")
     sim.add_argument("--seed", type=int, default=None)
     sim.set_defaults(func=_simulate)
+
+    run = sub.add_parser(
+        "run", help="run a scenario against a controller; exit 0 pass, 1 fail, 2 usage/config"
+    )
+    run.add_argument("scenario", help="configs/scenarios/*.toml")
+    run.add_argument("--controller", choices=("hacs", "ihacs", "external"), default=None)
+    run.add_argument("--can", default=None, help="virtual (default) | socketcan:vcan0 | INTERFACE:CHANNEL")
+    run.add_argument("--clock", choices=("lockstep", "realtime"), default=None)
+    run.add_argument("--seed", type=int, default=None)
+    run.add_argument("--out", default=None, help="run folder (default runs/NAME-TIMESTAMP)")
+    run.add_argument("--quiet", action="store_true", help="no progress bar")
+    run.set_defaults(func=_run)
     return parser
 
 

@@ -87,7 +87,12 @@ class Rig:
             time.sleep(0.01)
         return True
 
-    def tick(self) -> None:
+    def tick(self, deadline: float | None = None, lockstep: bool = True) -> None:
+        """One tick; wait for the controller's answer until `deadline` (time.monotonic()).
+
+        Lockstep also waits for the heartbeat that follows the commands, so every frame of tick k is on
+        the bus before tick k + 1 starts (a deterministic CAN log).
+        """
         plant = self.plant
         plant.step()
         k = plant.tick
@@ -95,7 +100,9 @@ class Rig:
         self._publish_tes(k)
         self._publish_sc(k)
         self.can.send("SYNC", {"Tick": k % TICK_MODULO})
-        self._collect_commands(k)
+        if deadline is None:
+            deadline = time.monotonic() + self.command_guard
+        self._collect_commands(k, deadline, lockstep)
         self.stats.ticks += 1
 
     # ------------------------------------------------------------------------------------------ outputs
@@ -152,27 +159,22 @@ class Rig:
         self._sc_last, self._sc_sent_tick = current, k
 
     # ------------------------------------------------------------------------------------------- inputs
-    def _collect_commands(self, k: int) -> None:
+    def _collect_commands(self, k: int, deadline: float, wait_heartbeat: bool) -> None:
         tag = k % TICK_MODULO
         pending = set(COMMANDS)
-        deadline = time.monotonic() + self.command_guard
+        heartbeat_due = wait_heartbeat
         drives = self.plant.drives.motors
-        while pending:
+        while pending or heartbeat_due:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
-                self.stats.missing_commands += len(pending)
-                self._silent_ticks = self._silent_ticks + 1 if len(pending) == len(COMMANDS) else 0
-                if self._silent_ticks >= MAX_SILENT_TICKS:
-                    raise ControllerSilent(
-                        f"no drive command for {self._silent_ticks} ticks in a row "
-                        f"(last tick {k}, guard {self.command_guard} s each)"
-                    )
+                self._missed(k, pending, wait_heartbeat)
                 return
             rx = self.can.recv(timeout=remaining)
             if rx is None:
                 continue
             if rx.name == "CONTROLLER_HEARTBEAT":
                 self.stats.controller_states[int(rx.signals["State"])] += 1
+                heartbeat_due = heartbeat_due and bool(pending)  # the heartbeat follows the commands
                 continue
             if rx.name not in COMMANDS or not rx.ok:
                 continue
@@ -184,3 +186,12 @@ class Rig:
             )
             pending.discard(rx.name)
         self._silent_ticks = 0
+
+    def _missed(self, k: int, pending: set[str], lockstep: bool) -> None:
+        self.stats.missing_commands += len(pending)
+        self._silent_ticks = self._silent_ticks + 1 if len(pending) == len(COMMANDS) else 0
+        if lockstep and self._silent_ticks >= MAX_SILENT_TICKS:
+            raise ControllerSilent(
+                f"no drive command for {self._silent_ticks} ticks in a row (last tick {k}, "
+                f"guard {self.command_guard} s each)"
+            )

@@ -5,22 +5,29 @@ under test started by name (entry point) in this process, the rig in lockstep.
 from __future__ import annotations
 
 import math
+import time
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from drivers.can_bus import BusConfig, CanNode, open_bus
+from drivers.can_bus import BusConfig, BusRecorder, CanNode, open_bus
 from drivers.config import load_toml
 from drivers.dut import DutSpec, start_dut
 from drivers.keys import Keys
 from drivers.zenoh_link import LOOPBACK, ZenohLink, open_session
-from hil.rig import Rig, ScStep, TickStats
+from hil.clock import LockstepClock, RealtimeClock, TimingStats
+from hil.rig import ControllerSilent, Rig, ScStep, TickStats
 from plant.ballbot import Plant, RiderIntent
 from plant.params import RiderParams, RobotParams, SimParams
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+class ControllerUnavailable(RuntimeError):
+    """The controller under test never showed up, or stopped answering (lockstep)."""
 
 
 @dataclass(slots=True)
@@ -41,6 +48,12 @@ class RunSpec:
     hub_endpoint: str | None = None
     can: BusConfig | None = None
     stop_on_fall: bool = True
+    clock: str = "lockstep"
+    """lockstep (simulated time, deterministic) or realtime (wall-clock pacing)."""
+    can_log: Path | None = None
+    """Tee the bus into this python-can log (.log candump format, .blf, .asc)."""
+    progress: Callable[[float, float], None] | None = None
+    """Called with (simulated time, duration) about every 0.5 s of wall time."""
 
 
 @dataclass(slots=True)
@@ -62,6 +75,11 @@ class Trace:
     fallen: str | None
     stats: TickStats
     controller_telemetry_missing: int
+    timing: TimingStats
+    bus: dict
+    """The rig node's CAN statistics (sent, received, E2E events, malformed frames)."""
+    motor_torque: np.ndarray
+    """(n, 3) motor torques the drives produced, Nm."""
 
 
 def run(spec: RunSpec) -> Trace:
@@ -70,31 +88,41 @@ def run(spec: RunSpec) -> Trace:
     plant = Plant(robot, rider, spec.sim, spec.intent, tuple(math.radians(a) for a in spec.initial_tilt_deg))
     bus_config = spec.can or BusConfig(channel=f"pure-{uuid.uuid4().hex[:12]}")
     bus = open_bus(bus_config)
+    recorder = BusRecorder(bus_config, spec.can_log) if spec.can_log is not None else None
     session = open_session(spec.zenoh_config, "hub", spec.hub_endpoint)
     link = ZenohLink(session, Keys())
     dut = None
     try:
         rig = Rig(plant, CanNode(bus, name="rig"), link, spec.sc_schedule)
-        dut = start_dut(
-            spec.controller,
-            DutSpec(
-                can=bus_config,
-                zenoh_config=str(spec.zenoh_config),
-                hub_endpoint=spec.hub_endpoint,
-                mode=spec.mode,  # type: ignore[arg-type]
-                robot=str(spec.controller_robot or spec.robot),
-                rider=str(spec.rider),
-                controller_config=None if spec.controller_config is None else str(spec.controller_config),
-                lockstep=True,
-                tick_hz=spec.sim.tick_hz,
-            ),
-        )
-        if not rig.wait_for_controller():
-            raise RuntimeError("the controller did not subscribe to the seat wrench within 10 s")
-        return _loop(rig, plant, spec)
+        if spec.controller != "external":
+            dut = start_dut(
+                spec.controller,
+                DutSpec(
+                    can=bus_config,
+                    zenoh_config=str(spec.zenoh_config),
+                    hub_endpoint=spec.hub_endpoint,
+                    mode=spec.mode,  # type: ignore[arg-type]
+                    robot=str(spec.controller_robot or spec.robot),
+                    rider=str(spec.rider),
+                    controller_config=None if spec.controller_config is None else str(spec.controller_config),
+                    lockstep=spec.clock == "lockstep",
+                    tick_hz=spec.sim.tick_hz,
+                ),
+            )
+        wait = 10.0 if dut is not None else 120.0
+        if not rig.wait_for_controller(wait):
+            raise ControllerUnavailable(
+                f"no controller subscribed to {rig.keys.tes_wrench} within {wait:g} s"
+            )
+        try:
+            return _loop(rig, plant, spec)
+        except ControllerSilent as exc:
+            raise ControllerUnavailable(str(exc)) from exc
     finally:
         if dut is not None:
             dut.stop()
+        if recorder is not None:
+            recorder.stop()
         link.close()
         session.close()
         bus.shutdown()
@@ -102,15 +130,33 @@ def run(spec: RunSpec) -> Trace:
 
 def _loop(rig: Rig, plant: Plant, spec: RunSpec) -> Trace:
     ticks = round(spec.duration * spec.sim.tick_hz)
-    rows = np.full((ticks, 12), np.nan)
+    lockstep = spec.clock == "lockstep"
+    clock = LockstepClock(plant.dt, rig.command_guard) if lockstep else RealtimeClock(plant.dt)
+    rows = np.full((ticks, 15), np.nan)
     n = 0
+    next_report = time.monotonic() + 0.5
+    clock.start()
     while n < ticks:
-        rig.tick()
+        rig.tick(clock.command_deadline(), lockstep)
         tr = plant.truth()
-        rows[n] = (tr.t, *tr.velocity, *tr.tilt, *tr.lean, *tr.position, tr.yaw_rate, *tr.ball_rate)
+        rows[n] = (
+            tr.t,
+            *tr.velocity,
+            *tr.tilt,
+            *tr.lean,
+            *tr.position,
+            tr.yaw_rate,
+            *tr.ball_rate,
+            *tr.motor_torque,
+        )
         n += 1
         if spec.stop_on_fall and tr.fallen:
             break
+        if spec.progress is not None and time.monotonic() > next_report:
+            spec.progress(tr.t, spec.duration)
+            next_report = time.monotonic() + 0.5
+        clock.wait_next()
+    timing = clock.stats()
     rows = rows[:n]
     command = np.full((n, 2), np.nan)
     tilt_cmd = np.full((n, 2), np.nan)
@@ -135,4 +181,7 @@ def _loop(rig: Rig, plant: Plant, spec: RunSpec) -> Trace:
         fallen=plant.fallen,
         stats=rig.stats,
         controller_telemetry_missing=int(np.isnan(command[:, 0]).sum()),
+        timing=timing,
+        bus=rig.can.stats.as_dict(),
+        motor_torque=rows[:, 12:15],
     )

@@ -46,12 +46,16 @@ class Sine(_Segment, tag="sine"):
 
 class Adversarial(_Segment, tag="adversarial"):
     """Lean as far as the rider can in the direction the robot is moving (defeating a speed cap or idle);
-    at standstill, lean toward `direction`. Lean profiles only."""
+    at first toward `direction`. The rider commits: they switch sides only when the robot has moved the
+    other way faster than `speed_threshold` for `reaction_time` (a person does not flip every wobble).
+    Lean profiles only."""
 
     duration: _Positive
     direction: Literal[-1, 1] = 1
-    speed_threshold: _Positive = 0.05
-    """|speed| in m/s above which the rider follows the motion instead of `direction`."""
+    speed_threshold: _Positive = 0.1
+    """|speed| in m/s beyond which motion against the lean counts."""
+    reaction_time: _Positive = 0.5
+    """How long the robot must move against the lean before the rider switches sides, s."""
 
 
 Segment = Ramp | Hold | Step | Sine | Adversarial
@@ -75,10 +79,12 @@ class Profile:
             t = end
         self.end_time = t
         self.final_value = value
+        self._side: dict[int, float] = {}  # adversarial span -> the side the rider leans to
+        self._against_since: float | None = None
 
     def target(self, t: float, speed: float, limit: float) -> float:
         """The value the rider aims at, at time t; `limit` is the largest they can reach."""
-        for start, end, seg, v0 in self._spans:
+        for i, (start, end, seg, v0) in enumerate(self._spans):
             if t >= end:
                 continue
             # A step has start == end, so reaching here means it has not happened yet: v0 holds.
@@ -87,10 +93,21 @@ class Profile:
             if isinstance(seg, Sine):
                 return v0 + seg.amplitude * math.sin(2.0 * math.pi * seg.frequency_hz * (t - start))
             if isinstance(seg, Adversarial):
-                direction = math.copysign(1.0, speed) if abs(speed) > seg.speed_threshold else seg.direction
-                return direction * limit
+                return self._adversarial_side(i, seg, t, speed) * limit
             return v0
         return self.final_value
+
+    def _adversarial_side(self, span: int, seg: Adversarial, t: float, speed: float) -> float:
+        side = self._side.setdefault(span, float(seg.direction))
+        if speed * side < -seg.speed_threshold:
+            if self._against_since is None:
+                self._against_since = t
+            if t - self._against_since >= seg.reaction_time:
+                side = self._side[span] = -side
+                self._against_since = None
+        else:
+            self._against_since = None
+        return side
 
 
 class TorsoController:

@@ -33,11 +33,14 @@ def test_profile_segments():
     assert Profile().target(3.0, 0.0, 30.0) == 0.0
 
 
-def test_adversarial_segment_follows_the_motion():
-    p = Profile([Adversarial(duration=5.0, direction=1)])
-    assert p.target(1.0, 0.0, 25.0) == 25.0  # at standstill: the preferred direction
-    assert p.target(1.0, -0.3, 25.0) == -25.0  # moving backward: lean backward to go faster
-    assert p.target(1.0, 0.02, 25.0) == 25.0  # below the threshold: still the preferred direction
+def test_adversarial_segment_follows_the_motion_with_commitment():
+    p = Profile([Adversarial(duration=5.0, direction=1, speed_threshold=0.1, reaction_time=0.5)])
+    assert p.target(1.0, 0.0, 25.0) == 25.0  # at first: the preferred direction
+    assert p.target(1.1, -0.05, 25.0) == 25.0  # a slow drift backward does not count
+    assert p.target(1.2, -0.3, 25.0) == 25.0  # moving backward: the rider notices...
+    assert p.target(1.5, -0.3, 25.0) == 25.0  # ...but a wobble shorter than the reaction time is ignored
+    assert p.target(1.71, -0.3, 25.0) == -25.0  # backward for 0.5 s: lean backward to go faster
+    assert p.target(1.8, 0.05, 25.0) == -25.0  # committed
     assert p.target(6.0, -0.3, 25.0) == 0.0  # after the segment
 
 

@@ -1,0 +1,50 @@
+"""The run's rerun recording: states, commands and the rider on a simulated-time timeline, written to a
+file in column batches (one `send_columns` per signal group for the whole run, never one call per tick).
+
+File sink only: no viewer is spawned and nothing is served (network rule); CI=1 keeps rerun's analytics off.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+os.environ.setdefault("CI", "1")  # rerun's analytics are off in CI mode; the SDK alone never phones home
+
+import rerun as rr
+
+SIGNALS = {
+    # entity path: (trace attribute, series names)
+    "speed/actual": ("velocity", ["forward", "left"]),
+    "speed/command": ("command_speed", ["pitch", "roll"]),
+    "tilt/chassis": ("tilt", ["pitch", "roll"]),
+    "tilt/command": ("tilt_command", ["pitch", "roll"]),
+    "rider/lean": ("lean", ["pitch", "roll"]),
+    "position": ("position", ["x", "y"]),
+    "motor/torque": ("motor_torque", ["m1", "m2", "m3"]),
+}
+DEGREES = {"tilt/chassis", "tilt/command", "rider/lean"}
+
+
+def write_rrd(path: Path, trace, name: str = "pure-hil") -> None:
+    rec = rr.RecordingStream(f"pure_hil_{name}")
+    rec.set_sinks(rr.FileSink(str(path)))
+    rec.set_log_time_enabled(False)
+    times = rr.TimeColumn("sim_time", duration=np.asarray(trace.t, float))
+    for entity, (attr, names) in SIGNALS.items():
+        values = np.asarray(getattr(trace, attr), float)
+        if entity in DEGREES:
+            values = np.degrees(values)
+        rec.log(entity, rr.SeriesLines(names=names), static=True)
+        rec.send_columns(entity, indexes=[times], columns=rr.Scalars.columns(scalars=values))
+    rec.log("yaw_rate", rr.SeriesLines(names=["yaw rate"]), static=True)
+    rec.send_columns(
+        "yaw_rate", indexes=[times], columns=rr.Scalars.columns(scalars=np.asarray(trace.yaw_rate))
+    )
+    if trace.fallen:
+        rec.set_time("sim_time", duration=float(trace.t[-1]))
+        rec.log("events", rr.TextLog(f"fell: {trace.fallen}", level="ERROR"))
+    rec.flush()
+    rec.disconnect()

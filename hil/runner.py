@@ -1,0 +1,250 @@
+"""Run a scenario and judge it: metrics, verdicts, and the run folder (DESIGN.md §8).
+
+Run folder: summary.json (config echo, seed, versions, metrics, verdicts, bus and timing statistics),
+can.log (candump -L format; python-can's LogReader and can-utils read it), recording.rrd (rerun),
+plots.png.
+"""
+
+from __future__ import annotations
+
+import math
+import platform
+from dataclasses import dataclass, field
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+
+import msgspec
+import numpy as np
+
+from drivers.can_bus import BusConfig
+from drivers.config import load_toml
+from hil.metrics import plane_metrics
+from hil.plots import write_plots
+from hil.recording import write_rrd
+from hil.rig import ScStep
+from hil.scenario import UNITS, Criterion, Scenario, resolve
+from hil.session import RunSpec, Trace, run
+from plant.ballbot import RiderIntent
+from plant.params import RobotParams, SimParams
+
+ROOT = Path(__file__).resolve().parents[1]
+STOPPED = 0.1
+"""m/s below which the robot counts as stopped (stop_time)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Verdict:
+    criterion: str
+    value: float
+    limit: str
+    units: str
+    passed: bool
+    note: str = ""
+
+
+@dataclass(slots=True)
+class RunResult:
+    scenario: Scenario
+    controller: str
+    clock: str
+    seed: int
+    trace: Trace
+    metrics: dict[str, float]
+    verdicts: list[Verdict] = field(default_factory=list)
+
+    @property
+    def passed(self) -> bool:
+        return all(v.passed for v in self.verdicts)
+
+
+def plane_speed(trace: Trace, plane: str) -> np.ndarray:
+    """Ground speed along a plane's forward direction (the roll plane's forward is −y)."""
+    return trace.velocity[:, 0] if plane == "pitch" else -trace.velocity[:, 1]
+
+
+def measure(trace: Trace, c: Criterion, ball_radius: float) -> float:
+    if c.metric == "fallen":
+        return float(trace.fallen is not None)
+    if c.metric == "missing_commands":
+        return float(trace.stats.missing_commands)
+    if c.metric == "distance":
+        return float(np.hypot(*trace.position[-1]))
+    window = trace.t >= c.after
+    if c.metric == "max_yaw_rate":
+        return float(np.abs(trace.yaw_rate[window]).max())
+    planes = ("pitch", "roll") if c.plane == "both" else (c.plane,)
+    values = []
+    for plane in planes:
+        k = 0 if plane == "pitch" else 1
+        speed = plane_speed(trace, plane)
+        if c.metric == "stop_time":
+            moving = np.nonzero(window & (np.abs(speed) > STOPPED))[0]
+            values.append(0.0 if len(moving) == 0 else float(trace.t[moving[-1]] - c.after))
+            continue
+        if c.metric == "final_speed":
+            values.append(float(abs(speed[-1])))
+            continue
+        m = plane_metrics(
+            trace.t[window],
+            trace.lean[window, k],
+            trace.tilt[window, k],
+            speed[window],
+            trace.command_speed[window, k],
+            ball_radius,
+        )
+        values.append(getattr(m, c.metric))
+    return max(values)
+
+
+def run_scenario(
+    scenario: Scenario,
+    *,
+    controller: str | None = None,
+    can: BusConfig | None = None,
+    clock: str | None = None,
+    seed: int | None = None,
+    out: Path | None = None,
+    progress=None,
+    hub_endpoint: str | None = None,
+) -> RunResult:
+    controller = controller or scenario.controller
+    clock = clock or scenario.clock
+    seed = scenario.seed if seed is None else seed
+    robot_path = resolve(scenario.robot, ROOT)
+    robot = load_toml(robot_path, RobotParams)
+    sim = SimParams(tick_hz=scenario.tick_hz, seed=seed)
+    intent = RiderIntent(list(scenario.intent.pitch), list(scenario.intent.roll), list(scenario.intent.twist))
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+    spec = RunSpec(
+        rider=resolve(scenario.rider, ROOT),
+        mode="hacs" if controller == "external" else controller,
+        controller="external" if controller == "external" else "reference",
+        duration=scenario.duration,
+        robot=robot_path,
+        sim=sim,
+        intent=intent,
+        sc_schedule=tuple(ScStep(e.at, e.mode, e.cap) for e in scenario.sc),
+        initial_tilt_deg=scenario.initial_tilt_deg,
+        can=can,
+        clock=clock,
+        can_log=None if out is None else out / "can.log",
+        progress=progress,
+        hub_endpoint=hub_endpoint,
+        controller_config=ROOT / "configs/controller/default.toml",
+    )
+    trace = run(spec)
+    result = RunResult(scenario, controller, clock, seed, trace, summary_metrics(trace, robot.ball.radius))
+    for c in scenario.criteria:
+        value = measure(trace, c, robot.ball.radius)
+        result.verdicts.append(Verdict(c.label, value, c.describe(), UNITS[c.metric], c.check(value), c.note))
+    if out is not None:
+        write_outputs(result, out)
+    return result
+
+
+def summary_metrics(trace: Trace, ball_radius: float) -> dict[str, float]:
+    out: dict[str, float] = {}
+    for k, plane in enumerate(("pitch", "roll")):
+        speed = plane_speed(trace, plane)
+        m = plane_metrics(
+            trace.t, trace.lean[:, k], trace.tilt[:, k], speed, trace.command_speed[:, k], ball_radius
+        )
+        for name in ("max_speed", "max_tilt_deg", "max_lean_deg", "rmse", "rmse_paper"):
+            out[f"{plane}.{name}"] = round(float(getattr(m, name)), 9)
+    out["distance"] = round(float(np.hypot(*trace.position[-1])), 9)
+    out["max_yaw_rate"] = round(float(np.abs(trace.yaw_rate).max()), 9)
+    return out
+
+
+def versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for dist in (
+        "pure-hil",
+        "numpy",
+        "scipy",
+        "control",
+        "python-can",
+        "cantools",
+        "eclipse-zenoh",
+        "rerun-sdk",
+        "msgspec",
+    ):
+        try:
+            out[dist] = version(dist)
+        except PackageNotFoundError:
+            out[dist] = "?"
+    return out
+
+
+def summary(result: RunResult) -> dict:
+    tr = result.trace
+    t = tr.timing
+    return {
+        "scenario": msgspec.to_builtins(result.scenario),
+        "controller": result.controller,
+        "clock": result.clock,
+        "seed": result.seed,
+        "versions": versions(),
+        "passed": result.passed,
+        "fallen": tr.fallen,
+        "simulated": round(float(tr.t[-1]), 6) if len(tr.t) else 0.0,
+        "metrics": result.metrics,
+        "verdicts": [msgspec.to_builtins(v) for v in result.verdicts],
+        "rig": {
+            "ticks": tr.stats.ticks,
+            "missing_commands": tr.stats.missing_commands,
+            "late_commands": tr.stats.late_commands,
+            "controller_states": {str(k): v for k, v in sorted(tr.stats.controller_states.items())},
+            "controller_telemetry_missing": tr.controller_telemetry_missing,
+        },
+        "bus": tr.bus,
+        "timing": {
+            "wall_time": round(t.wall_time, 3),
+            "speed": round(t.speed, 2),
+            "overruns": t.overruns,
+            "jitter_us": t.jitter_us,
+            "policy": t.realtime_policy,
+        },
+    }
+
+
+def write_outputs(result: RunResult, out: Path) -> None:
+    (out / "summary.json").write_bytes(msgspec.json.format(msgspec.json.encode(summary(result)), indent=2))
+    write_rrd(out / "recording.rrd", result.trace, result.scenario.name)
+    caps = [e.cap for e in result.scenario.sc if e.mode == "limit"]
+    write_plots(
+        out / "plots.png",
+        result.trace,
+        f"{result.scenario.name} ({result.controller}, {result.clock})",
+        caps[0] if caps else None,
+    )
+
+
+def format_table(result: RunResult) -> str:
+    rows = [
+        (
+            v.criterion,
+            f"{v.value:.3f} {v.units}".strip(),
+            v.limit,
+            "PASS" if v.passed else "FAIL",
+        )
+        for v in result.verdicts
+    ]
+    head = ("criterion", "measured", "limit", "verdict")
+    widths = [max(len(r[i]) for r in [head, *rows]) for i in range(4)]
+    lines = ["  ".join(h.ljust(w) for h, w in zip(head, widths, strict=True))]
+    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in rows]
+    tr = result.trace
+    lines.append(
+        f"{result.scenario.name}: {tr.t[-1] if len(tr.t) else 0:.2f} s simulated "
+        f"({result.controller}, {result.clock}) in {tr.timing.wall_time:.1f} s wall "
+        f"({tr.timing.speed:.1f}x real time); " + ("PASSED" if result.passed else "FAILED")
+    )
+    if math.isfinite(tr.timing.speed) and tr.fallen:
+        lines.append(f"the robot fell: {tr.fallen}")
+    return "\n".join(lines)
+
+
+def load_scenario(path: Path) -> Scenario:
+    return load_toml(path, Scenario)

@@ -1,0 +1,144 @@
+"""Scenarios: typed TOML files that say what to run and how to judge it (`configs/scenarios/*.toml`).
+
+A scenario names the robot and rider files, the controller, the clock, the duration, the shared
+controller's schedule, the rider's intent, scheduled faults (none yet), and its pass/fail criteria.
+Criteria are declarative measurements with validators and units (after OpenHTF): a metric of the run,
+a plane, and bounds; the verdict of each is recorded with the measured value.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Literal
+
+import msgspec
+
+from plant.rider import Segment
+
+Positive = Annotated[float, msgspec.Meta(gt=0)]
+
+
+class _Record(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    pass
+
+
+class ScEntry(_Record, kw_only=True):
+    """From `at` seconds on, the shared controller asks for `mode` (`cap` m/s in limit mode)."""
+
+    at: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    mode: Literal["free", "idle", "limit"]
+    cap: Annotated[float, msgspec.Meta(ge=0, le=5)] = 0.0
+
+
+class Intent(_Record):
+    """The rider's intent: lean profiles per plane (deg) and a twist profile (Nm); see plant/rider.py."""
+
+    pitch: list[Segment] = []
+    roll: list[Segment] = []
+    twist: list[Segment] = []
+
+
+Metric = Literal[
+    "max_speed",
+    "final_speed",
+    "max_tilt_deg",
+    "max_lean_deg",
+    "rmse",
+    "rmse_paper",
+    "distance",
+    "max_yaw_rate",
+    "stop_time",
+    "fallen",
+    "missing_commands",
+]
+UNITS = {
+    "max_speed": "m/s",
+    "final_speed": "m/s",
+    "max_tilt_deg": "deg",
+    "max_lean_deg": "deg",
+    "rmse": "rad/s",
+    "rmse_paper": "E-3",
+    "distance": "m",
+    "max_yaw_rate": "rad/s",
+    "stop_time": "s",
+    "fallen": "",
+    "missing_commands": "",
+}
+
+
+PLANE_METRICS = {
+    "max_speed",
+    "final_speed",
+    "max_tilt_deg",
+    "max_lean_deg",
+    "rmse",
+    "rmse_paper",
+    "stop_time",
+}
+
+
+class Criterion(_Record):
+    """A measurement and its validator: `min <= value <= max`, or `value == equals`."""
+
+    metric: Metric
+    plane: Literal["pitch", "roll", "both"] = "pitch"
+    min: float | None = None
+    max: float | None = None
+    equals: float | bool | None = None
+    after: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    """Evaluate only the part of the run after this time, s (stop_time: the cue)."""
+    note: str = ""
+
+    def __post_init__(self) -> None:
+        if self.min is None and self.max is None and self.equals is None:
+            raise ValueError(f"criterion on {self.metric} needs min, max or equals")
+
+    def check(self, value: float) -> bool:
+        if self.equals is not None:
+            return value == self.equals
+        return (self.min is None or value >= self.min) and (self.max is None or value <= self.max)
+
+    @property
+    def label(self) -> str:
+        return f"{self.metric} [{self.plane}]" if self.metric in PLANE_METRICS else self.metric
+
+    def describe(self) -> str:
+        unit = UNITS[self.metric]
+        if self.equals is not None:
+            return f"== {self.equals}"
+        parts = []
+        if self.min is not None:
+            parts.append(f">= {self.min:g} {unit}")
+        if self.max is not None:
+            parts.append(f"<= {self.max:g} {unit}")
+        return " and ".join(parts)
+
+
+class Scenario(_Record):
+    name: str
+    description: str = ""
+    robot: str = "configs/robot/pure.toml"
+    rider: str = "configs/riders/ref_60kg_180.toml"
+    controller: Literal["hacs", "ihacs", "external"] = "hacs"
+    clock: Literal["lockstep", "realtime"] = "lockstep"
+    duration: Positive = 10.0
+    seed: int = 0
+    tick_hz: Positive = 400.0
+    initial_tilt_deg: tuple[float, float] = (0.0, 0.0)
+    sc: list[ScEntry] = msgspec.field(default_factory=lambda: [ScEntry(mode="free")])
+    intent: Intent = Intent()
+    faults: list[dict] = []
+    """Scheduled faults (the fault catalog is a later issue; must stay empty for now)."""
+    criteria: list[Criterion] = []
+
+    def __post_init__(self) -> None:
+        if self.faults:
+            raise ValueError("faults are not supported yet (fault catalog: a later issue)")
+
+
+def resolve(path: str, root: Path) -> Path:
+    """A path of a scenario: absolute, relative to the working directory if it exists there, else to root."""
+    p = Path(path)
+    if p.is_absolute() or p.exists():
+        return p
+    return root / p
