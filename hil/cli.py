@@ -99,6 +99,39 @@ def _run(args: argparse.Namespace) -> int:
     return 0 if result.passed else 1
 
 
+def _compare(args: argparse.Namespace) -> int:
+    from hil.compare import PAPER_RIDERS, compare, write
+    from hil.runner import load_scenario
+    from plant.params import RiderParams
+
+    scenarios = [load_scenario(config_path(s)) for s in args.scenarios]
+    riders = tuple(args.riders) if args.riders else PAPER_RIDERS
+    for rider in riders:
+        load_toml(config_path(rider), RiderParams)  # a bad rider file fails now, not after an hour of runs
+    print(
+        f"pure-hil compare: {len(scenarios)} scenario(s) x {len(riders)} rider(s) x {args.trials} trial(s) "
+        f"x HACS/iHACS, lockstep"
+    )
+    result = compare(scenarios, tuple(str(config_path(r)) for r in riders), args.trials)
+    out = Path(args.out) if args.out else Path("runs") / f"compare-{time.strftime('%Y%m%d-%H%M%S')}"
+    write(result, out)
+    print(result.table())
+    print(f"outputs: {out}/compare.md, compare.json")
+    return 0
+
+
+def _controller(args: argparse.Namespace) -> int:
+    """Start the reference controller as its own process (the rig never imports a controller)."""
+    import subprocess
+
+    script = Path(sys.executable).with_name("pure-controller")
+    command = [str(script) if script.exists() else "pure-controller", *args.args]
+    try:
+        return subprocess.call(command)
+    except KeyboardInterrupt:
+        return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="pure-hil", description="Hardware-in-the-loop rig for the PURE ballbot"
@@ -126,6 +159,21 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--out", default=None, help="run folder (default runs/NAME-TIMESTAMP)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.set_defaults(func=_run)
+
+    cmp_ = sub.add_parser("compare", help="HACS vs iHACS over scenarios and riders: the paper's table")
+    cmp_.add_argument("scenarios", nargs="+", help="configs/scenarios/*.toml")
+    cmp_.add_argument(
+        "--riders", nargs="*", default=None, help="rider files (default: the paper's four riders)"
+    )
+    cmp_.add_argument("--trials", type=int, default=1, help="seeds per rider")
+    cmp_.add_argument("--out", default=None)
+    cmp_.set_defaults(func=_compare)
+
+    ctl = sub.add_parser(
+        "controller", help="start the reference controller as its own process (pure-controller)"
+    )
+    ctl.add_argument("args", nargs=argparse.REMAINDER, help="arguments for pure-controller (see --help)")
+    ctl.set_defaults(func=_controller)
     return parser
 
 

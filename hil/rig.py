@@ -96,9 +96,10 @@ class Rig:
         plant = self.plant
         plant.step()
         k = plant.tick
-        self._send_sensors(k)
-        self._publish_tes(k)
+        # zenoh first: its delivery to the controller overlaps with sending the CAN frames.
         self._publish_sc(k)
+        self._publish_tes(k)
+        self._send_sensors(k)
         self.can.send("SYNC", {"Tick": k % TICK_MODULO})
         if deadline is None:
             deadline = time.monotonic() + self.command_guard

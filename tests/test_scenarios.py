@@ -158,3 +158,23 @@ def test_cli_exit_codes(tmp_path, capsys):
     assert "unknown field `durration`" in capsys.readouterr().err
     assert main(["run", str(ROOT / "configs/scenarios/balance.toml"), "--controller", "external"]) == 2
     assert "needs a bus shared with another process" in capsys.readouterr().err
+
+
+def test_compare_writes_the_paper_table(tmp_path):
+    from hil.compare import compare, write
+
+    short = msgspec.structs.replace(load("speed_limiting"), duration=3.0)
+    result = compare(
+        [short],
+        riders=(str(ROOT / "configs/riders/s16_mwcu_52kg_167.toml"),),
+        progress=None,
+        hub_endpoint=hub_endpoint(),
+    )
+    assert [(r["controller"], r["rider"]) for r in result.runs] == [
+        ("hacs", "s16_mwcu_52kg_167"),
+        ("ihacs", "s16_mwcu_52kg_167"),
+    ]
+    write(result, tmp_path)
+    table = (tmp_path / "compare.md").read_text()
+    assert "speed_limiting HACS" in table and "max|v| (m/s)" in table and "(0.00)" in table
+    assert json.loads((tmp_path / "compare.json").read_text())[1]["pitch.max_speed"] > 0
