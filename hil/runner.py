@@ -70,6 +70,8 @@ def measure(trace: Trace, c: Criterion, ball_radius: float) -> float:
     if c.metric == "distance":
         return float(np.hypot(*trace.position[-1]))
     window = trace.t >= c.after
+    if not window.any():
+        return math.nan  # the run ended (fell, controller lost) before the window: the criterion fails
     if c.metric == "max_yaw_rate":
         return float(np.abs(trace.yaw_rate[window]).max())
     planes = ("pitch", "roll") if c.plane == "both" else (c.plane,)

@@ -1,0 +1,40 @@
+"""The clocks: real-time pacing and overrun counting (no timing assertions beyond what cannot flake)."""
+
+import time
+
+from hil.clock import LockstepClock, RealtimeClock
+
+
+def test_realtime_clock_paces_and_measures_jitter():
+    clock = RealtimeClock(0.004)
+    clock.start()
+    t0 = time.perf_counter()
+    for _ in range(50):
+        clock.wait_next()
+    elapsed = time.perf_counter() - t0
+    stats = clock.stats()
+    assert elapsed >= 50 * 0.004 * 0.999  # never early
+    assert stats.ticks == 50 and set(stats.jitter_us) == {"p50", "p99", "p99.9", "max"}
+    assert stats.sim_time == 50 * 0.004
+
+
+def test_realtime_clock_counts_overruns_and_skips_lost_ticks():
+    clock = RealtimeClock(0.002)
+    clock.start()
+    clock.wait_next()
+    time.sleep(0.011)  # a tick's work took more than five periods
+    clock.wait_next()
+    assert clock.overruns == 1
+    # Back on the grid: the missed ticks are skipped, so the next deadline is ahead of now, not behind.
+    assert clock._next > time.perf_counter() - 0.002
+
+
+def test_lockstep_clock_never_waits():
+    clock = LockstepClock(0.0025, command_guard=0.5)
+    clock.start()
+    t0 = time.perf_counter()
+    for _ in range(1000):
+        clock.wait_next()
+    assert time.perf_counter() - t0 < 0.5
+    assert clock.stats().sim_time == 2.5
+    assert clock.command_deadline() - time.monotonic() > 0.4
