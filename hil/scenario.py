@@ -38,19 +38,6 @@ class Intent(_Record):
     twist: list[Segment] = []
 
 
-Metric = Literal[
-    "max_speed",
-    "final_speed",
-    "max_tilt_deg",
-    "max_lean_deg",
-    "rmse",
-    "rmse_paper",
-    "distance",
-    "max_yaw_rate",
-    "stop_time",
-    "fallen",
-    "missing_commands",
-]
 UNITS = {
     "max_speed": "m/s",
     "final_speed": "m/s",
@@ -64,6 +51,8 @@ UNITS = {
     "fallen": "",
     "missing_commands": "",
 }
+Metric = Literal[tuple(UNITS)]  # type: ignore[valid-type]
+"""A measurement of a run (hil/runner.py::measure), with its unit in UNITS."""
 
 
 PLANE_METRICS = {
