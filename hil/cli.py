@@ -132,6 +132,26 @@ def _controller(args: argparse.Namespace) -> int:
         return 0
 
 
+def _replay(args: argparse.Namespace) -> int:
+    from hil.replay import replay
+
+    run_dir = Path(args.run_dir)
+    if not (run_dir / "can.log").exists() or not (run_dir / "zenoh_inputs.msgpack").exists():
+        print(
+            f"pure-hil: {run_dir} is not a run folder (needs can.log and zenoh_inputs.msgpack)",
+            file=sys.stderr,
+        )
+        return 2
+    result = replay(run_dir, limit=args.limit)
+    print(
+        f"pure-hil replay {run_dir}: {result.ticks} ticks, {result.frames_compared} controller frames "
+        f"compared, {len(result.mismatches)} tick(s) differ"
+    )
+    for line in result.mismatches[:10]:
+        print("  " + line)
+    return 0 if result.identical else 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="pure-hil", description="Hardware-in-the-loop rig for the PURE ballbot"
@@ -168,6 +188,11 @@ def build_parser() -> argparse.ArgumentParser:
     cmp_.add_argument("--trials", type=int, default=1, help="seeds per rider")
     cmp_.add_argument("--out", default=None)
     cmp_.set_defaults(func=_compare)
+
+    rep = sub.add_parser("replay", help="replay a run's CAN log and zenoh inputs into a fresh controller")
+    rep.add_argument("run_dir")
+    rep.add_argument("--limit", type=int, default=None, help="replay only the first N ticks")
+    rep.set_defaults(func=_replay)
 
     ctl = sub.add_parser(
         "controller", help="start the reference controller as its own process (pure-controller)"

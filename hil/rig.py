@@ -17,7 +17,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 
 from drivers.can_bus import CanNode
-from drivers.schemas import ControllerTelemetry, ScCommand, TesWrench
+from drivers.schemas import ControllerTelemetry, ScCommand, TesWrench, encode
 from drivers.zenoh_link import ZenohLink
 from plant.ballbot import Plant
 from plant.drives import DriveState
@@ -76,6 +76,8 @@ class Rig:
         self._sc_last: ScStep | None = None
         self._sc_sent_tick = -SC_REPEAT_EVERY
         self._silent_ticks = 0
+        self.zenoh_inputs: list[tuple[int, str, bytes]] = []
+        """Every (tick, key, payload) put for the controller, in order (what `pure-hil replay` replays)."""
 
     def wait_for_controller(self, timeout: float = 10.0) -> bool:
         """The controller's zenoh subscriptions are in place (the rig's publishers have a match)."""
@@ -130,9 +132,15 @@ class Rig:
         send("IMU_RATE", {"RateX": imu.rate[0], "RateY": imu.rate[1], "RateZ": imu.rate[2], "Valid": 1})
         send("IMU_ACCEL", {"AccX": imu.accel[0], "AccY": imu.accel[1], "AccZ": imu.accel[2], "Valid": 1})
 
+    def _put(self, k: int, key: str, payload) -> None:
+        data = encode(payload)
+        self.link.publisher(key).put(data)
+        self.zenoh_inputs.append((k, key, data))
+
     def _publish_tes(self, k: int) -> None:
         s = self.plant.sample_tes()
-        self.link.put(
+        self._put(
+            k,
             self.keys.tes_wrench,
             TesWrench(seq=k, stamp=self.plant.t, force=s.force, moment=s.moment, cop=s.cop),
         )
@@ -147,7 +155,8 @@ class Rig:
         if current is self._sc_last and k - self._sc_sent_tick < SC_REPEAT_EVERY:
             return
         self._sc_seq += 1
-        self.link.put(
+        self._put(
+            k,
             self.keys.sc_command,
             ScCommand(
                 seq=self._sc_seq,

@@ -1,8 +1,8 @@
 """Run a scenario and judge it: metrics, verdicts, and the run folder (DESIGN.md §8).
 
 Run folder: summary.json (config echo, seed, versions, metrics, verdicts, bus and timing statistics),
-can.log (candump -L format; python-can's LogReader and can-utils read it), recording.rrd (rerun),
-plots.png.
+can.log (candump -L format; python-can's LogReader and can-utils read it), zenoh_inputs.msgpack (what the
+controller was told over zenoh, for `pure-hil replay`), recording.rrd (rerun), plots.png.
 """
 
 from __future__ import annotations
@@ -213,6 +213,7 @@ def summary(result: RunResult) -> dict:
 
 def write_outputs(result: RunResult, out: Path) -> None:
     (out / "summary.json").write_bytes(msgspec.json.format(msgspec.json.encode(summary(result)), indent=2))
+    (out / "zenoh_inputs.msgpack").write_bytes(msgspec.msgpack.encode(result.trace.zenoh_inputs))
     write_rrd(out / "recording.rrd", result.trace, result.scenario.name)
     caps = [e.cap for e in result.scenario.sc if e.mode == "limit"]
     write_plots(

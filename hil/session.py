@@ -80,6 +80,8 @@ class Trace:
     """The rig node's CAN statistics (sent, received, E2E events, malformed frames)."""
     motor_torque: np.ndarray
     """(n, 3) motor torques the drives produced, Nm."""
+    zenoh_inputs: list[tuple[int, str, bytes]]
+    """What the rig put on zenoh for the controller: (tick, key, msgpack payload)."""
 
 
 def run(spec: RunSpec) -> Trace:
@@ -184,4 +186,5 @@ def _loop(rig: Rig, plant: Plant, spec: RunSpec) -> Trace:
         timing=timing,
         bus=rig.can.stats.as_dict(),
         motor_torque=rows[:, 12:15],
+        zenoh_inputs=rig.zenoh_inputs,
     )

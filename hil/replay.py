@@ -1,0 +1,133 @@
+"""`pure-hil replay RUN_DIR`: feed a recorded run back into a controller and check it answers the same.
+
+The run's CAN log holds every frame; zenoh_inputs.msgpack holds what the rig told the controller over
+zenoh (seat wrench, SC commands) tick by tick. Replay starts the controller under test afresh (lockstep),
+plays the rig's frames through python-can's MessageSync, puts each tick's zenoh inputs before that tick's
+SYNC, and compares the controller's drive commands and heartbeat with the recorded ones, byte for byte.
+A deterministic controller reproduces them exactly; any difference is reported with its tick.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+import uuid
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import can
+import msgspec
+
+from drivers.can_bus import BusConfig, open_bus
+from drivers.can_codec import Catalog
+from drivers.dut import DutSpec, start_dut
+from drivers.zenoh_link import ZenohLink, open_session
+from hil.scenario import resolve
+
+ROOT = Path(__file__).resolve().parents[1]
+CONTROLLER_FRAMES = {"DRIVE1_COMMAND", "DRIVE2_COMMAND", "DRIVE3_COMMAND", "CONTROLLER_HEARTBEAT"}
+
+
+@dataclass(slots=True)
+class ReplayResult:
+    ticks: int = 0
+    frames_compared: int = 0
+    mismatches: list[str] = field(default_factory=list)
+
+    @property
+    def identical(self) -> bool:
+        return self.ticks > 0 and not self.mismatches
+
+
+@dataclass(slots=True)
+class _Tick:
+    rig_frames: list[can.Message] = field(default_factory=list)
+    expected: list[tuple[int, bytes]] = field(default_factory=list)
+
+
+def _ticks(log: Path, catalog: Catalog) -> list[_Tick]:
+    """Split the log at each SYNC: the rig's frames up to and including SYNC, then the controller's answer."""
+    ticks: list[_Tick] = []
+    current = _Tick()
+    answering = False
+    for msg in can.MessageSync(can.LogReader(str(log)), timestamps=False):
+        codec = catalog.by_id(msg.arbitration_id)
+        name = codec.name if codec else ""
+        if name in CONTROLLER_FRAMES:
+            current.expected.append((msg.arbitration_id, bytes(msg.data)))
+            continue
+        if answering:  # the first rig frame after the controller's answer starts the next tick
+            ticks.append(current)
+            current, answering = _Tick(), False
+        current.rig_frames.append(msg)
+        answering = name == "SYNC"
+    if answering:
+        ticks.append(current)
+    return ticks
+
+
+def replay(
+    run_dir: Path, controller: str = "reference", hub_endpoint: str | None = None, limit: int | None = None
+) -> ReplayResult:
+    summary = json.loads((run_dir / "summary.json").read_text())
+    scenario = summary["scenario"]
+    catalog = Catalog()
+    ticks = _ticks(run_dir / "can.log", catalog)[:limit]
+    inputs: dict[int, list[tuple[str, bytes]]] = defaultdict(list)
+    for tick, key, data in msgspec.msgpack.decode((run_dir / "zenoh_inputs.msgpack").read_bytes()):
+        inputs[tick].append((key, data))
+    first_tick = min(inputs) if inputs else 1
+    bus_config = BusConfig(channel=f"replay-{uuid.uuid4().hex[:12]}")
+    bus = open_bus(bus_config)
+    session = open_session(role="hub", hub_endpoint=hub_endpoint)
+    link = ZenohLink(session)
+    dut = None
+    result = ReplayResult()
+    try:
+        dut = start_dut(
+            controller,
+            DutSpec(
+                can=bus_config,
+                zenoh_config=str(ROOT / "configs/zenoh/loopback.json5"),
+                hub_endpoint=hub_endpoint,
+                mode=summary["controller"],
+                robot=str(resolve(scenario["robot"], ROOT)),
+                rider=str(resolve(scenario["rider"], ROOT)),
+                controller_config=str(ROOT / "configs/controller/default.toml"),
+                lockstep=True,
+                tick_hz=scenario["tick_hz"],
+            ),
+        )
+        pub = link.publisher(link.keys.tes_wrench)
+        deadline = time.monotonic() + 10.0
+        while not pub.matching_status.matching and time.monotonic() < deadline:
+            time.sleep(0.01)
+        for i, tick in enumerate(ticks):
+            for key, data in inputs.get(first_tick + i, ()):
+                link.publisher(key).put(data)
+            for msg in tick.rig_frames:
+                bus.send(can.Message(arbitration_id=msg.arbitration_id, is_extended_id=False, data=msg.data))
+            actual = []
+            answer_deadline = time.monotonic() + 2.0
+            while len(actual) < len(tick.expected) and time.monotonic() < answer_deadline:
+                msg = bus.recv(max(answer_deadline - time.monotonic(), 0.0))
+                if msg is not None:
+                    actual.append((msg.arbitration_id, bytes(msg.data)))
+            result.ticks += 1
+            result.frames_compared += len(tick.expected)
+            if actual != tick.expected:
+                result.mismatches.append(
+                    f"tick {first_tick + i}: expected {_fmt(tick.expected)}, got {_fmt(actual)}"
+                )
+    finally:
+        if dut is not None:
+            dut.stop()
+        link.close()
+        session.close()
+        bus.shutdown()
+    return result
+
+
+def _fmt(frames: list[tuple[int, bytes]]) -> str:
+    return " ".join(f"{fid:03X}#{data.hex().upper()}" for fid, data in frames) or "(nothing)"
