@@ -1,0 +1,95 @@
+"""Real-time pacing at the tick rate: period jitter and overruns of the rig's loop, with the rig's own work
+(plant step, sensor sampling, the tick's frames on a virtual bus drained by a second thread), against the
+same clock with no work at all, measured in the same run.
+
+    python benchmarks/realtime.py [--seconds 60] [--hz 400] [--fifo] [--cpu N]
+
+The controller is not in the loop here: in one process it cannot keep 400 Hz on a small machine
+(docs/rig.md); with a controller on its own board the rig's loop carries exactly this work.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import threading
+import uuid
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+from drivers.can_bus import BusConfig, CanNode, open_bus
+from hil.clock import RealtimeClock
+from plant.ballbot import Plant, RiderIntent
+from plant.params import RiderParams, RobotParams, SimParams
+from plant.rider import Sine
+
+
+def paced(seconds: float, hz: float, work, fifo: bool, cpu: int | None):
+    clock = RealtimeClock(1.0 / hz, fifo=fifo, cpu=cpu)
+    clock.start()
+    for _ in range(int(seconds * hz)):
+        work()
+        clock.wait_next()
+    return clock.stats()
+
+
+def main() -> None:
+    p = argparse.ArgumentParser()
+    p.add_argument("--seconds", type=float, default=60.0)
+    p.add_argument("--hz", type=float, default=400.0)
+    p.add_argument("--fifo", action="store_true", help="SCHED_FIFO (needs privileges)")
+    p.add_argument("--cpu", type=int, default=None, help="pin to this CPU")
+    args = p.parse_args()
+
+    plant = Plant(
+        RobotParams(),
+        RiderParams(name="ref", mass=60.0, height=1.80),
+        SimParams(tick_hz=args.hz, fixture="clamped"),
+        RiderIntent(pitch=[Sine(amplitude=5.0, frequency_hz=0.5, duration=1e9)]),
+    )
+    config = BusConfig(channel=f"rt-{uuid.uuid4().hex}")
+    tx_bus, rx_bus = open_bus(config), open_bus(config)
+    node = CanNode(tx_bus, name="rig")
+    stop = threading.Event()
+
+    def drain():
+        while not stop.is_set():
+            rx_bus.recv(0.1)
+
+    drainer = threading.Thread(target=drain, daemon=True)
+    drainer.start()
+
+    def rig_work():
+        plant.step()
+        for i, fb in enumerate(plant.sample_drives()):
+            node.send(
+                f"DRIVE{i + 1}_FEEDBACK", {"Position": fb.counts, "Velocity": fb.velocity, "Enabled": 1}
+            )
+        imu = plant.sample_imu()
+        node.send("IMU_ATTITUDE", {"Roll": imu.attitude[0], "Pitch": imu.attitude[1], "Yaw": imu.attitude[2]})
+        node.send("IMU_RATE", {"RateX": imu.rate[0], "RateY": imu.rate[1], "RateZ": imu.rate[2]})
+        node.send("IMU_ACCEL", {"AccX": imu.accel[0], "AccY": imu.accel[1], "AccZ": imu.accel[2]})
+        plant.sample_tes()
+        node.send("SYNC", {"Tick": plant.tick % 65536})
+
+    idle = paced(min(args.seconds, 10.0), args.hz, lambda: None, args.fifo, args.cpu)
+    loaded = paced(args.seconds, args.hz, rig_work, args.fifo, args.cpu)
+    stop.set()
+    drainer.join()
+    tx_bus.shutdown()
+    rx_bus.shutdown()
+    print(f"real-time pacing at {args.hz:g} Hz ({loaded.realtime_policy}); jitter = |period - nominal|, us")
+    print(f"{'loop':<34}{'ticks':>7}{'overruns':>9}{'p50':>8}{'p99':>8}{'p99.9':>8}{'max':>8}")
+    for label, s in (("no work (baseline)", idle), ("plant + sensors + 8 frames", loaded)):
+        j = s.jitter_us or {}
+        print(
+            f"{label:<34}{s.ticks:>7}{s.overruns:>9}{j.get('p50', 0):8.0f}{j.get('p99', 0):8.0f}"
+            f"{j.get('p99.9', 0):8.0f}{j.get('max', 0):8.0f}"
+        )
+    base, work = (idle.jitter_us or {}).get("p99", 0.0), (loaded.jitter_us or {}).get("p99", 0.0)
+    if base:
+        print(f"p99 jitter with the rig's work / without: {work / base:.1f}")
+
+
+if __name__ == "__main__":
+    main()
