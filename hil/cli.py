@@ -152,6 +152,56 @@ def _replay(args: argparse.Namespace) -> int:
     return 0 if result.identical else 1
 
 
+def _serve(args: argparse.Namespace) -> int:
+    import signal
+    import threading
+
+    from drivers.can_bus import parse_can_spec
+    from drivers.zenoh_link import LOOPBACK, open_session
+    from hil.service import RigService
+
+    session = open_session(args.zenoh or LOOPBACK, "hub", args.hub)
+    service = RigService(
+        session,
+        can=parse_can_spec(args.can) if args.can else None,
+        controller=args.controller,
+        clock=args.clock,
+        out_root=Path(args.out),
+        hub_endpoint=args.hub,
+    )
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    print(
+        f"pure-hil serve: queryables {service.keys.rig('{status,start,stop,intent}')}; Ctrl-C to stop",
+        flush=True,
+    )
+    stop.wait()
+    service.close()
+    session.close()
+    print("pure-hil serve: stopped")
+    return 0
+
+
+def _rig(args: argparse.Namespace) -> int:
+    import json
+
+    from drivers.keys import Keys
+    from drivers.zenoh_link import LOOPBACK, open_session
+
+    session = open_session(args.zenoh or LOOPBACK, "member", args.hub)
+    try:
+        replies = list(session.get(Keys().rig(args.action), payload=args.arg or "", timeout=10.0))
+    finally:
+        session.close()
+    if not replies or replies[0].ok is None:
+        print(f"pure-hil rig {args.action}: no answer (is `pure-hil serve` running?)", file=sys.stderr)
+        return 1
+    body = replies[0].ok.payload.to_string()
+    print(body)
+    return 0 if json.loads(body).get("ok") else 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="pure-hil", description="Hardware-in-the-loop rig for the PURE ballbot"
@@ -188,6 +238,24 @@ def build_parser() -> argparse.ArgumentParser:
     cmp_.add_argument("--trials", type=int, default=1, help="seeds per rider")
     cmp_.add_argument("--out", default=None)
     cmp_.set_defaults(func=_compare)
+
+    srv = sub.add_parser("serve", help="the long-running rig service, controlled over zenoh (pure/rig/*)")
+    srv.add_argument("--can", default=None)
+    srv.add_argument("--controller", choices=("hacs", "ihacs", "external"), default=None)
+    srv.add_argument("--clock", choices=("lockstep", "realtime"), default=None)
+    srv.add_argument("--zenoh", default=None, help="zenoh config (default: loopback)")
+    srv.add_argument("--hub", default=None, help="hub endpoint override, e.g. tcp/127.0.0.1:7447")
+    srv.add_argument("--out", default="runs", help="where run folders go")
+    srv.set_defaults(func=_serve)
+
+    rig = sub.add_parser(
+        "rig", help="talk to a running `pure-hil serve`: status, start FILE, stop, intent JSON"
+    )
+    rig.add_argument("action", choices=("status", "start", "stop", "intent"))
+    rig.add_argument("arg", nargs="?", default=None, help="scenario file (start) or intent JSON (intent)")
+    rig.add_argument("--zenoh", default=None)
+    rig.add_argument("--hub", default=None)
+    rig.set_defaults(func=_rig)
 
     rep = sub.add_parser("replay", help="replay a run's CAN log and zenoh inputs into a fresh controller")
     rep.add_argument("run_dir")

@@ -108,6 +108,9 @@ def run_scenario(
     out: Path | None = None,
     progress=None,
     hub_endpoint: str | None = None,
+    on_tick=None,
+    stop=None,
+    session=None,
 ) -> RunResult:
     controller = controller or scenario.controller
     clock = clock or scenario.clock
@@ -133,6 +136,9 @@ def run_scenario(
         can_log=None if out is None else out / "can.log",
         progress=progress,
         hub_endpoint=hub_endpoint,
+        on_tick=on_tick,
+        stop=stop,
+        session=session,
         controller_config=ROOT / "configs/controller/default.toml",
     )
     trace = run(spec)

@@ -5,6 +5,7 @@ under test started by name (entry point) in this process, the rig in lockstep.
 from __future__ import annotations
 
 import math
+import threading
 import time
 import uuid
 from collections.abc import Callable
@@ -12,6 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import zenoh
 
 from drivers.can_bus import BusConfig, BusRecorder, CanNode, open_bus
 from drivers.config import load_toml
@@ -54,6 +56,12 @@ class RunSpec:
     """Tee the bus into this python-can log (.log candump format, .blf, .asc)."""
     progress: Callable[[float, float], None] | None = None
     """Called with (simulated time, duration) about every 0.5 s of wall time."""
+    on_tick: Callable[[Plant], None] | None = None
+    """Called after every tick with the plant (the service applies live rider intent there)."""
+    stop: threading.Event | None = None
+    """Set it to end the run early (the service's stop)."""
+    session: zenoh.Session | None = None
+    """An open hub session to use instead of opening one (the long-running service owns its session)."""
 
 
 @dataclass(slots=True)
@@ -91,7 +99,7 @@ def run(spec: RunSpec) -> Trace:
     bus_config = spec.can or BusConfig(channel=f"pure-{uuid.uuid4().hex[:12]}")
     bus = open_bus(bus_config)
     recorder = BusRecorder(bus_config, spec.can_log) if spec.can_log is not None else None
-    session = open_session(spec.zenoh_config, "hub", spec.hub_endpoint)
+    session = spec.session or open_session(spec.zenoh_config, "hub", spec.hub_endpoint)
     link = ZenohLink(session, Keys())
     dut = None
     try:
@@ -126,7 +134,8 @@ def run(spec: RunSpec) -> Trace:
         if recorder is not None:
             recorder.stop()
         link.close()
-        session.close()
+        if spec.session is None:
+            session.close()
         bus.shutdown()
 
 
@@ -153,6 +162,10 @@ def _loop(rig: Rig, plant: Plant, spec: RunSpec) -> Trace:
         )
         n += 1
         if spec.stop_on_fall and tr.fallen:
+            break
+        if spec.on_tick is not None:
+            spec.on_tick(plant)
+        if spec.stop is not None and spec.stop.is_set():
             break
         if spec.progress is not None and time.monotonic() > next_report:
             spec.progress(tr.t, spec.duration)

@@ -156,6 +156,14 @@ class Plant:
         self._outputs_tick = -1
         self._accel_cache: tuple[tuple[float, ...], tuple[float, float]] = ((0.0,) * 6, (0.0, 0.0))
 
+    def set_intent(self, intent: RiderIntent) -> None:
+        """Replace the rider's intent from now on; each profile starts where the rider is."""
+        if self.torso is None:
+            return
+        for controller, segments in zip(self.torso, (intent.pitch, intent.roll), strict=True):
+            controller.profile = Profile(segments, start=self.t, value=math.degrees(controller.lean_cmd))
+        self.twist.profile = Profile(intent.twist, start=self.t, value=self.twist.torque)
+
     # ------------------------------------------------------------------------------------------ dynamics
     def _yaw_acceleration(self, rate: float, tau_z: float) -> float:
         """I_z ψ̈ = −τ_z − f_z + M_ext, Karnopp stick-slip on the ball-body relative yaw."""

@@ -64,9 +64,12 @@ Segment = Ramp | Hold | Step | Sine | Adversarial
 class Profile:
     """A compiled segment sequence: target(t, speed) -> value, or None while adversarial."""
 
-    def __init__(self, segments: list[Segment] | tuple[Segment, ...] = ()):
+    def __init__(
+        self, segments: list[Segment] | tuple[Segment, ...] = (), start: float = 0.0, value: float = 0.0
+    ):
+        """Segments play from time `start`, beginning at `value` (a live change starts where the rider is)."""
         self._spans: list[tuple[float, float, Segment, float]] = []  # (start, end, segment, start value)
-        t, value = 0.0, 0.0
+        t = start
         for seg in segments:
             if isinstance(seg, Step):
                 self._spans.append((t, t, seg, value))
@@ -87,6 +90,8 @@ class Profile:
         for i, (start, end, seg, v0) in enumerate(self._spans):
             if t >= end:
                 continue
+            if t < start:
+                return v0
             # A step has start == end, so reaching here means it has not happened yet: v0 holds.
             if isinstance(seg, Ramp):
                 return v0 + (seg.to - v0) * (t - start) / (end - start)

@@ -124,3 +124,17 @@ def test_adversarial_rider_drives_a_balanced_robot():
     assert plant.fallen is None
     assert math.degrees(plant.truth().lean[0]) == pytest.approx(-30.0, abs=1.0)
     assert plant.truth().velocity[0] < -0.3
+
+
+def test_intent_changes_live_from_where_the_rider_is():
+    plant = Plant(
+        RobotParams(), RIDER_75, sim(fixture="clamped"), RiderIntent(pitch=[Ramp(to=10.0, duration=1.0)])
+    )
+    for _ in range(800):  # 2 s: holding 10°
+        plant.step()
+    plant.set_intent(RiderIntent(pitch=[Ramp(to=-10.0, duration=2.0)]))
+    plant.step()
+    assert math.degrees(plant.torso[0].lean_cmd) == pytest.approx(10.0, abs=0.05)  # no jump
+    for _ in range(399):  # 1 s into the new 2 s ramp: halfway from 10° to −10°
+        plant.step()
+    assert math.degrees(plant.torso[0].lean_cmd) == pytest.approx(0.0, abs=0.1)

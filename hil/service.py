@@ -1,0 +1,164 @@
+"""`pure-hil serve`: the long-running rig for bench work, controlled over zenoh queryables.
+
+    pure/rig/status   -> JSON: state (idle | running), scenario, simulated time, the last run's result
+    pure/rig/start    <- a scenario: a file path, or the TOML text itself; runs it in the background
+    pure/rig/stop     -> ends the current run early
+    pure/rig/intent   <- JSON {"pitch": [...], "roll": [...], "twist": [...]}: the rider's intent from now on
+
+Every reply is JSON with "ok" and either the result or an "error" that says what was wrong. Queryable
+callbacks only validate and hand over; runs happen on a worker thread, so zenoh's threads never block.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from pathlib import Path
+
+import msgspec
+import zenoh
+
+from drivers.can_bus import BusConfig
+from drivers.config import ConfigError, decode_toml
+from drivers.keys import Keys
+from hil.runner import ROOT, load_scenario, run_scenario
+from hil.scenario import Intent, Scenario, resolve
+from plant.ballbot import Plant, RiderIntent
+
+
+class RigService:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        keys: Keys | None = None,
+        can: BusConfig | None = None,
+        controller: str | None = None,
+        clock: str | None = None,
+        out_root: Path = Path("runs"),
+        hub_endpoint: str | None = None,
+    ):
+        self.session, self.keys, self.hub_endpoint = session, keys or Keys(), hub_endpoint
+        self.can, self.controller, self.clock, self.out_root = can, controller, clock, out_root
+        self.state = "idle"
+        self.scenario: Scenario | None = None
+        self.sim_time = 0.0
+        self.last: dict | None = None
+        self._stop = threading.Event()
+        self._pending_intent: RiderIntent | None = None
+        self._lock = threading.Lock()
+        self._worker: threading.Thread | None = None
+        self._queryables = [
+            session.declare_queryable(self.keys.rig(name), handler)
+            for name, handler in (
+                ("status", self._status),
+                ("start", self._start),
+                ("stop", self._stop_run),
+                ("intent", self._intent),
+            )
+        ]
+
+    # ---------------------------------------------------------------------------------- queryables
+    def _reply(self, query: zenoh.Query, body: dict) -> None:
+        query.reply(query.key_expr, json.dumps(body))
+
+    def _status(self, query: zenoh.Query) -> None:
+        self._reply(query, {"ok": True, **self.status()})
+
+    def status(self) -> dict:
+        return {
+            "state": self.state,
+            "scenario": self.scenario.name if self.scenario else None,
+            "sim_time": round(self.sim_time, 3),
+            "last": self.last,
+        }
+
+    def _start(self, query: zenoh.Query) -> None:
+        text = query.payload.to_string() if query.payload is not None else ""
+        try:
+            scenario = self._scenario(text)
+        except ConfigError as exc:
+            self._reply(query, {"ok": False, "error": str(exc)})
+            return
+        with self._lock:
+            if self.state == "running":
+                self._reply(query, {"ok": False, "error": f"already running {self.scenario.name}"})
+                return
+            self.state, self.scenario, self.sim_time = "running", scenario, 0.0
+            self._stop.clear()
+            out = self.out_root / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}"
+            self._worker = threading.Thread(
+                target=self._run, args=(scenario, out), name="rig-run", daemon=True
+            )
+            self._worker.start()
+        self._reply(query, {"ok": True, "scenario": scenario.name, "out": str(out)})
+
+    def _scenario(self, text: str) -> Scenario:
+        text = text.strip()
+        if not text:
+            raise ConfigError("pure/rig/start", "expected a scenario file path or its TOML text")
+        if "\n" not in text and text.endswith(".toml"):
+            return load_scenario(resolve(text, ROOT))
+        return decode_toml(text, Scenario, "pure/rig/start payload")
+
+    def _stop_run(self, query: zenoh.Query) -> None:
+        running = self.state == "running"
+        self._stop.set()
+        self._reply(query, {"ok": True, "stopping": running})
+
+    def _intent(self, query: zenoh.Query) -> None:
+        text = query.payload.to_string() if query.payload is not None else ""
+        try:
+            intent = msgspec.json.decode(text, type=Intent)
+        except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+            self._reply(query, {"ok": False, "error": f"pure/rig/intent payload: {exc}"})
+            return
+        self._pending_intent = RiderIntent(list(intent.pitch), list(intent.roll), list(intent.twist))
+        self._reply(
+            query, {"ok": True, "applies_to": self.scenario.name if self.state == "running" else None}
+        )
+
+    # ----------------------------------------------------------------------------------------- runs
+    def _on_tick(self, plant: Plant) -> None:
+        self.sim_time = plant.t
+        intent, self._pending_intent = self._pending_intent, None
+        if intent is not None:
+            plant.set_intent(intent)
+
+    def _run(self, scenario: Scenario, out: Path) -> None:
+        try:
+            result = run_scenario(
+                scenario,
+                controller=self.controller,
+                can=self.can,
+                clock=self.clock,
+                out=out,
+                on_tick=self._on_tick,
+                stop=self._stop,
+                session=self.session,
+                hub_endpoint=self.hub_endpoint,
+            )
+            self.last = {
+                "scenario": scenario.name,
+                "passed": result.passed,
+                "fallen": result.trace.fallen,
+                "stopped_early": self._stop.is_set(),
+                "out": str(out),
+                "metrics": result.metrics,
+            }
+        except Exception as exc:  # a failed run is reported on status, never kills the service
+            self.last = {"scenario": scenario.name, "passed": False, "error": f"{type(exc).__name__}: {exc}"}
+        finally:
+            self.state = "idle"
+
+    def wait_idle(self, timeout: float | None = None) -> bool:
+        worker = self._worker
+        if worker is not None:
+            worker.join(timeout)
+        return self.state == "idle"
+
+    def close(self) -> None:
+        self._stop.set()
+        self.wait_idle(10.0)
+        for q in self._queryables:
+            q.undeclare()

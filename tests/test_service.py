@@ -1,0 +1,80 @@
+"""`pure-hil serve`: the rig as a service, driven over zenoh queryables on loopback."""
+
+import json
+import time
+
+import pytest
+
+from drivers.keys import Keys
+from drivers.zenoh_link import open_session
+from hil.service import RigService
+from tests.helpers import ROOT
+from tests.zenoh_helpers import hub_endpoint
+
+SHORT = """
+name = "served"
+rider = "configs/riders/ref_60kg_180.toml"
+duration = 6.0
+[[sc]]
+mode = "limit"
+cap = 1.0
+[[criteria]]
+metric = "fallen"
+equals = false
+"""
+
+
+@pytest.fixture
+def service(tmp_path):
+    endpoint = hub_endpoint()
+    hub = open_session(role="hub", hub_endpoint=endpoint)
+    svc = RigService(hub, out_root=tmp_path, hub_endpoint=endpoint)
+    client = open_session(role="member", hub_endpoint=endpoint)
+    yield svc, client
+    svc.close()
+    client.close()
+    hub.close()
+
+
+def ask(client, action, payload=""):
+    replies = list(client.get(Keys().rig(action), payload=payload, timeout=10.0))
+    assert replies and replies[0].ok is not None
+    return json.loads(replies[0].ok.payload.to_string())
+
+
+def test_status_start_intent_stop(service, tmp_path):
+    svc, client = service
+    assert ask(client, "status")["state"] == "idle"
+    started = ask(client, "start", SHORT)
+    assert started["ok"] and started["scenario"] == "served"
+    assert ask(client, "start", SHORT)["error"] == "already running served"
+    deadline = time.monotonic() + 60
+    while ask(client, "status")["sim_time"] < 1.0 and time.monotonic() < deadline:
+        time.sleep(0.1)
+    # The rider leans forward from now on: the robot drives off.
+    intent = ask(client, "intent", json.dumps({"pitch": [{"kind": "ramp", "to": 15.0, "duration": 0.5}]}))
+    assert intent == {"ok": True, "applies_to": "served"}
+    while ask(client, "status")["sim_time"] < 4.0 and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert ask(client, "stop")["stopping"] is True
+    assert svc.wait_idle(30)
+    last = ask(client, "status")["last"]
+    assert last["passed"] and last["stopped_early"] and last["metrics"]["pitch.max_speed"] > 0.3
+    assert (tmp_path / last["out"].split("/")[-1] / "summary.json").exists()
+
+
+def test_bad_requests_get_clear_errors(service):
+    _, client = service
+    assert "unknown field `durration`" in ask(client, "start", 'name = "x"\ndurration = 1.0\n')["error"]
+    assert "cannot read" in ask(client, "start", "configs/scenarios/nope.toml")["error"]
+    bad = ask(client, "intent", '{"pitch": [{"kind": "wobble"}]}')
+    assert not bad["ok"] and "pure/rig/intent payload" in bad["error"]
+    assert ask(client, "status")["state"] == "idle"
+
+
+def test_start_by_file(service):
+    svc, client = service
+    reply = ask(client, "start", str(ROOT / "configs/scenarios/balance.toml"))
+    assert reply["ok"] and reply["scenario"] == "balance"
+    assert svc.wait_idle(60)
+    assert ask(client, "status")["last"]["passed"] is True
