@@ -2,7 +2,7 @@
 
 Network rule: a session opens from a config file of `configs/zenoh/`; multicast scouting must be off and,
 unless the caller passes allow_network=True (a multi-host bench with a router), every endpoint must be on
-loopback. The default `zenoh.Config()` (multicast scouting on, listening on all interfaces) is never used.
+loopback. zenoh's built-in default config (multicast scouting on, listening on all interfaces) is never used.
 
 Roles: the *hub* (the rig) listens on the config's endpoint; *members* (controller, supervisor, operator
 tools) listen on an ephemeral loopback port and connect to the hub; gossip then introduces members to

@@ -41,6 +41,9 @@ class LockstepClock:
     def wait_next(self) -> None:
         self.ticks += 1
 
+    def stop(self) -> None:
+        pass
+
     def command_deadline(self) -> float:
         """Wall-clock (monotonic) time until which the rig waits for this tick's commands."""
         return time.monotonic() + self.command_guard
@@ -92,6 +95,9 @@ class RealtimeClock:
                 pass
         self._wakes.append(time.perf_counter())
         self.ticks += 1
+
+    def stop(self) -> None:
+        gc.unfreeze()  # a long-running service must not keep every run's start-up objects forever
 
     def command_deadline(self) -> float:
         """Commands must arrive before the next tick starts (less a margin for the rig's own work)."""

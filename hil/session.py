@@ -171,6 +171,7 @@ def _loop(rig: Rig, plant: Plant, spec: RunSpec) -> Trace:
             spec.progress(tr.t, spec.duration)
             next_report = time.monotonic() + 0.5
         clock.wait_next()
+    clock.stop()
     timing = clock.stats()
     rows = rows[:n]
     command = np.full((n, 2), np.nan)
