@@ -196,7 +196,13 @@ class BusRecorder:
     def _count(self, _msg: can.Message) -> None:
         self.frames += 1
 
-    def stop(self) -> None:
+    def stop(self, settle: float = 0.05) -> None:
+        # The notifier drops whatever is still queued when it stops: wait until the traffic has settled.
+        deadline = time.monotonic() + 2.0
+        seen = -1
+        while seen != self.frames and time.monotonic() < deadline:
+            seen = self.frames
+            time.sleep(settle)
         self.notifier.stop()  # also stops (flushes and closes) the writer
         self.bus.shutdown()
 
