@@ -30,8 +30,6 @@ class PlaneState:
 class Estimate:
     planes: tuple[PlaneState, PlaneState]
     yaw_rate: float
-    specific_force: tuple[float, float, float]
-    """Body frame, m/s² (at rest upright: (0, 0, +g))."""
     fault: str | None
 
 
@@ -42,7 +40,6 @@ class Estimator:
         self.hold = hold
         self.attitude = (0.0, 0.0, 0.0)
         self.rate = (0.0, 0.0, 0.0)
-        self.accel = (0.0, 0.0, 9.80665)
         self.counts = [0, 0, 0]
         self.velocity = [0.0, 0.0, 0.0]
         self._raw_counts: list[int | None] = [None, None, None]
@@ -58,10 +55,6 @@ class Estimator:
     def imu_attitude(self, roll: float, pitch: float, yaw: float, t: float) -> None:
         self.attitude = (roll, pitch, yaw)
         self.last_good["imu_attitude"] = t
-
-    def imu_accel(self, x: float, y: float, z: float) -> None:
-        """Specific force in the body frame (not safety-critical for the estimate: no watchdog)."""
-        self.accel = (x, y, z)
 
     def imu_rate(self, x: float, y: float, z: float, t: float) -> None:
         self.rate = (x, y, z)
@@ -92,4 +85,4 @@ class Estimator:
         # ω_rel = [φ_x − θ_x, φ_y − θ_y, −ψ]: add the chassis rotation back to get the ball's.
         pitch_state = PlaneState(pitch, float(rel[1]) + pitch, rate_y, float(rel_rate[1]) + rate_y)
         roll_state = PlaneState(roll, float(rel[0]) + roll, rate_x, float(rel_rate[0]) + rate_x)
-        return Estimate((pitch_state, roll_state), rate_z, self.accel, fault)
+        return Estimate((pitch_state, roll_state), rate_z, fault)

@@ -64,8 +64,6 @@ class ControllerNode:
             est.imu_attitude(s["Roll"], s["Pitch"], s["Yaw"], t)
         elif rx.name == "IMU_RATE" and s["Valid"]:
             est.imu_rate(s["RateX"], s["RateY"], s["RateZ"], t)
-        elif rx.name == "IMU_ACCEL" and s["Valid"]:
-            est.imu_accel(s["AccX"], s["AccY"], s["AccZ"])
         elif rx.name == "SUPERVISOR_ESTOP":
             self.estop = bool(s["Estop"])
 

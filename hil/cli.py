@@ -15,23 +15,16 @@ from pathlib import Path
 import msgspec
 
 from drivers.config import ConfigError, load_toml
-
-SOURCE_ROOT = Path(__file__).resolve().parents[1]
-
-
-def config_path(relative: str) -> Path:
-    """A shipped config: from the working directory if it has one, else from the source tree."""
-    here = Path(relative)
-    return here if here.exists() else SOURCE_ROOT / relative
+from hil.scenario import resolve
 
 
 def _simulate(args: argparse.Namespace) -> int:
     from hil.plant_run import default_intent, format_summary, run_plant
     from plant.params import RiderParams, RobotParams, SimParams
 
-    robot = load_toml(config_path(args.robot), RobotParams)
-    rider = None if args.no_rider else load_toml(config_path(args.rider), RiderParams)
-    sim = load_toml(config_path(args.sim), SimParams)
+    robot = load_toml(resolve(args.robot), RobotParams)
+    rider = None if args.no_rider else load_toml(resolve(args.rider), RiderParams)
+    sim = load_toml(resolve(args.sim), SimParams)
     if args.seed is not None:
         sim = msgspec.structs.replace(sim, seed=args.seed)
     started = time.perf_counter()
@@ -62,7 +55,7 @@ def _run(args: argparse.Namespace) -> int:
     from hil.runner import format_table, load_scenario, run_scenario
     from hil.session import ControllerUnavailable
 
-    scenario = load_scenario(config_path(args.scenario))
+    scenario = load_scenario(resolve(args.scenario))
     try:
         can = parse_can_spec(args.can) if args.can else None
     except BusConfigError as exc:
@@ -104,15 +97,15 @@ def _compare(args: argparse.Namespace) -> int:
     from hil.runner import load_scenario
     from plant.params import RiderParams
 
-    scenarios = [load_scenario(config_path(s)) for s in args.scenarios]
+    scenarios = [load_scenario(resolve(s)) for s in args.scenarios]
     riders = tuple(args.riders) if args.riders else PAPER_RIDERS
     for rider in riders:
-        load_toml(config_path(rider), RiderParams)  # a bad rider file fails now, not after an hour of runs
+        load_toml(resolve(rider), RiderParams)  # a bad rider file fails now, not after an hour of runs
     print(
         f"pure-hil compare: {len(scenarios)} scenario(s) x {len(riders)} rider(s) x {args.trials} trial(s) "
         f"x HACS/iHACS, lockstep"
     )
-    result = compare(scenarios, tuple(str(config_path(r)) for r in riders), args.trials)
+    result = compare(scenarios, tuple(str(resolve(r)) for r in riders), args.trials)
     out = Path(args.out) if args.out else Path("runs") / f"compare-{time.strftime('%Y%m%d-%H%M%S')}"
     write(result, out)
     print(result.table())

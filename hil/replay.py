@@ -23,9 +23,8 @@ from drivers.can_bus import BusConfig, open_bus
 from drivers.can_codec import Catalog
 from drivers.dut import DutSpec, start_dut
 from drivers.zenoh_link import ZenohLink, open_session
-from hil.scenario import resolve
+from hil.scenario import ROOT, resolve
 
-ROOT = Path(__file__).resolve().parents[1]
 CONTROLLER_FRAMES = {"DRIVE1_COMMAND", "DRIVE2_COMMAND", "DRIVE3_COMMAND", "CONTROLLER_HEARTBEAT"}
 
 
@@ -92,8 +91,8 @@ def replay(
                 zenoh_config=str(ROOT / "configs/zenoh/loopback.json5"),
                 hub_endpoint=hub_endpoint,
                 mode=summary["controller"],
-                robot=str(resolve(scenario["robot"], ROOT)),
-                rider=str(resolve(scenario["rider"], ROOT)),
+                robot=str(resolve(scenario["robot"])),
+                rider=str(resolve(scenario["rider"])),
                 controller_config=str(ROOT / "configs/controller/default.toml"),
                 lockstep=True,
                 tick_hz=scenario["tick_hz"],

@@ -111,7 +111,8 @@ class Rig:
     # ------------------------------------------------------------------------------------------ outputs
     def _send_sensors(self, k: int) -> None:
         plant, send = self.plant, self.can.send
-        for name, fb, motor in zip(FEEDBACK, plant.sample_drives(), plant.drives.motors, strict=True):
+        feedback = plant.sample_drives()
+        for name, fb, motor in zip(FEEDBACK, feedback, plant.drives.motors, strict=True):
             send(
                 name,
                 {
@@ -122,7 +123,7 @@ class Rig:
                 },
             )
         if k % TORQUE_EVERY == 0:
-            for name, fb in zip(TORQUE, plant.sample_drives(), strict=True):
+            for name, fb in zip(TORQUE, feedback, strict=True):
                 send(name, {"Torque": fb.torque})
         imu = plant.sample_imu()
         send(

@@ -22,12 +22,11 @@ from hil.metrics import plane_metrics
 from hil.plots import write_plots
 from hil.recording import write_rrd
 from hil.rig import ScStep
-from hil.scenario import UNITS, Criterion, Scenario, resolve
+from hil.scenario import ROOT, UNITS, Criterion, Scenario, resolve
 from hil.session import RunSpec, Trace, run
 from plant.ballbot import RiderIntent
 from plant.params import RobotParams, SimParams
 
-ROOT = Path(__file__).resolve().parents[1]
 STOPPED = 0.1
 """m/s below which the robot counts as stopped (stop_time)."""
 
@@ -115,14 +114,14 @@ def run_scenario(
     controller = controller or scenario.controller
     clock = clock or scenario.clock
     seed = scenario.seed if seed is None else seed
-    robot_path = resolve(scenario.robot, ROOT)
+    robot_path = resolve(scenario.robot)
     robot = load_toml(robot_path, RobotParams)
     sim = SimParams(tick_hz=scenario.tick_hz, seed=seed)
     intent = RiderIntent(list(scenario.intent.pitch), list(scenario.intent.roll), list(scenario.intent.twist))
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
     spec = RunSpec(
-        rider=resolve(scenario.rider, ROOT),
+        rider=resolve(scenario.rider),
         mode="hacs" if controller == "external" else controller,
         controller="external" if controller == "external" else "reference",
         duration=scenario.duration,

@@ -125,8 +125,12 @@ class Scenario(_Record):
             raise ValueError("faults are not supported yet (fault catalog: a later issue)")
 
 
-def resolve(path: str, root: Path) -> Path:
-    """A path of a scenario: absolute, relative to the working directory if it exists there, else to root."""
+ROOT = Path(__file__).resolve().parents[1]
+"""The source tree: shipped configs are found here when the working directory has no copy."""
+
+
+def resolve(path: str | Path, root: Path = ROOT) -> Path:
+    """A config path: absolute, relative to the working directory if it exists there, else to the source."""
     p = Path(path)
     if p.is_absolute() or p.exists():
         return p

@@ -22,7 +22,7 @@ import zenoh
 from drivers.can_bus import BusConfig
 from drivers.config import ConfigError, decode_toml
 from drivers.keys import Keys
-from hil.runner import ROOT, load_scenario, run_scenario
+from hil.runner import load_scenario, run_scenario
 from hil.scenario import Intent, Scenario, resolve
 from plant.ballbot import Plant, RiderIntent
 
@@ -98,7 +98,7 @@ class RigService:
         if not text:
             raise ConfigError("pure/rig/start", "expected a scenario file path or its TOML text")
         if "\n" not in text and text.endswith(".toml"):
-            return load_scenario(resolve(text, ROOT))
+            return load_scenario(resolve(text))
         return decode_toml(text, Scenario, "pure/rig/start payload")
 
     def _stop_run(self, query: zenoh.Query) -> None:

@@ -22,10 +22,9 @@ from drivers.keys import Keys
 from drivers.zenoh_link import LOOPBACK, ZenohLink, open_session
 from hil.clock import LockstepClock, RealtimeClock, TimingStats
 from hil.rig import ControllerSilent, Rig, ScStep, TickStats
+from hil.scenario import ROOT
 from plant.ballbot import Plant, RiderIntent
 from plant.params import RiderParams, RobotParams, SimParams
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 class ControllerUnavailable(RuntimeError):

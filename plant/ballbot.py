@@ -153,7 +153,8 @@ class Plant:
         self.external_yaw = 0.0
         self.ball_torque = (0.0, 0.0, 0.0)
         self.fallen: str | None = None
-        self._outputs_tick = -1
+        self._outputs_tick = self._wrench_tick = -1
+        self._wrench: tuple[float, ...] = (0.0,) * 6
         self._accel_cache: tuple[tuple[float, ...], tuple[float, float]] = ((0.0,) * 6, (0.0, 0.0))
 
     def set_intent(self, intent: RiderIntent) -> None:
@@ -223,7 +224,7 @@ class Plant:
             self.position[1] += h * (vf * math.sin(yaw) + vl * math.cos(yaw))
         self.tick += 1
         self.t = self.tick * self.dt
-        self._outputs_tick = -1
+        self._outputs_tick = self._wrench_tick = -1
         self._check_fall()
 
     def _outputs(self) -> tuple[tuple[float, ...], tuple[float, float]]:
@@ -301,7 +302,14 @@ class Plant:
         return self.imu_model.sample(*self.imu_truth())
 
     def seat_wrench(self) -> tuple[float, float, float, float, float, float]:
-        """True wrench of the rider on the seat at P, body axes: torso load of both planes + the thighs."""
+        """True wrench of the rider on the seat at P, body axes (once per tick, shared by TES and truth)."""
+        if self._wrench_tick != self.tick:
+            self._wrench = self._compute_seat_wrench()
+            self._wrench_tick = self.tick
+        return self._wrench
+
+    def _compute_seat_wrench(self) -> tuple[float, float, float, float, float, float]:
+        """Torso load of both planes + the thighs' weight."""
         if self.seated is None:
             return (0.0,) * 6
         accel, hips = self._outputs()
