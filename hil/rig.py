@@ -3,31 +3,46 @@
 One tick k:
   1. the plant advances one tick under the torques the drives hold;
   2. sensors sample the truth;
-  3. the rig sends drive feedback and IMU frames, publishes the seat wrench (and, until the supervisor
-     exists, the SC command of the schedule), then SYNC(k);
-  4. lockstep: it waits for the three drive commands tagged k (bounded by a wall-clock guard: a miss is
-     counted, never a hang) and hands them to the drives;
-  5. the recorder keeps the tick.
+  3. the rig publishes the SC request of the schedule, any operator action due and the seat wrench,
+     sends drive feedback and IMU frames, then SYNC(k);
+  4. it waits for the three drive commands tagged k (bounded by a wall-clock guard: a miss is counted,
+     never a hang) and hands them to the drives;
+  5. the supervisor (in-process) updates from the same traffic; its SUPERVISOR_ESTOP frame is the drives'
+     permission to run: they turn off when it asserts e-stop or goes silent;
+  6. the recorder keeps the tick.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from collections import Counter
 from dataclasses import dataclass, field
 
-from drivers.can_bus import CanNode
-from drivers.schemas import ControllerTelemetry, ScCommand, TesWrench, encode
+from drivers.can_bus import CanNode, Received
+from drivers.schemas import (
+    ControllerCommand,
+    ControllerTelemetry,
+    EstopCommand,
+    Payload,
+    ScRequest,
+    TesWrench,
+    encode,
+)
 from drivers.zenoh_link import ZenohLink
 from plant.ballbot import Plant
 from plant.drives import DriveState
+from safety.node import SupervisorNode
 
 TICK_MODULO = 1 << 16
 COMMANDS = {"DRIVE1_COMMAND": 0, "DRIVE2_COMMAND": 1, "DRIVE3_COMMAND": 2}
 FEEDBACK = ("DRIVE1_FEEDBACK", "DRIVE2_FEEDBACK", "DRIVE3_FEEDBACK")
 TORQUE = ("DRIVE1_TORQUE", "DRIVE2_TORQUE", "DRIVE3_TORQUE")
 TORQUE_EVERY = 4  # DRIVEn_TORQUE at 100 Hz on a 400 Hz tick (the DBC's GenMsgCycleTime)
-SC_REPEAT_EVERY = 20  # ticks between repeats of an unchanged SC command (keeps it fresh for the controller)
+SC_REPEAT_EVERY = 40  # ticks between repeats of an unchanged SC request (keeps it fresh for the supervisor)
+SILENT_GUARD = 0.005
+"""s to wait per tick once the controller has been silent MAX_SILENT_TICKS in a row (it may be dead: the
+run goes on so the supervisor and the drives can be seen to react)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -39,6 +54,15 @@ class ScStep:
     cap: float = 0.0
 
 
+@dataclass(frozen=True, slots=True)
+class OperatorStep:
+    """At time `at` (s) the operator acts: estop or reset (pure/safety/estop), enable or disable the
+    controller (pure/controller/command)."""
+
+    at: float
+    action: str
+
+
 @dataclass(slots=True)
 class TickStats:
     ticks: int = 0
@@ -47,10 +71,10 @@ class TickStats:
     late_commands: int = 0
     """Commands tagged with an older tick (arrived after their tick was given up)."""
     controller_states: Counter[int] = field(default_factory=Counter)
-
-
-class ControllerSilent(RuntimeError):
-    """Lockstep: the controller answered no SYNC for several ticks in a row."""
+    refused_commands: int = 0
+    """Commands the drives ignored because the supervisor had not given them permission."""
+    permission_lost: int = 0
+    """Times the drives lost their permission (e-stop asserted or the supervisor's frame went silent)."""
 
 
 MAX_SILENT_TICKS = 3
@@ -64,20 +88,40 @@ class Rig:
         link: ZenohLink,
         sc_schedule: list[ScStep] | tuple[ScStep, ...] = (ScStep(0.0, "free"),),
         command_guard: float = 1.0,
+        supervisor: SupervisorNode | None = None,
+        operator: list[OperatorStep] | tuple[OperatorStep, ...] = (),
     ):
         self.plant, self.can, self.link = plant, can, link
         self.keys = link.keys
         self.sc_schedule = sorted(sc_schedule, key=lambda s: s.at)
+        self.operator = sorted(operator, key=lambda s: s.at)
         self.command_guard = command_guard
+        self.supervisor = supervisor
+        """In-process supervisor, updated every tick; None: a supervisor elsewhere on the bus."""
         self.stats = TickStats()
         self.telemetry = link.subscribe(self.keys.controller_telemetry, ControllerTelemetry, capacity=1 << 16)
-        link.declare_publishers([self.keys.tes_wrench, self.keys.sc_command])
-        self._sc_seq = 0
+        keys = self.keys
+        link.declare_publishers(
+            [keys.tes_wrench, keys.sc_request, keys.safety_estop, keys.controller_command]
+        )
+        self._seq: Counter[str] = Counter()
         self._sc_last: ScStep | None = None
         self._sc_sent_tick = -SC_REPEAT_EVERY
+        self._operator_next = 0
         self._silent_ticks = 0
+        self.permission_timeout = plant.robot.drive.permission_timeout
+        self._permission_seen = -math.inf
+        self._estop_asserted = False
+        self.safety_state = -1
+        """SUPERVISOR_ESTOP.State of the last trusted frame (-1: none yet)."""
+        self._permitted = False
+        plant.drives.set_permission(False)  # until the supervisor's first frame
         self.zenoh_inputs: list[tuple[int, str, bytes]] = []
-        """Every (tick, key, payload) put for the controller, in order (what `pure-hil replay` replays)."""
+        """Every (tick, key, payload) the controller was sent on zenoh, in the order it could see them
+        (what `pure-hil replay` replays)."""
+        if supervisor is not None:
+            # What it puts at the end of tick k reaches the controller for tick k + 1.
+            supervisor.on_put = lambda key, data: self._record(self.plant.tick + 1, key, data)
 
     def wait_for_controller(self, timeout: float = 10.0) -> bool:
         """The controller's zenoh subscriptions are in place (the rig's publishers have a match)."""
@@ -99,13 +143,20 @@ class Rig:
         plant.step()
         k = plant.tick
         # zenoh first: its delivery to the controller overlaps with sending the CAN frames.
-        self._publish_sc(k)
+        self._publish_sc_request(k)
+        self._publish_operator()
         self._publish_tes(k)
         self._send_sensors(k)
         self.can.send("SYNC", {"Tick": k % TICK_MODULO})
         if deadline is None:
             deadline = time.monotonic() + self.command_guard
+        if self._silent_ticks >= MAX_SILENT_TICKS:
+            deadline = min(deadline, time.monotonic() + SILENT_GUARD)
         self._collect_commands(k, deadline, lockstep)
+        if self.supervisor is not None:
+            self.supervisor.update(plant.t, fence=k if lockstep else None)
+        self._drain_nowait()
+        self._update_permission()
         self.stats.ticks += 1
 
     # ------------------------------------------------------------------------------------------ outputs
@@ -133,10 +184,18 @@ class Rig:
         send("IMU_RATE", {"RateX": imu.rate[0], "RateY": imu.rate[1], "RateZ": imu.rate[2], "Valid": 1})
         send("IMU_ACCEL", {"AccX": imu.accel[0], "AccY": imu.accel[1], "AccZ": imu.accel[2], "Valid": 1})
 
-    def _put(self, k: int, key: str, payload) -> None:
+    def _record(self, k: int, key: str, data: bytes) -> None:
+        if key in (self.keys.tes_wrench, self.keys.sc_command, self.keys.controller_command):
+            self.zenoh_inputs.append((k, key, data))
+
+    def _put(self, k: int, key: str, payload: Payload) -> None:
         data = encode(payload)
         self.link.publisher(key).put(data)
-        self.zenoh_inputs.append((k, key, data))
+        self._record(k, key, data)
+
+    def _next_seq(self, key: str) -> int:
+        self._seq[key] += 1
+        return self._seq[key]
 
     def _publish_tes(self, k: int) -> None:
         s = self.plant.sample_tes()
@@ -146,7 +205,7 @@ class Rig:
             TesWrench(seq=k, stamp=self.plant.t, force=s.force, moment=s.moment, cop=s.cop),
         )
 
-    def _publish_sc(self, k: int) -> None:
+    def _publish_sc_request(self, k: int) -> None:
         current = None
         for step in self.sc_schedule:
             if step.at <= self.plant.t + 1e-12:
@@ -155,19 +214,56 @@ class Rig:
             return
         if current is self._sc_last and k - self._sc_sent_tick < SC_REPEAT_EVERY:
             return
-        self._sc_seq += 1
-        self._put(
-            k,
-            self.keys.sc_command,
-            ScCommand(
-                seq=self._sc_seq,
-                stamp=self.plant.t,
-                mode=current.mode,
-                speed_cap=current.cap,
-                source="scenario",
-            ),
+        key = self.keys.sc_request
+        request = ScRequest(
+            seq=self._next_seq(key),
+            stamp=self.plant.t,
+            mode=current.mode,
+            speed_cap=current.cap,
+            source="scenario",
         )
+        self._put(k, key, request)
         self._sc_last, self._sc_sent_tick = current, k
+
+    def _publish_operator(self) -> None:
+        while (
+            self._operator_next < len(self.operator) and self.operator[self._operator_next].at <= self.plant.t
+        ):
+            action = self.operator[self._operator_next].action
+            self._operator_next += 1
+            k, t = self.plant.tick, self.plant.t
+            if action in ("estop", "reset"):
+                key = self.keys.safety_estop
+                self._put(
+                    k, key, EstopCommand(seq=self._next_seq(key), stamp=t, action=action, source="operator")
+                )
+            else:
+                key = self.keys.controller_command
+                cmd = ControllerCommand(seq=self._next_seq(key), stamp=t, action=action, source="operator")
+                self._put(k, key, cmd)
+
+    # ------------------------------------------------------------------------------------- permission
+    def _drain_nowait(self) -> None:
+        while (rx := self.can.recv(timeout=0.0)) is not None:
+            self._other_frame(rx)
+
+    def _other_frame(self, rx: Received) -> None:
+        if rx.name == "CONTROLLER_HEARTBEAT":
+            self.stats.controller_states[int(rx.signals["State"])] += 1
+        elif rx.name == "SUPERVISOR_ESTOP" and rx.ok:
+            self._permission_seen = self.plant.t
+            self._estop_asserted = bool(rx.signals["Estop"])
+            self.safety_state = int(rx.signals["State"])
+
+    def _update_permission(self) -> None:
+        """The drives run only on a fresh SUPERVISOR_ESTOP frame that does not assert e-stop."""
+        fresh = self.plant.t - self._permission_seen <= self.permission_timeout + 1e-9
+        permitted = fresh and not self._estop_asserted
+        if permitted != self._permitted:
+            if not permitted:
+                self.stats.permission_lost += 1
+            self.plant.drives.set_permission(permitted)
+            self._permitted = permitted
 
     # ------------------------------------------------------------------------------------------- inputs
     def _collect_commands(self, k: int, deadline: float, wait_heartbeat: bool) -> None:
@@ -178,31 +274,28 @@ class Rig:
         while pending or heartbeat_due:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
-                self._missed(k, pending, wait_heartbeat)
+                self._missed(pending)
                 return
             rx = self.can.recv(timeout=remaining)
             if rx is None:
                 continue
-            if rx.name == "CONTROLLER_HEARTBEAT":
-                self.stats.controller_states[int(rx.signals["State"])] += 1
-                heartbeat_due = heartbeat_due and bool(pending)  # the heartbeat follows the commands
+            if rx.name not in COMMANDS:
+                if rx.name == "CONTROLLER_HEARTBEAT":
+                    heartbeat_due = heartbeat_due and bool(pending)  # the heartbeat follows the commands
+                self._other_frame(rx)
                 continue
-            if rx.name not in COMMANDS or not rx.ok:
+            if not rx.ok:
                 continue
             if int(rx.signals["Tick"]) != tag:
-                self.stats.late_commands += 1
+                self.stats.late_commands += 1  # stale: never applied
                 continue
-            drives[COMMANDS[rx.name]].set_command(
-                rx.signals["Torque"], bool(rx.signals["Enable"]), self.plant.t
-            )
+            drive = drives[COMMANDS[rx.name]]
+            if not drive.permitted:
+                self.stats.refused_commands += 1
+            drive.set_command(rx.signals["Torque"], bool(rx.signals["Enable"]), self.plant.t)
             pending.discard(rx.name)
         self._silent_ticks = 0
 
-    def _missed(self, k: int, pending: set[str], lockstep: bool) -> None:
+    def _missed(self, pending: set[str]) -> None:
         self.stats.missing_commands += len(pending)
         self._silent_ticks = self._silent_ticks + 1 if len(pending) == len(COMMANDS) else 0
-        if lockstep and self._silent_ticks >= MAX_SILENT_TICKS:
-            raise ControllerSilent(
-                f"no drive command for {self._silent_ticks} ticks in a row (last tick {k}, "
-                f"guard {self.command_guard} s each)"
-            )

@@ -21,7 +21,7 @@ from drivers.config import load_toml
 from hil.metrics import plane_metrics
 from hil.plots import write_plots
 from hil.recording import write_rrd
-from hil.rig import ScStep
+from hil.rig import OperatorStep, ScStep
 from hil.scenario import ROOT, UNITS, Criterion, Scenario, resolve
 from hil.session import RunSpec, Trace, run
 from plant.ballbot import RiderIntent
@@ -68,6 +68,24 @@ def measure(trace: Trace, c: Criterion, ball_radius: float) -> float:
         return float(trace.stats.missing_commands)
     if c.metric == "distance":
         return float(np.hypot(*trace.position[-1]))
+    if c.metric == "safety_state":
+        return float(trace.safety_state[-1]) if len(trace.safety_state) else math.nan
+    if c.metric == "resting":
+        return float(bool(len(trace.resting)) and bool(trace.resting[-1]))
+    if c.metric == "safety_reaction":
+        times = [
+            e.t
+            for e in trace.safety_events
+            if e.kind == "transition" and e.cause == c.cause and e.t >= c.after
+        ]
+        return times[0] - c.after if times else math.nan
+    if c.metric == "drives_off_after":
+        # From `after`, the first tick from which the drives stay off to the end of the run.
+        on = np.nonzero((trace.t >= c.after) & trace.powered)[0]
+        last_on = on[-1] if len(on) else np.searchsorted(trace.t, c.after) - 1
+        if last_on + 1 >= len(trace.t):
+            return math.nan
+        return float(trace.t[last_on + 1] - c.after)
     window = trace.t >= c.after
     if not window.any():
         return math.nan  # the run ended (fell, controller lost) before the window: the criterion fails
@@ -129,6 +147,8 @@ def run_scenario(
         sim=sim,
         intent=intent,
         sc_schedule=tuple(ScStep(e.at, e.mode, e.cap) for e in scenario.sc),
+        operator=tuple(OperatorStep(e.at, e.action) for e in scenario.operator),
+        safety=scenario.safety,
         initial_tilt_deg=scenario.initial_tilt_deg,
         can=can,
         clock=clock,

@@ -14,6 +14,8 @@ from typing import Annotated, Literal
 import msgspec
 
 from plant.rider import Segment
+from safety.config import SupervisorConfig
+from safety.machine import Cause
 
 Positive = Annotated[float, msgspec.Meta(gt=0)]
 
@@ -28,6 +30,14 @@ class ScEntry(_Record, kw_only=True):
     at: Annotated[float, msgspec.Meta(ge=0)] = 0.0
     mode: Literal["free", "idle", "limit"]
     cap: Annotated[float, msgspec.Meta(ge=0, le=5)] = 0.0
+
+
+class OperatorEntry(_Record):
+    """At `at` seconds the operator acts: `estop` or `reset` (the supervisor), `enable` or `disable` (the
+    controller; it stays disabled after an e-stop until enabled)."""
+
+    at: Annotated[float, msgspec.Meta(ge=0)]
+    action: Literal["estop", "reset", "enable", "disable"]
 
 
 class Intent(_Record):
@@ -50,6 +60,10 @@ UNITS = {
     "stop_time": "s",
     "fallen": "",
     "missing_commands": "",
+    "safety_reaction": "s",
+    "drives_off_after": "s",
+    "safety_state": "",
+    "resting": "",
 }
 Metric = Literal[tuple(UNITS)]  # type: ignore[valid-type]
 """A measurement of a run (hil/runner.py::measure), with its unit in UNITS."""
@@ -75,12 +89,19 @@ class Criterion(_Record):
     max: float | None = None
     equals: float | bool | None = None
     after: Annotated[float, msgspec.Meta(ge=0)] = 0.0
-    """Evaluate only the part of the run after this time, s (stop_time: the cue)."""
+    """Evaluate only the part of the run after this time, s (stop_time, safety_reaction, drives_off_after:
+    the time measured from)."""
+    cause: str = ""
+    """safety_reaction: the supervisor's cause (safety/machine.py::Cause) whose first transition is timed."""
     note: str = ""
 
     def __post_init__(self) -> None:
         if self.min is None and self.max is None and self.equals is None:
             raise ValueError(f"criterion on {self.metric} needs min, max or equals")
+        if (self.metric == "safety_reaction") != bool(self.cause):
+            raise ValueError("safety_reaction needs a cause, and only it takes one")
+        if self.cause and self.cause not in Cause.__members__:
+            raise ValueError(f"unknown cause {self.cause!r}: expected one of {', '.join(Cause.__members__)}")
 
     def check(self, value: float) -> bool:
         if self.equals is not None:
@@ -89,6 +110,8 @@ class Criterion(_Record):
 
     @property
     def label(self) -> str:
+        if self.cause:
+            return f"{self.metric} [{self.cause}]"
         return f"{self.metric} [{self.plane}]" if self.metric in PLANE_METRICS else self.metric
 
     def describe(self) -> str:
@@ -116,6 +139,9 @@ class Scenario(_Record):
     initial_tilt_deg: tuple[float, float] = (0.0, 0.0)
     sc: list[ScEntry] = msgspec.field(default_factory=lambda: [ScEntry(mode="free")])
     intent: Intent = Intent()
+    operator: list[OperatorEntry] = []
+    safety: SupervisorConfig = SupervisorConfig()
+    """The embedded supervisor's rules (defaults: configs/safety/default.toml, docs/safety.md)."""
     faults: list[dict] = []
     """Scheduled faults (the fault catalog is a later issue; must stay empty for now)."""
     criteria: list[Criterion] = []

@@ -21,10 +21,13 @@ from drivers.dut import DutSpec, start_dut
 from drivers.keys import Keys
 from drivers.zenoh_link import LOOPBACK, ZenohLink, open_session
 from hil.clock import LockstepClock, RealtimeClock, TimingStats
-from hil.rig import ControllerSilent, Rig, ScStep, TickStats
+from hil.rig import OperatorStep, Rig, ScStep, TickStats
 from hil.scenario import ROOT
 from plant.ballbot import Plant, RiderIntent
 from plant.params import RiderParams, RobotParams, SimParams
+from safety.config import RobotGeometry, SupervisorConfig
+from safety.machine import Event
+from safety.node import SupervisorNode
 
 
 class ControllerUnavailable(RuntimeError):
@@ -43,6 +46,10 @@ class RunSpec:
     sim: SimParams = field(default_factory=SimParams)
     intent: RiderIntent = field(default_factory=RiderIntent)
     sc_schedule: tuple[ScStep, ...] = (ScStep(0.0, "free"),)
+    operator: tuple[OperatorStep, ...] = ()
+    supervisor: str = "embedded"
+    """embedded: the supervisor runs in the rig's tick; external: one runs elsewhere on the bus."""
+    safety: SupervisorConfig = field(default_factory=SupervisorConfig)
     initial_tilt_deg: tuple[float, float] = (0.0, 0.0)
     controller: str = "reference"
     zenoh_config: Path | str = LOOPBACK
@@ -61,6 +68,8 @@ class RunSpec:
     """Set it to end the run early (the service's stop)."""
     session: zenoh.Session | None = None
     """An open hub session to use instead of opening one (the long-running service owns its session)."""
+    kill: tuple[tuple[str, float], ...] = ()
+    """(process, time): stop the in-process 'controller' or 'supervisor' dead at that simulated time."""
 
 
 @dataclass(slots=True)
@@ -88,7 +97,18 @@ class Trace:
     motor_torque: np.ndarray
     """(n, 3) motor torques the drives produced, Nm."""
     zenoh_inputs: list[tuple[int, str, bytes]]
-    """What the rig put on zenoh for the controller: (tick, key, msgpack payload)."""
+    """What the controller was sent on zenoh: (tick, key, msgpack payload)."""
+    safety_state: np.ndarray
+    """(n,) the supervisor's state per tick as on the bus (SUPERVISOR_ESTOP.State; -1: no frame yet)."""
+    safety_speed: np.ndarray
+    """(n,) the embedded supervisor's own speed estimate, m/s (NaN: none)."""
+    powered: np.ndarray
+    """(n,) any drive's power stage on."""
+    resting: np.ndarray
+    """(n,) powered off at standstill, held by the rider's feet or the stand."""
+    safety_events: list[Event]
+    """The embedded supervisor's transitions and refused resets."""
+    fence_misses: int = 0
 
 
 def run(spec: RunSpec) -> Trace:
@@ -101,8 +121,25 @@ def run(spec: RunSpec) -> Trace:
     session = spec.session or open_session(spec.zenoh_config, "hub", spec.hub_endpoint)
     link = ZenohLink(session, Keys())
     dut = None
+    supervisor = None
     try:
-        rig = Rig(plant, CanNode(bus, name="rig"), link, spec.sc_schedule)
+        if spec.supervisor == "embedded":
+            supervisor_bus = open_bus(bus_config)
+            supervisor = SupervisorNode(
+                CanNode(supervisor_bus, name="supervisor"),
+                link,
+                spec.safety,
+                load_toml(spec.robot, RobotGeometry),
+                tick_hz=spec.sim.tick_hz,
+            )
+        rig = Rig(
+            plant,
+            CanNode(bus, name="rig"),
+            link,
+            spec.sc_schedule,
+            supervisor=supervisor,
+            operator=spec.operator,
+        )
         if spec.controller != "external":
             dut = start_dut(
                 spec.controller,
@@ -123,13 +160,12 @@ def run(spec: RunSpec) -> Trace:
             raise ControllerUnavailable(
                 f"no controller subscribed to {rig.keys.tes_wrench} within {wait:g} s"
             )
-        try:
-            return _loop(rig, plant, spec)
-        except ControllerSilent as exc:
-            raise ControllerUnavailable(str(exc)) from exc
+        return _loop(rig, plant, spec, dut)
     finally:
         if dut is not None:
             dut.stop()
+        if supervisor is not None:
+            supervisor.can.bus.shutdown()
         if recorder is not None:
             recorder.stop()
         link.close()
@@ -138,11 +174,22 @@ def run(spec: RunSpec) -> Trace:
         bus.shutdown()
 
 
-def _loop(rig: Rig, plant: Plant, spec: RunSpec) -> Trace:
+def _kill(rig: Rig, dut, what: str) -> None:
+    """A process dies without a word: the controller's thread stops, the supervisor stops updating."""
+    if what == "controller" and dut is not None:
+        dut.stop()
+    elif what == "supervisor":
+        rig.supervisor = None
+    else:
+        raise ValueError(f"cannot kill {what!r}: expected 'controller' (in-process) or 'supervisor'")
+
+
+def _loop(rig: Rig, plant: Plant, spec: RunSpec, dut) -> Trace:
     ticks = round(spec.duration * spec.sim.tick_hz)
     lockstep = spec.clock == "lockstep"
     clock = LockstepClock(plant.dt, rig.command_guard) if lockstep else RealtimeClock(plant.dt)
-    rows = np.full((ticks, 15), np.nan)
+    rows = np.full((ticks, 19), np.nan)
+    supervisor = rig.supervisor  # its record outlives a kill
     n = 0
     next_report = time.monotonic() + 0.5
     clock.start()
@@ -158,12 +205,19 @@ def _loop(rig: Rig, plant: Plant, spec: RunSpec) -> Trace:
             tr.yaw_rate,
             *tr.ball_rate,
             *tr.motor_torque,
+            rig.safety_state,
+            _supervisor_speed(rig),
+            tr.powered,
+            tr.resting,
         )
         n += 1
         if spec.stop_on_fall and tr.fallen:
             break
         if spec.on_tick is not None:
             spec.on_tick(plant)
+        for what, at in spec.kill:
+            if at <= tr.t < at + plant.dt / 2:
+                _kill(rig, dut, what)
         if spec.stop is not None and spec.stop.is_set():
             break
         if spec.progress is not None and time.monotonic() > next_report:
@@ -200,4 +254,17 @@ def _loop(rig: Rig, plant: Plant, spec: RunSpec) -> Trace:
         bus=rig.can.stats.as_dict(),
         motor_torque=rows[:, 12:15],
         zenoh_inputs=rig.zenoh_inputs,
+        safety_state=rows[:, 15].astype(int),
+        safety_speed=rows[:, 16],
+        powered=rows[:, 17].astype(bool),
+        resting=rows[:, 18].astype(bool),
+        safety_events=[] if supervisor is None else list(supervisor.events),
+        fence_misses=0 if supervisor is None else supervisor.fence_misses,
     )
+
+
+def _supervisor_speed(rig: Rig) -> float:
+    if rig.supervisor is None:
+        return math.nan
+    speed = rig.supervisor.monitors.speed()
+    return math.nan if speed is None else speed

@@ -96,6 +96,10 @@ class Truth:
     seat_wrench: tuple[float, float, float, float, float, float]
     """True rider wrench on the seat at P, body axes [Fx, Fy, Fz, Mx, My, Mz]."""
     fallen: str | None
+    resting: bool = False
+    """Powered off at standstill and held by the rider's feet or the stand."""
+    powered: bool = False
+    """Any drive's power stage is on."""
 
 
 class Plant:
@@ -153,6 +157,10 @@ class Plant:
         self.external_yaw = 0.0
         self.ball_torque = (0.0, 0.0, 0.0)
         self.fallen: str | None = None
+        self.resting = False
+        self._powered = False
+        """Power off at standstill: the rider's feet (the seat is at chair height) or the parking stand
+        hold the robot where it is, as `clamped` does, until a drive is powered again."""
         self._outputs_tick = self._wrench_tick = -1
         self._wrench: tuple[float, ...] = (0.0,) * 6
         self._accel_cache: tuple[tuple[float, ...], tuple[float, float]] = ((0.0,) * 6, (0.0, 0.0))
@@ -200,6 +208,8 @@ class Plant:
                 self.torso[k].update(self.t, self.dt, self.velocity[k])
             self.twist.update(self.t)
         hip_pitch, hip_roll = self._hip_policies()
+        self._update_rest()
+        held = self.clamped or self.resting
         pitch, roll = self.planes
         g, h, x = self._g, self.h, self.x
         for i in range(self.sim.substeps):
@@ -210,7 +220,7 @@ class Plant:
                 g[0][2] * motor[0] + g[1][2] * motor[1] + g[2][2] * motor[2],
             )
             v0, yaw0 = self.velocity, x[12]
-            if self.clamped:
+            if held:
                 x[0:6] = pitch.rk4_step_clamped(x[0:6], h, hip_pitch)
                 x[6:12] = roll.rk4_step_clamped(x[6:12], h, hip_roll)
             else:
@@ -227,6 +237,21 @@ class Plant:
         self._outputs_tick = self._wrench_tick = -1
         self._check_fall()
 
+    def _update_rest(self) -> None:
+        """Power removed at standstill: caught (resting) until powered again; removed in motion: it tips."""
+        powered, was_powered = self.drives.powered, self._powered
+        self._powered = powered
+        if self.resting:
+            self.resting = not powered
+        elif was_powered and not powered and not self.clamped and self.fallen is None:
+            sim, x = self.sim, self.x
+            if (
+                max(abs(v) for v in self.velocity) < sim.rest_speed
+                and max(abs(x[1]), abs(x[7])) < sim.rest_tilt
+            ):
+                self.resting = True
+                x[3] = x[4] = x[9] = x[10] = x[13] = 0.0  # caught: the chassis and the ball stop
+
     def _outputs(self) -> tuple[tuple[float, ...], tuple[float, float]]:
         """Accelerations (pitch φ̈ θ̈ γ̈, roll φ̈ θ̈ γ̈) and hip torques at the current state, once per tick."""
         if self._outputs_tick != self.tick:
@@ -234,7 +259,7 @@ class Plant:
             for k, policy in zip((PITCH, ROLL), self._hip_policies(), strict=True):
                 _, th, ga, dphi, dth, dga = self.x[6 * k : 6 * k + 6]
                 u = policy(ga, ga - th, dga - dth) if policy else 0.0
-                if self.clamped:
+                if self.clamped or self.resting:
                     accel += [0.0, 0.0, self.planes[k].clamped_torso_acceleration(ga, u)]
                 else:
                     tau = self.ball_torque[1 - k]
@@ -355,6 +380,8 @@ class Plant:
             hip_torque=self._outputs()[1],
             seat_wrench=self.seat_wrench(),
             fallen=self.fallen,
+            resting=self.resting,
+            powered=self.drives.powered,
         )
 
     def energy(self) -> float:

@@ -28,9 +28,14 @@ class MotorDrive:
     """Torque the motor produces now (after lag and limit), Nm."""
     state: DriveState = DriveState.DISABLED
     last_command_time: float = -math.inf
+    permitted: bool = True
+    """The supervisor's permission to run (its SUPERVISOR_ESTOP frame, fresh and not asserting e-stop)."""
 
     def set_command(self, torque: float, enable: bool, now: float) -> None:
-        """A command frame arrived: store the setpoint and feed the watchdog."""
+        """A command frame arrived: store the setpoint and feed the watchdog (ignored without permission:
+        commands from before the permission returned are never applied)."""
+        if not self.permitted:
+            return
         if not math.isfinite(torque):
             torque = 0.0
             enable = False
@@ -54,10 +59,13 @@ class MotorDrive:
         # Mean of the exponential over the interval: the torque the mechanics feel during dt.
         return target + (start - target) * (1.0 - decay) * self.params.current_loop_tau / dt
 
-    def force_off(self) -> None:
-        """Drives lost their permission to run (e-stop asserted or supervisor silent)."""
-        self.state = DriveState.DISABLED
-        self.torque = 0.0
+    def set_permission(self, permitted: bool) -> None:
+        """Losing it turns the power stage off at once; regaining it enables nothing until a command."""
+        if not permitted:
+            self.state = DriveState.DISABLED
+            self.torque = 0.0
+            self.command = 0.0
+        self.permitted = permitted
 
 
 class DriveArray:
@@ -74,9 +82,14 @@ class DriveArray:
         a, b, c = self.motors
         return a.advance(dt, now), b.advance(dt, now), c.advance(dt, now)
 
-    def force_off(self) -> None:
+    def set_permission(self, permitted: bool) -> None:
         for m in self.motors:
-            m.force_off()
+            m.set_permission(permitted)
+
+    @property
+    def powered(self) -> bool:
+        """Any drive's power stage is on."""
+        return any(m.state is DriveState.ENABLED for m in self.motors)
 
     @property
     def torques(self) -> tuple[float, float, float]:

@@ -76,6 +76,8 @@ class Drive(_Record):
     """First-order lag of the torque (current) loop, s."""
     watchdog_timeout: Positive = 0.02
     """The drive disables itself when no command arrives for this long, s."""
+    permission_timeout: Positive = 0.05
+    """The drive turns off when the supervisor's SUPERVISOR_ESTOP frame (100 Hz) is silent this long, s."""
     torque_noise: NonNegative = 0.005
     """1σ of the measured-torque feedback, Nm."""
     velocity_noise: NonNegative = 0.05
@@ -199,6 +201,11 @@ class SimParams(_Record):
     """free: the robot rolls on the floor; clamped: chassis held upright on a stand (only the torso moves)."""
     fall_tilt_deg: Annotated[float, msgspec.Meta(gt=0, lt=90)] = 30.0
     """A chassis tilt beyond this in either plane is a fall."""
+    rest_speed: Positive = 0.1
+    """m/s: with every drive off below this speed (and tilt), the robot comes to rest on the rider's feet
+    or its stand instead of falling (a stop category 1 ends like this)."""
+    rest_tilt_deg: Annotated[float, msgspec.Meta(gt=0, lt=90)] = 5.0
+    """... and below this chassis tilt, deg."""
     floor_half_x: Positive = 25.0
     """The ball must stay within ±floor_half_x of the start along world x, m."""
     floor_half_y: Positive = 25.0
@@ -211,3 +218,7 @@ class SimParams(_Record):
     @property
     def fall_tilt(self) -> float:
         return math.radians(self.fall_tilt_deg)
+
+    @property
+    def rest_tilt(self) -> float:
+        return math.radians(self.rest_tilt_deg)

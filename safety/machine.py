@@ -1,0 +1,443 @@
+"""The supervisor's decisions: a pure state machine (no I/O, no clock; time comes with each observation).
+
+    NORMAL ──over cap──▶ LIMITING ──overpowered──▶ STOPPING ──standstill──▶ ESTOP ──reset──▶ NORMAL
+       │                    │                         ▲                       ▲
+       └────────────────────┴──controlled cause───────┘                       │
+       └────────────────────┴──immediate cause (any state but ESTOP)──────────┘
+
+Stop category by cause (IEC 60204-1 §9.2.2): a *controlled* cause (operator, speed, rider absent, bus
+integrity) brakes to standstill through the controller (SC idle) and then removes power, as long as the
+controller is healthy and balancing; an *immediate* cause (the controller or its inputs are the fault,
+balance lost, a stop that does not stop) removes power at once: a ballbot falls when power is cut, but a
+controller that cannot be trusted is worse. ESTOP latches; only an operator reset at standstill with every
+monitor healthy leaves it, and a reset permits motion, it never causes it (the controller stays disabled
+until its own enable).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from enum import IntEnum
+
+from safety.config import SupervisorConfig
+
+
+class State(IntEnum):
+    """SUPERVISOR_ESTOP.State."""
+
+    NORMAL = 0
+    LIMITING = 1
+    STOPPING = 2
+    ESTOP = 3
+
+
+class Cause(IntEnum):
+    """SUPERVISOR_ESTOP.Reason: why the supervisor is in its state."""
+
+    NONE = 0
+    OPERATOR_ESTOP = 1
+    BUTTON_ESTOP = 2
+    """The OPERATOR_ESTOP CAN frame (a wired e-stop button)."""
+    OVER_CAP = 3
+    SC_SILENT = 4
+    OVERPOWERED = 5
+    HARD_SPEED = 6
+    RIDER_ABSENT = 7
+    E2E_ERRORS = 8
+    WRENCH_SILENT = 9
+    TILT = 10
+    TORQUE_RANGE = 11
+    TORQUE_SATURATED = 12
+    HEARTBEAT_LOST = 13
+    CONTROLLER_FAULT = 14
+    DRIVES_SILENT = 15
+    IMU_SILENT = 16
+    STOP_TIMEOUT = 17
+    MOTION_AFTER_STANDSTILL = 18
+    STOP_INEFFECTIVE = 19
+    RESET = 20
+
+
+CONTROLLED = frozenset(
+    {
+        Cause.OPERATOR_ESTOP,
+        Cause.BUTTON_ESTOP,
+        Cause.OVERPOWERED,
+        Cause.HARD_SPEED,
+        Cause.RIDER_ABSENT,
+        Cause.E2E_ERRORS,
+        Cause.WRENCH_SILENT,
+    }
+)
+"""Causes that brake to standstill before power is removed (if the controller is healthy)."""
+IMMEDIATE = frozenset(
+    {
+        Cause.TILT,
+        Cause.TORQUE_RANGE,
+        Cause.TORQUE_SATURATED,
+        Cause.HEARTBEAT_LOST,
+        Cause.CONTROLLER_FAULT,
+        Cause.DRIVES_SILENT,
+        Cause.IMU_SILENT,
+        Cause.STOP_TIMEOUT,
+        Cause.MOTION_AFTER_STANDSTILL,
+        Cause.STOP_INEFFECTIVE,
+    }
+)
+"""Causes that remove power at once."""
+
+STREAMS = ("drives", "imu", "heartbeat", "wrench", "sc")
+BALANCING, FAULT = 3, 4
+"""CONTROLLER_HEARTBEAT.State values the supervisor acts on."""
+
+
+@dataclass(frozen=True, slots=True)
+class Request:
+    """The latest valid SC request (pure/sc/request)."""
+
+    mode: str
+    cap: float
+    source: str
+
+
+@dataclass(frozen=True, slots=True)
+class Observation:
+    """What the supervisor knows at time t, from the bus and zenoh only (never the plant's truth)."""
+
+    t: float
+    speed: float | None
+    """Ground speed estimate, m/s (None: no estimate, a speed stream is silent)."""
+    tilt: float | None
+    """Largest chassis tilt of the two planes, rad."""
+    ages: Mapping[str, float]
+    """Seconds since the last trusted frame or payload per stream in STREAMS (inf: never)."""
+    controller_state: int | None = None
+    """The controller's last heartbeat State (None: never heard)."""
+    torque_peak: float = 0.0
+    """Largest |torque command| since the previous observation, Nm."""
+    e2e_errors: int = 0
+    """E2E errors within the configured window."""
+    seat_load: float | None = None
+    """The rider's weight on the seat (−Fz), N."""
+    button: bool = False
+    """The wired e-stop (OPERATOR_ESTOP frame) is pressed."""
+    request: Request | None = None
+    operator: str | None = None
+    """An operator command since the previous observation: 'estop' or 'reset'."""
+    operator_source: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class Forward:
+    """The SC command the supervisor lets through (pure/sc/command)."""
+
+    mode: str
+    cap: float
+    source: str
+    reason: str
+
+
+@dataclass(frozen=True, slots=True)
+class Event:
+    """A transition or a refused reset, with the values that decided it."""
+
+    t: float
+    kind: str
+    """'transition' or 'reset_refused'."""
+    from_state: str
+    to_state: str
+    cause: str
+    detail: str = ""
+    values: dict[str, float | None] = field(default_factory=dict)
+
+
+@dataclass(frozen=True, slots=True)
+class Decision:
+    state: State
+    cause: Cause
+    drives_permitted: bool
+    cap: float
+    """The cap in force, m/s."""
+    command: Forward
+    since: float
+
+
+class Supervisor:
+    def __init__(self, config: SupervisorConfig | None = None, torque_limit: float = 3.75):
+        self.config = c = config or SupervisorConfig()
+        self.tilt_limit = math.radians(c.motion.tilt_limit_deg)
+        self.torque_limit = torque_limit
+        self.state, self.cause, self.since = State.NORMAL, Cause.NONE, 0.0
+        self.started: float | None = None
+        self.events: list[Event] = []
+        self.reset_by: list[tuple[float, str]] = []
+        self._clear_timers()
+        self._saturated_since: float | None = None
+        self._absent_since: float | None = None
+        self._over_since: float | None = None
+        self._sc_seen = False
+        self._last_cap = math.inf
+        self._ramp = (-math.inf, 0.0)
+        """(time, speed) when the cap last dropped below the speed."""
+
+    def _clear_timers(self) -> None:
+        self._entry_speed = 0.0
+        self._under_since: float | None = None
+        self._still_since: float | None = None
+        self._reached_standstill = False
+
+    # ----------------------------------------------------------------------------------------- decide
+    def update(self, obs: Observation) -> Decision:
+        if self.started is None:
+            self.started = self.since = obs.t
+        if obs.ages.get("sc", math.inf) != math.inf:
+            self._sc_seen = True
+        immediate = self._immediate_cause(obs)
+        controlled = self._controlled_cause(obs)
+        if self.state is State.ESTOP:
+            if obs.operator == "reset":
+                self._try_reset(obs)
+        elif immediate is not None:
+            self._enter(State.ESTOP, immediate, obs)
+        elif self.state is State.STOPPING:
+            self._stopping(obs)
+        elif controlled is not None:
+            self._stop(controlled, obs)
+        else:
+            self._limit(obs)
+        return self._decision(obs)
+
+    def _immediate_cause(self, obs: Observation) -> Cause | None:
+        c, w = self.config, self.config.watchdogs
+        armed = obs.t - self.started >= w.startup_grace
+        ages = obs.ages
+
+        def silent(stream: str, timeout: float) -> bool:
+            age = ages.get(stream, math.inf)
+            return age > timeout and (armed or age != math.inf)
+
+        if silent("heartbeat", w.heartbeat):
+            return Cause.HEARTBEAT_LOST
+        if obs.controller_state == FAULT:
+            return Cause.CONTROLLER_FAULT
+        if silent("drives", w.drives):
+            return Cause.DRIVES_SILENT
+        if silent("imu", w.imu):
+            return Cause.IMU_SILENT
+        if obs.tilt is not None and obs.tilt > self.tilt_limit:
+            return Cause.TILT
+        if obs.torque_peak > c.motion.torque_range * self.torque_limit:
+            return Cause.TORQUE_RANGE
+        if obs.torque_peak >= c.motion.saturation_fraction * self.torque_limit:
+            if self._saturated_since is None:
+                self._saturated_since = obs.t
+            if obs.t - self._saturated_since >= c.motion.saturation_time:
+                return Cause.TORQUE_SATURATED
+        else:
+            self._saturated_since = None
+        return None
+
+    def _controlled_cause(self, obs: Observation) -> Cause | None:
+        c, w = self.config, self.config.watchdogs
+        if obs.operator == "estop":
+            return Cause.OPERATOR_ESTOP
+        if obs.button:
+            return Cause.BUTTON_ESTOP
+        if obs.speed is not None and obs.speed > c.speed.hard_limit:
+            return Cause.HARD_SPEED
+        if obs.e2e_errors >= c.integrity.e2e_max_errors:
+            return Cause.E2E_ERRORS
+        wrench_age = obs.ages.get("wrench", math.inf)
+        armed = obs.t - self.started >= w.startup_grace
+        if w.require_wrench and wrench_age > w.wrench and (armed or wrench_age != math.inf):
+            return Cause.WRENCH_SILENT
+        moving = obs.speed is not None and obs.speed > c.stop.standstill_speed
+        if obs.seat_load is not None and obs.seat_load < c.motion.rider_min_load and moving:
+            if self._absent_since is None:
+                self._absent_since = obs.t
+            if obs.t - self._absent_since >= c.motion.rider_absent_time:
+                return Cause.RIDER_ABSENT
+        else:
+            self._absent_since = None
+        return None
+
+    def _stop(self, cause: Cause, obs: Observation) -> None:
+        """A controlled stop if the controller is balancing and can brake; else power off now."""
+        healthy = obs.controller_state == BALANCING and obs.speed is not None
+        self._enter(State.STOPPING if healthy else State.ESTOP, cause, obs)
+
+    def _limit(self, obs: Observation) -> None:
+        s = self.config.speed
+        allowed = self._allowed_speed(obs)
+        speed = obs.speed
+        if self.state is State.LIMITING and self.cause is Cause.OVER_CAP:
+            over_too_long = self._under_since is None and obs.t - self.since > s.limit_timeout
+            if speed is not None and (speed > self._entry_speed + s.rise_margin or over_too_long):
+                self._stop(Cause.OVERPOWERED, obs)
+                return
+            if speed is not None and speed <= allowed + s.margin:
+                if self._under_since is None:
+                    self._under_since = obs.t
+                if obs.t - self._under_since >= s.release_window:
+                    self._enter_limit_or_normal(obs)
+            else:
+                self._under_since = None
+            return
+        if speed is not None and speed > allowed + s.margin:
+            if self._over_since is None:
+                self._over_since = obs.t
+            if obs.t - self._over_since >= s.window:
+                self._enter(State.LIMITING, Cause.OVER_CAP, obs)
+                return
+        else:
+            self._over_since = None
+        self._enter_limit_or_normal(obs)
+
+    def _allowed_speed(self, obs: Observation) -> float:
+        """The enforced cap, or the braking ramp down to it after it dropped below the speed."""
+        cap = self._enforced_cap(obs)
+        if cap < self._last_cap and obs.speed is not None and obs.speed > cap:
+            self._ramp = (obs.t, obs.speed)
+        self._last_cap = cap
+        t0, v0 = self._ramp
+        s, elapsed = self.config.speed, obs.t - t0
+        if elapsed < s.brake_delay:
+            return max(cap, v0 + s.rise_margin)
+        return max(cap, v0 - s.decel * (elapsed - s.brake_delay))
+
+    def _enter_limit_or_normal(self, obs: Observation) -> None:
+        if self._sc_silent(obs):
+            if (self.state, self.cause) != (State.LIMITING, Cause.SC_SILENT):
+                self._enter(State.LIMITING, Cause.SC_SILENT, obs)
+        elif self.state is not State.NORMAL:
+            self._enter(State.NORMAL, Cause.NONE, obs)
+
+    def _stopping(self, obs: Observation) -> None:
+        st, speed = self.config.stop, obs.speed
+        if speed is None:
+            return  # a speed stream is silent: the immediate causes have already acted
+        if speed > self._entry_speed + self.config.speed.rise_margin:
+            self._enter(State.ESTOP, Cause.STOP_INEFFECTIVE, obs)
+        elif self._reached_standstill and speed > st.motion_after_standstill:
+            self._enter(State.ESTOP, Cause.MOTION_AFTER_STANDSTILL, obs)
+        elif speed <= st.standstill_speed:
+            self._reached_standstill = True
+            if self._still_since is None:
+                self._still_since = obs.t
+            if obs.t - self._still_since >= st.standstill_time:
+                self._enter(State.ESTOP, self.cause, obs, detail="standstill reached: drives off")
+        else:
+            self._still_since = None
+            if obs.t - self.since > st.timeout:
+                self._enter(State.ESTOP, Cause.STOP_TIMEOUT, obs)
+
+    def _try_reset(self, obs: Observation) -> None:
+        why = self.reset_refusal(obs)
+        if why:
+            self._log(obs, "reset_refused", self.state, self.cause, why)
+            return
+        self.reset_by.append((obs.t, obs.operator_source))
+        self._saturated_since = self._absent_since = self._over_since = None
+        self._enter(State.NORMAL, Cause.RESET, obs, detail=f"reset by {obs.operator_source or '?'}")
+
+    def reset_refusal(self, obs: Observation) -> str:
+        """Why a reset is refused now ('' if it would be accepted)."""
+        c, w = self.config, self.config.watchdogs
+        if obs.speed is None or obs.speed > c.stop.standstill_speed:
+            return "not at standstill"
+        if obs.tilt is None or obs.tilt > self.tilt_limit:
+            return "tilt unknown or beyond the limit"
+        if obs.button:
+            return "e-stop button still pressed"
+        timeouts = {"drives": w.drives, "imu": w.imu, "heartbeat": w.heartbeat}
+        if w.require_wrench:
+            timeouts["wrench"] = w.wrench
+        for stream, timeout in timeouts.items():
+            if obs.ages.get(stream, math.inf) > timeout:
+                return f"{stream} silent"
+        if obs.controller_state == FAULT:
+            return "controller reports a fault"
+        if obs.e2e_errors >= c.integrity.e2e_max_errors:
+            return "E2E errors above the limit"
+        return ""
+
+    # ---------------------------------------------------------------------------------------- outputs
+    def _enter(self, state: State, cause: Cause, obs: Observation, detail: str = "") -> None:
+        previous, previous_cause = self.state, self.cause
+        self.state, self.cause, self.since = state, cause, obs.t
+        self._clear_timers()
+        self._entry_speed = obs.speed or 0.0
+        if state is State.NORMAL:
+            self._over_since = None
+        self._log(obs, "transition", previous, previous_cause, detail)
+
+    def _log(self, obs: Observation, kind: str, previous: State, previous_cause: Cause, detail: str) -> None:
+        self.events.append(
+            Event(
+                obs.t,
+                kind,
+                previous.name,
+                self.state.name,
+                (self.cause if kind == "transition" else previous_cause).name,
+                detail,
+                {
+                    "speed": obs.speed,
+                    "tilt_deg": None if obs.tilt is None else math.degrees(obs.tilt),
+                    "torque_peak": obs.torque_peak,
+                    "seat_load": obs.seat_load,
+                    "e2e_errors": obs.e2e_errors,
+                    **{f"age_{k}": v for k, v in obs.ages.items() if math.isfinite(v)},
+                },
+            )
+        )
+
+    def _sc_silent(self, obs: Observation) -> bool:
+        return self._sc_seen and obs.ages.get("sc", math.inf) > self.config.watchdogs.sc
+
+    def active_cap(self) -> float:
+        """The cap the supervisor grants in its current state, m/s."""
+        if self.state in (State.STOPPING, State.ESTOP) or self.cause is Cause.OVER_CAP:
+            return 0.0
+        if self.cause is Cause.SC_SILENT:
+            return self.config.speed.reduced_cap
+        return self.config.speed.absolute_cap
+
+    def _enforced_cap(self, obs: Observation) -> float:
+        """The cap the speed is held to: the active cap, and the request's if it is enforced."""
+        cap = self.config.speed.reduced_cap if self._sc_silent(obs) else self.config.speed.absolute_cap
+        r = obs.request
+        if r is not None and self.config.speed.enforce_requested_cap and not self._sc_silent(obs):
+            cap = min(cap, 0.0 if r.mode == "idle" else r.cap if r.mode == "limit" else cap)
+        return cap
+
+    def _decision(self, obs: Observation) -> Decision:
+        cap = self.active_cap()
+        return Decision(
+            self.state,
+            self.cause,
+            self.state is not State.ESTOP,
+            cap,
+            self.forward(obs.request, cap),
+            self.since,
+        )
+
+    def forward(self, request: Request | None, cap: float) -> Forward:
+        """The request clamped to `cap`: never above it, `free` becomes `limit` at the cap, 0 is idle."""
+        reason = "" if self.cause is Cause.NONE else self.cause.name
+        if request is None or self._sc_silent_now():
+            want, source = math.inf, "supervisor"
+        else:
+            want = 0.0 if request.mode == "idle" else request.cap if request.mode == "limit" else math.inf
+            source = request.source
+        granted = min(want, cap)
+        if granted != want:
+            source = "supervisor" if request is None else source
+            reason = reason or f"capped at {cap:g} m/s"
+        if granted <= 0.0:
+            return Forward("idle", 0.0, source, reason)
+        return Forward("limit", granted, source, reason)
+
+    def _sc_silent_now(self) -> bool:
+        return self.cause is Cause.SC_SILENT

@@ -1,0 +1,203 @@
+"""The supervisor on the wire: a thin adapter around the state machine.
+
+In: every CAN frame (drive feedback, IMU, torque commands, heartbeat, the wired e-stop), and on zenoh the
+SC requests, operator e-stop/reset and the seat wrench. Out: SUPERVISOR_ESTOP (the drives' permission to
+run, every 10 ms and at once on a transition), pure/sc/command (the only SC input the controller reads),
+pure/safety/state, and the event log.
+
+In the rig it updates once per tick after the controller has answered (`update(t, fence=k)`: in lockstep it
+first waits for the seat sample of tick k, so the SC requests the rig put before it have arrived too);
+standalone it runs on its own timer (`run`).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections.abc import Callable
+
+from drivers.can_bus import CanNode, Received
+from drivers.schemas import EstopCommand, SafetyState, ScCommand, ScRequest, TesWrench, encode
+from drivers.zenoh_link import ZenohLink
+from safety.config import RobotGeometry, SupervisorConfig
+from safety.machine import Decision, Event, Forward, State, Supervisor
+from safety.monitors import Monitors
+
+log = logging.getLogger(__name__)
+
+TICK_MODULO = 1 << 16
+
+
+class SupervisorNode:
+    def __init__(
+        self,
+        can: CanNode,
+        link: ZenohLink,
+        config: SupervisorConfig | None = None,
+        robot: RobotGeometry | None = None,
+        tick_hz: float = 400.0,
+        fence_wait: float = 0.5,
+        on_put: Callable[[str, bytes], None] | None = None,
+    ):
+        self.config = config = config or SupervisorConfig()
+        robot = robot or RobotGeometry()
+        self.can, self.link, self.keys = can, link, link.keys
+        self.machine = Supervisor(config, robot.drive.torque_limit)
+        self.monitors = Monitors(config, robot)
+        self.tick_hz, self.fence_wait, self.on_put = tick_hz, fence_wait, on_put
+        keys = self.keys
+        self.requests = link.subscribe(keys.sc_request, ScRequest, capacity=64)
+        self.operator = link.subscribe(keys.safety_estop, EstopCommand, capacity=64)
+        self.wrench = link.subscribe(keys.tes_wrench, TesWrench, capacity=64)
+        link.declare_publishers([keys.sc_command, keys.safety_state])
+        self.decision: Decision | None = None
+        self.tick: int | None = None
+        self.fence_misses = 0
+        """Lockstep updates that went ahead without the seat sample of their tick."""
+        self._wrench_seq = -1
+        self._events_seen = 0
+        self._sc_seq = self._state_seq = 0
+        self._frame_sent = self._sc_sent = self._state_sent = -math.inf
+        self._forwarded: Forward | None = None
+
+    @property
+    def events(self) -> list[Event]:
+        return self.machine.events
+
+    # ---------------------------------------------------------------------------------------- inputs
+    def frame(self, rx: Received, t: float) -> None:
+        if rx.name == "SYNC":
+            raw = int(rx.signals["Tick"])
+            self.tick = raw if self.tick is None else self.tick + (raw - self.tick) % TICK_MODULO
+            return
+        self.monitors.frame(rx, t)
+
+    def _drain_can(self, t: float) -> None:
+        while (rx := self.can.recv(timeout=0.0)) is not None:
+            self.frame(rx, t)
+
+    def _drain_zenoh(self, t: float, fence: int | None) -> None:
+        deadline = time.monotonic() + self.fence_wait
+        while True:
+            for w in self.wrench.drain():
+                self.monitors.wrench(w, t)
+                self._wrench_seq = w.seq
+            if fence is None or self._wrench_seq >= fence:
+                break
+            if time.monotonic() >= deadline:
+                self.fence_misses += 1
+                break
+            self.wrench.wait(max(deadline - time.monotonic(), 0.0))
+        for r in self.requests.drain():
+            self.monitors.sc_request(r, t)
+        for cmd in self.operator.drain():
+            log.warning("operator %s from %s", cmd.action, cmd.source)
+            self.monitors.operator_command(cmd)
+
+    # --------------------------------------------------------------------------------------- decide
+    def update(self, t: float, fence: int | None = None) -> Decision:
+        """Take in everything that arrived, decide, and emit what is due at time t."""
+        self._drain_can(t)
+        self._drain_zenoh(t, fence)
+        decision = self.machine.update(self.monitors.observe(t))
+        changed = len(self.machine.events) != self._events_seen
+        for event in self.machine.events[self._events_seen :]:
+            log.warning(
+                "supervisor %s at t=%.3f: %s -> %s (%s) %s",
+                event.kind,
+                event.t,
+                event.from_state,
+                event.to_state,
+                event.cause,
+                event.detail,
+            )
+        self._events_seen = len(self.machine.events)
+        self.decision = decision
+        self._emit(t, decision, changed)
+        return decision
+
+    def _emit(self, t: float, d: Decision, changed: bool) -> None:
+        out = self.config.output
+        if changed or t - self._frame_sent >= out.estop_frame_period - 1e-9:
+            self.can.send(
+                "SUPERVISOR_ESTOP",
+                {"Estop": int(d.state is State.ESTOP), "State": int(d.state), "Reason": int(d.cause)},
+            )
+            self._frame_sent = t
+        stamp = self._stamp(t)
+        if d.command != self._forwarded or t - self._sc_sent >= out.sc_period - 1e-9:
+            self._sc_seq += 1
+            c = d.command
+            self._put(
+                self.keys.sc_command,
+                ScCommand(
+                    seq=self._sc_seq,
+                    stamp=stamp,
+                    mode=c.mode,
+                    speed_cap=c.cap,
+                    source=c.source,
+                    reason=c.reason,
+                ),
+            )
+            self._forwarded, self._sc_sent = d.command, t
+        if changed or t - self._state_sent >= out.state_period - 1e-9:
+            self._state_seq += 1
+            self._put(
+                self.keys.safety_state,
+                SafetyState(
+                    seq=self._state_seq,
+                    stamp=stamp,
+                    state=d.state.name,  # type: ignore[arg-type]
+                    reason=d.cause.name,
+                    cap=d.cap,
+                    since=max(d.since, 0.0),
+                ),
+            )
+            self._state_sent = t
+
+    def _stamp(self, t: float) -> float:
+        """Stamps are in the controller's time base: the SYNC tick count over the tick rate."""
+        return t if self.tick is None else self.tick / self.tick_hz
+
+    def _put(self, key: str, payload) -> None:
+        data = encode(payload)
+        self.link.publisher(key).put(data)
+        if self.on_put is not None:
+            self.on_put(key, data)
+
+    # ------------------------------------------------------------------------------------ standalone
+    def run(self, stop: threading.Event, clock: Callable[[], float] = time.monotonic) -> None:
+        """Standalone: update on the configured timer, taking frames in as they arrive."""
+        start = clock()
+        period = 1.0 / self.config.output.rate_hz
+        next_update = clock()
+        while not stop.is_set():
+            rx = self.can.recv(timeout=max(next_update - clock(), 0.0))
+            now = clock()
+            if rx is not None:
+                self.frame(rx, now - start)
+                if now < next_update:
+                    continue
+            self.update(now - start)
+            next_update = max(next_update + period, clock())
+
+
+class SupervisorThread:
+    """The supervisor on a thread of its own (standalone, in the rig's process for tests)."""
+
+    def __init__(self, node: SupervisorNode):
+        self.node = node
+        self.stop_event = threading.Event()
+        self.thread = threading.Thread(
+            target=node.run, args=(self.stop_event,), name="supervisor", daemon=True
+        )
+
+    def start(self) -> SupervisorThread:
+        self.thread.start()
+        return self
+
+    def stop(self, timeout: float = 2.0) -> None:
+        self.stop_event.set()
+        self.thread.join(timeout)

@@ -1,0 +1,115 @@
+"""The supervisor with the rig in lockstep: limiting and stopping an adversarial rider, a controlled stop on
+the operator's e-stop, drives off when the controller or the supervisor dies, and a reset that permits
+motion without causing it. The plant's truth is the referee; the supervisor never sees it."""
+
+import numpy as np
+
+from drivers.config import load_toml
+from hil.rig import OperatorStep
+from hil.runner import run_scenario
+from hil.scenario import Scenario
+from hil.session import RunSpec, run
+from plant.params import RobotParams
+from safety.config import SupervisorConfig
+from safety.machine import State
+from tests.helpers import ROOT
+from tests.zenoh_helpers import hub_endpoint
+
+REF = ROOT / "configs/riders/ref_60kg_180.toml"
+CFG = SupervisorConfig()
+DRIVE = load_toml(ROOT / "configs/robot/pure.toml", RobotParams).drive
+TICK = 1.0 / 400
+
+
+def transitions(trace):
+    return [(e.to_state, e.cause) for e in trace.safety_events if e.kind == "transition"]
+
+
+def first(trace, cause):
+    return next(e for e in trace.safety_events if e.kind == "transition" and e.cause == cause)
+
+
+def off_since(trace) -> float:
+    """The time from which the drives stayed off to the end."""
+    on = np.nonzero(trace.powered)[0]
+    return float(trace.t[on[-1] + 1])
+
+
+def quiet_run(**kw):
+    """The robot standing, the rider sitting still."""
+    return run(RunSpec(rider=REF, hub_endpoint=hub_endpoint(), **kw))
+
+
+def test_adversarial_rider_is_limited_then_stopped():
+    scenario = load_toml(ROOT / "configs/scenarios/overpower_cap.toml", Scenario)
+    tr = run_scenario(scenario, hub_endpoint=hub_endpoint()).trace
+    assert transitions(tr)[:3] == [
+        ("LIMITING", "OVER_CAP"),
+        ("STOPPING", "OVERPOWERED"),
+        ("ESTOP", "OVERPOWERED"),
+    ]
+    # Reaction against the truth: from the speed first passing cap + margin to LIMITING.
+    cap = scenario.sc[0].cap
+    over = tr.t[np.argmax(np.abs(tr.velocity[:, 0]) > cap + CFG.speed.margin)]
+    reaction = first(tr, "OVER_CAP").t - over
+    print(f"\nover-cap reaction {reaction * 1e3:.1f} ms (window {CFG.speed.window * 1e3:.0f} ms)")
+    assert CFG.speed.window <= reaction <= CFG.speed.window + 4 * TICK
+    # While limiting, the controller is told idle; the supervisor's own speed agrees with the truth.
+    assert np.nanmax(np.abs(tr.safety_speed - np.hypot(*tr.velocity.T))) < 0.01
+    assert tr.fallen is None and tr.resting[-1]
+
+
+def test_operator_estop_at_speed_is_a_controlled_stop():
+    tr = run_scenario(
+        load_toml(ROOT / "configs/scenarios/estop_at_speed.toml", Scenario), hub_endpoint=hub_endpoint()
+    ).trace
+    assert transitions(tr) == [("STOPPING", "OPERATOR_ESTOP"), ("ESTOP", "OPERATOR_ESTOP")]
+    stop = first(tr, "OPERATOR_ESTOP")
+    speed_then = abs(tr.velocity[np.searchsorted(tr.t, stop.t), 0])
+    assert speed_then > 0.8
+    # Power comes off only once the robot is at standstill (truth), and it ends at rest, not fallen.
+    off = off_since(tr)
+    assert abs(tr.velocity[np.searchsorted(tr.t, off) - 1, 0]) < CFG.stop.standstill_speed
+    assert tr.fallen is None and tr.resting[-1]
+
+
+def test_controller_killed_turns_the_drives_off_within_the_watchdog_bound():
+    tr = quiet_run(duration=3.0, kill=(("controller", 1.5),))
+    lost = first(tr, "HEARTBEAT_LOST")
+    assert 1.5 < lost.t <= 1.5 + CFG.watchdogs.heartbeat + 2 * TICK
+    assert lost.to_state == "ESTOP"
+    # The drives' own command watchdog is faster still; either way, off within the supervisor's bound.
+    assert off_since(tr) <= 1.5 + min(DRIVE.watchdog_timeout, CFG.watchdogs.heartbeat) + 2 * TICK
+    assert tr.safety_state[-1] == State.ESTOP
+    assert tr.fallen is None and tr.resting[-1], "power lost at standstill: it comes to rest"
+
+
+def test_supervisor_killed_turns_the_drives_off_within_their_bound():
+    tr = quiet_run(duration=3.0, kill=(("supervisor", 1.5),))
+    off = off_since(tr)
+    # The last frame was sent at most one period before the kill; the drives wait permission_timeout.
+    assert off <= 1.5 + DRIVE.permission_timeout + 2 * TICK
+    assert off >= 1.5 + DRIVE.permission_timeout - CFG.output.estop_frame_period - TICK
+    assert tr.stats.permission_lost == 1
+    assert tr.fallen is None and tr.resting[-1]
+
+
+def test_reset_permits_motion_but_never_causes_it():
+    tr = quiet_run(
+        duration=5.0,
+        operator=(OperatorStep(1.0, "estop"), OperatorStep(2.0, "reset"), OperatorStep(3.0, "enable")),
+    )
+    assert transitions(tr) == [
+        ("STOPPING", "OPERATOR_ESTOP"),
+        ("ESTOP", "OPERATOR_ESTOP"),
+        ("NORMAL", "RESET"),
+    ]
+    reset = first(tr, "RESET")
+    assert 2.0 <= reset.t < 2.0 + 2 * TICK
+    between = (tr.t > reset.t) & (tr.t < 3.0)
+    assert tr.safety_state[between].max() == State.NORMAL, "permitted"
+    assert not tr.powered[between].any() and tr.resting[between].all(), "but nothing moved"
+    after = tr.t > 3.1
+    assert tr.powered[after].all() and not tr.resting[after].any(), "the operator's enable starts it"
+    assert tr.fallen is None
+    assert np.abs(tr.velocity[tr.t > 4.0]).max() < 0.1

@@ -1,0 +1,116 @@
+"""The supervisor's observations from real frames: its own speed estimate against the plant's truth,
+integrity counting, and the per-update parts."""
+
+import math
+
+import pytest
+
+from drivers.can_bus import CanNode
+from drivers.config import load_toml
+from drivers.schemas import EstopCommand, ScRequest, TesWrench
+from plant.ballbot import Plant
+from plant.params import RobotParams, SimParams
+from safety.config import RobotGeometry, SupervisorConfig
+from safety.monitors import Monitors, motor_jacobian
+from tests.helpers import RIDER_75, ROOT
+
+ROBOT = ROOT / "configs/robot/pure.toml"
+
+
+class FakeBus:
+    """CanNode only needs send() here: frames are decoded straight back."""
+
+    def send(self, msg):
+        self.last = msg
+
+
+def frames(plant: Plant):
+    """Drive feedback and IMU frames of the plant now, as the rig sends them, decoded by a receiver."""
+    tx, rx = CanNode(FakeBus(), name="tx"), CanNode(FakeBus(), name="rx")
+    feedback = plant.sample_drives()
+    imu = plant.sample_imu()
+    out = []
+    for i, fb in enumerate(feedback, start=1):
+        values = {"Position": fb.counts, "Velocity": fb.velocity, "Enabled": 1, "WatchdogTripped": 0}
+        out.append(rx.decode(tx.message(f"DRIVE{i}_FEEDBACK", values)))
+    att = {"Roll": imu.attitude[0], "Pitch": imu.attitude[1], "Yaw": imu.attitude[2], "Valid": 1}
+    out.append(rx.decode(tx.message("IMU_ATTITUDE", att)))
+    rate = {"RateX": imu.rate[0], "RateY": imu.rate[1], "RateZ": imu.rate[2], "Valid": 1}
+    out.append(rx.decode(tx.message("IMU_RATE", rate)))
+    return out
+
+
+def monitors() -> Monitors:
+    return Monitors(SupervisorConfig(), load_toml(ROBOT, RobotGeometry))
+
+
+def test_own_jacobian_matches_the_plant_kinematics():
+    from plant.omniwheel import motor_jacobian as plant_jacobian
+
+    robot = load_toml(ROBOT, RobotParams)
+    expected = plant_jacobian(robot.ball.radius, robot.drivetrain)
+    assert motor_jacobian(load_toml(ROBOT, RobotGeometry)) == pytest.approx(expected, abs=1e-12)
+
+
+@pytest.mark.parametrize(
+    "ball_rate, tilt_rate, yaw_rate",
+    [((8.0, 0.0), (0.0, 0.0), 0.0), ((5.0, -6.0), (0.4, -0.3), 0.0), ((-3.0, 2.0), (-0.5, 0.2), 0.8)],
+)
+def test_speed_estimate_matches_the_truth(ball_rate, tilt_rate, yaw_rate):
+    plant = Plant(load_toml(ROBOT, RobotParams), RIDER_75, SimParams(seed=3))
+    x = plant.x
+    x[3], x[9] = ball_rate
+    x[4], x[10] = tilt_rate
+    x[13] = yaw_rate
+    m = monitors()
+    for rx in frames(plant):
+        m.frame(rx, 0.0)
+    truth = math.hypot(*plant.truth().velocity)
+    # Noise: motor velocity 0.05 rad/s and its 0.01 rad/s quantisation, gyro; a few mm/s at the ball.
+    assert m.speed() == pytest.approx(truth, abs=0.01)
+    assert m.tilt() == pytest.approx(max(abs(x[1]), abs(x[7])), abs=0.002)
+
+
+def test_no_estimate_until_both_speed_streams_spoke():
+    m = monitors()
+    assert m.speed() is None and m.tilt() is None
+    plant = Plant(load_toml(ROBOT, RobotParams), None, SimParams())
+    for rx in frames(plant)[:3]:
+        m.frame(rx, 0.0)
+    assert m.speed() is None, "drives alone: the chassis rate is missing"
+
+
+def test_untrusted_frames_change_nothing_and_count_as_errors():
+    m = monitors()
+    tx, rx = CanNode(FakeBus()), CanNode(FakeBus())
+    good = tx.message("DRIVE1_COMMAND", {"Torque": 1.0, "Tick": 1, "Enable": 1})
+    m.frame(rx.decode(good), 0.0)
+    bad = tx.message("DRIVE1_COMMAND", {"Torque": 3.0, "Tick": 2, "Enable": 1})
+    bad.data[0] ^= 0x01  # a bit flip: the CRC fails
+    m.frame(rx.decode(bad), 0.1)
+    obs = m.observe(0.2)
+    assert obs.torque_peak == pytest.approx(1.0)
+    assert obs.e2e_errors == 1
+    assert m.observe(0.2 + SupervisorConfig().integrity.e2e_window).e2e_errors == 0, "errors age out"
+
+
+def test_per_update_parts_start_afresh():
+    m = monitors()
+    m.operator_command(EstopCommand(seq=1, stamp=0.0, action="estop", source="op"))
+    m.operator_command(EstopCommand(seq=2, stamp=0.0, action="reset", source="op"))
+    first = m.observe(1.0)
+    assert first.operator == "estop", "an e-stop outranks a reset that arrived after it in one update"
+    assert m.observe(1.1).operator is None
+
+
+def test_zenoh_inputs_set_ages_and_values():
+    m = monitors()
+    m.wrench(
+        TesWrench(seq=1, stamp=0.0, force=(0.0, 0.0, -600.0), moment=(0.0, 0.0, 0.0), cop=(0.0, 0.0)), 1.0
+    )
+    m.sc_request(ScRequest(seq=1, stamp=0.0, mode="limit", speed_cap=0.5, source="agent"), 1.0)
+    obs = m.observe(1.5)
+    assert obs.seat_load == 600.0
+    assert (obs.request.mode, obs.request.cap) == ("limit", 0.5)
+    assert obs.ages["wrench"] == obs.ages["sc"] == 0.5
+    assert obs.ages["heartbeat"] == math.inf
