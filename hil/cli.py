@@ -62,13 +62,18 @@ def _run(args: argparse.Namespace) -> int:
         print(f"pure-hil: {exc}", file=sys.stderr)
         return 2
     controller = args.controller or scenario.controller
-    if controller == "external" and (can is None or can.interface == "virtual"):
-        print(
-            "pure-hil: --controller external needs a bus shared with another process "
-            "(e.g. --can socketcan:vcan0)",
-            file=sys.stderr,
-        )
-        return 2
+    shared_bus = can is not None and can.interface != "virtual"
+    for what, external in (
+        ("--controller", controller == "external"),
+        ("--supervisor", args.supervisor == "external"),
+    ):
+        if external and not shared_bus:
+            print(
+                f"pure-hil: {what} external needs a bus shared with another process "
+                "(e.g. --can socketcan:vcan0)",
+                file=sys.stderr,
+            )
+            return 2
     out = Path(args.out) if args.out else Path("runs") / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}"
     show_progress = sys.stderr.isatty() and not args.quiet
     print(f"pure-hil run: {scenario.name} ({controller}, {args.clock or scenario.clock}) -> {out}")
@@ -81,6 +86,7 @@ def _run(args: argparse.Namespace) -> int:
             seed=args.seed,
             out=out,
             progress=_progress if show_progress else None,
+            supervisor=args.supervisor,
         )
     except ControllerUnavailable as exc:
         print(f"\npure-hil: {exc}", file=sys.stderr)
@@ -195,6 +201,93 @@ def _rig(args: argparse.Namespace) -> int:
     return 0 if json.loads(body).get("ok") else 1
 
 
+def _supervisor(args: argparse.Namespace) -> int:
+    """The supervisor as its own process, on its own timer (what runs beside a real robot)."""
+    import signal
+    import threading
+
+    from drivers.can_bus import BusConfigError, CanNode, open_bus, parse_can_spec
+    from drivers.zenoh_link import LOOPBACK, ZenohLink, open_session
+    from safety.config import RobotGeometry, SupervisorConfig
+    from safety.node import SupervisorNode, SupervisorThread
+
+    config = load_toml(resolve(args.config), SupervisorConfig)
+    robot = load_toml(resolve(args.robot), RobotGeometry)
+    try:
+        can = parse_can_spec(args.can)
+    except BusConfigError as exc:
+        print(f"pure-hil: {exc}", file=sys.stderr)
+        return 2
+    if can.interface == "virtual":
+        print(
+            "pure-hil supervisor: needs a bus shared with other processes (e.g. --can socketcan:vcan0)",
+            file=sys.stderr,
+        )
+        return 2
+    bus = open_bus(can)
+    session = open_session(args.zenoh or LOOPBACK, args.role, args.hub)
+    link = ZenohLink(session)
+    node = SupervisorNode(CanNode(bus, name="supervisor"), link, config, robot, tick_hz=args.tick_hz)
+    thread = SupervisorThread(node).start()
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    print(
+        f"pure-hil supervisor: on {can.interface}:{can.channel}, zenoh {args.role}; Ctrl-C to stop",
+        flush=True,
+    )
+    stop.wait()
+    thread.stop()
+    link.close()
+    session.close()
+    bus.shutdown()
+    for e in node.events:
+        print(f"  t={e.t:9.3f}  {e.kind:<14} {e.from_state} -> {e.to_state} ({e.cause}) {e.detail}")
+    return 0
+
+
+def _estop(args: argparse.Namespace) -> int:
+    """Operator e-stop or reset over zenoh; waits for the supervisor to confirm its state."""
+    import getpass
+    import socket
+
+    from drivers.keys import Keys
+    from drivers.schemas import EstopCommand, SafetyState
+    from drivers.zenoh_link import LOOPBACK, ZenohLink, open_session
+
+    action = "reset" if args.reset else "estop"
+    source = args.source or f"{getpass.getuser()}@{socket.gethostname()}"
+    session = open_session(args.zenoh or LOOPBACK, "member", args.hub)
+    link = ZenohLink(session, Keys())
+    try:
+        states = link.subscribe(link.keys.safety_state, SafetyState)
+        pub = link.publisher(link.keys.safety_estop)
+        deadline = time.monotonic() + args.timeout
+        while not pub.matching_status.matching and time.monotonic() < deadline:
+            time.sleep(0.01)
+        if not pub.matching_status.matching:
+            print(f"pure-hil estop: no supervisor listens on {link.keys.safety_estop}", file=sys.stderr)
+            return 1
+        link.put(link.keys.safety_estop, EstopCommand(seq=1, stamp=time.time(), action=action, source=source))
+        want = {"estop": ("STOPPING", "ESTOP"), "reset": ("NORMAL",)}[action]
+        last = None
+        while time.monotonic() < deadline:
+            states.wait(max(deadline - time.monotonic(), 0.0))
+            for state in states.drain():
+                last = state
+                if state.state in want or "reset refused" in state.reason:
+                    print(f"pure-hil estop: {action} by {source}: supervisor {state.state} ({state.reason})")
+                    return 0 if state.state in want else 1
+        print(
+            f"pure-hil estop: {action} sent; supervisor state {last.state if last else 'unknown'}",
+            file=sys.stderr,
+        )
+        return 1
+    finally:
+        link.close()
+        session.close()
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="pure-hil", description="Hardware-in-the-loop rig for the PURE ballbot"
@@ -218,6 +311,12 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--controller", choices=("hacs", "ihacs", "external"), default=None)
     run.add_argument("--can", default=None, help="virtual (default) | socketcan:vcan0 | INTERFACE:CHANNEL")
     run.add_argument("--clock", choices=("lockstep", "realtime"), default=None)
+    run.add_argument(
+        "--supervisor",
+        choices=("embedded", "external"),
+        default="embedded",
+        help="embedded: in the rig's tick (default); external: `pure-hil supervisor` on the shared bus",
+    )
     run.add_argument("--seed", type=int, default=None)
     run.add_argument("--out", default=None, help="run folder (default runs/NAME-TIMESTAMP)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -254,6 +353,24 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("run_dir")
     rep.add_argument("--limit", type=int, default=None, help="replay only the first N ticks")
     rep.set_defaults(func=_replay)
+
+    sup = sub.add_parser("supervisor", help="the safety supervisor as its own process, on a shared bus")
+    sup.add_argument("--can", default="socketcan:vcan0", help="bus shared with the rig and the controller")
+    sup.add_argument("--config", default="configs/safety/default.toml")
+    sup.add_argument("--robot", default="configs/robot/pure.toml")
+    sup.add_argument("--tick-hz", type=float, default=400.0, help="the rig's SYNC rate (time stamps)")
+    sup.add_argument("--role", choices=("member", "hub"), default="member")
+    sup.add_argument("--zenoh", default=None)
+    sup.add_argument("--hub", default=None)
+    sup.set_defaults(func=_supervisor)
+
+    est = sub.add_parser("estop", help="operator e-stop (or --reset) to the supervisor over zenoh")
+    est.add_argument("--reset", action="store_true", help="reset a latched e-stop (at standstill only)")
+    est.add_argument("--source", default=None, help="who (default user@host)")
+    est.add_argument("--timeout", type=float, default=5.0)
+    est.add_argument("--zenoh", default=None)
+    est.add_argument("--hub", default=None)
+    est.set_defaults(func=_estop)
 
     ctl = sub.add_parser(
         "controller", help="start the reference controller as its own process (pure-controller)"

@@ -35,6 +35,15 @@ def write_plots(path: Path, trace, title: str, sc_cap: float | None = None) -> N
         ax.plot(t, trace.motor_torque[:, i], lw=0.8, label=f"motor {i + 1}")
     ax.set_ylabel("Nm")
     ax.set_xlabel("simulated time (s)")
+    # Shade the supervisor's interventions: limiting (yellow), stopping (orange), e-stop (red).
+    state = np.asarray(trace.safety_state)
+    for value, color in ((1, "gold"), (2, "orange"), (3, "red")):
+        mask = state == value
+        if mask.any():
+            for ax in axes:
+                ax.fill_between(
+                    t, 0, 1, where=mask, transform=ax.get_xaxis_transform(), color=color, alpha=0.12, lw=0
+                )
     for ax in axes:
         ax.grid(alpha=0.3)
         ax.legend(loc="upper right", fontsize=8)

@@ -43,6 +43,23 @@ def write_rrd(path: Path, trace, name: str = "pure-hil") -> None:
     rec.send_columns(
         "yaw_rate", indexes=[times], columns=rr.Scalars.columns(scalars=np.asarray(trace.yaw_rate))
     )
+    rec.log("safety/state", rr.SeriesLines(names=["supervisor state (0 normal .. 3 e-stop)"]), static=True)
+    rec.send_columns(
+        "safety/state",
+        indexes=[times],
+        columns=rr.Scalars.columns(scalars=np.asarray(trace.safety_state, float)),
+    )
+    rec.log("safety/speed_estimate", rr.SeriesLines(names=["supervisor's speed estimate"]), static=True)
+    rec.send_columns(
+        "safety/speed_estimate",
+        indexes=[times],
+        columns=rr.Scalars.columns(scalars=np.asarray(trace.safety_speed, float)),
+    )
+    for e in trace.safety_events:
+        rec.set_time("sim_time", duration=float(e.t))
+        level = "WARN" if e.to_state in ("STOPPING", "ESTOP") or e.kind != "transition" else "INFO"
+        text = f"supervisor {e.kind}: {e.from_state} -> {e.to_state} ({e.cause}) {e.detail}".strip()
+        rec.log("events", rr.TextLog(text, level=level))
     if trace.fallen:
         rec.set_time("sim_time", duration=float(trace.t[-1]))
         rec.log("events", rr.TextLog(f"fell: {trace.fallen}", level="ERROR"))

@@ -72,7 +72,7 @@ class TickStats:
     """Commands tagged with an older tick (arrived after their tick was given up)."""
     controller_states: Counter[int] = field(default_factory=Counter)
     refused_commands: int = 0
-    """Commands the drives ignored because the supervisor had not given them permission."""
+    """Enabling commands the drives ignored because the supervisor had not given them permission."""
     permission_lost: int = 0
     """Times the drives lost their permission (e-stop asserted or the supervisor's frame went silent)."""
 
@@ -290,7 +290,7 @@ class Rig:
                 self.stats.late_commands += 1  # stale: never applied
                 continue
             drive = drives[COMMANDS[rx.name]]
-            if not drive.permitted:
+            if not drive.permitted and rx.signals["Enable"]:
                 self.stats.refused_commands += 1
             drive.set_command(rx.signals["Torque"], bool(rx.signals["Enable"]), self.plant.t)
             pending.discard(rx.name)

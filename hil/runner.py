@@ -128,6 +128,7 @@ def run_scenario(
     on_tick=None,
     stop=None,
     session=None,
+    supervisor: str = "embedded",
 ) -> RunResult:
     controller = controller or scenario.controller
     clock = clock or scenario.clock
@@ -149,6 +150,7 @@ def run_scenario(
         sc_schedule=tuple(ScStep(e.at, e.mode, e.cap) for e in scenario.sc),
         operator=tuple(OperatorStep(e.at, e.action) for e in scenario.operator),
         safety=scenario.safety,
+        supervisor=supervisor,
         initial_tilt_deg=scenario.initial_tilt_deg,
         can=can,
         clock=clock,
@@ -225,6 +227,7 @@ def summary(result: RunResult) -> dict:
             "controller_states": {str(k): v for k, v in sorted(tr.stats.controller_states.items())},
             "controller_telemetry_missing": tr.controller_telemetry_missing,
         },
+        "safety": safety_summary(tr),
         "bus": tr.bus,
         "timing": {
             "wall_time": round(t.wall_time, 3),
@@ -233,6 +236,35 @@ def summary(result: RunResult) -> dict:
             "jitter_us": t.jitter_us,
             "policy": t.realtime_policy,
         },
+    }
+
+
+def safety_summary(tr: Trace) -> dict:
+    """The supervisor's record, each event with the plant's truth at that moment (the referee's view)."""
+    truth_speed = np.hypot(tr.velocity[:, 0], tr.velocity[:, 1])
+    events = []
+    for e in tr.safety_events:
+        i = min(int(np.searchsorted(tr.t, e.t - 1e-9)), len(tr.t) - 1)
+        events.append(
+            {
+                **msgspec.to_builtins(e),
+                "truth": {
+                    "speed": round(float(truth_speed[i]), 6),
+                    "tilt_deg": round(float(np.degrees(np.abs(tr.tilt[i]).max())), 6),
+                },
+            }
+        )
+    error = np.abs(tr.safety_speed - truth_speed)
+    names = ("NORMAL", "LIMITING", "STOPPING", "ESTOP")
+    final = int(tr.safety_state[-1]) if len(tr.safety_state) else -1
+    return {
+        "final_state": names[final] if 0 <= final < len(names) else "none",
+        "events": events,
+        "speed_estimate_error_max": None if np.isnan(error).all() else round(float(np.nanmax(error)), 6),
+        "drives_refused_commands": tr.stats.refused_commands,
+        "drives_permission_lost": tr.stats.permission_lost,
+        "fence_misses": tr.fence_misses,
+        "ended_resting": bool(len(tr.resting) and tr.resting[-1]),
     }
 
 

@@ -102,8 +102,10 @@ class SupervisorNode:
         self._drain_can(t)
         self._drain_zenoh(t, fence)
         decision = self.machine.update(self.monitors.observe(t))
-        changed = len(self.machine.events) != self._events_seen
-        for event in self.machine.events[self._events_seen :]:
+        new = self.machine.events[self._events_seen :]
+        changed = any(e.kind == "transition" for e in new)
+        refused = next((e.detail for e in reversed(new) if e.kind == "reset_refused"), "")
+        for event in new:
             log.warning(
                 "supervisor %s at t=%.3f: %s -> %s (%s) %s",
                 event.kind,
@@ -115,10 +117,10 @@ class SupervisorNode:
             )
         self._events_seen = len(self.machine.events)
         self.decision = decision
-        self._emit(t, decision, changed)
+        self._emit(t, decision, changed, refused)
         return decision
 
-    def _emit(self, t: float, d: Decision, changed: bool) -> None:
+    def _emit(self, t: float, d: Decision, changed: bool, refused: str = "") -> None:
         out = self.config.output
         if changed or t - self._frame_sent >= out.estop_frame_period - 1e-9:
             self.can.send(
@@ -142,7 +144,7 @@ class SupervisorNode:
                 ),
             )
             self._forwarded, self._sc_sent = d.command, t
-        if changed or t - self._state_sent >= out.state_period - 1e-9:
+        if changed or refused or t - self._state_sent >= out.state_period - 1e-9:
             self._state_seq += 1
             self._put(
                 self.keys.safety_state,
@@ -150,7 +152,7 @@ class SupervisorNode:
                     seq=self._state_seq,
                     stamp=stamp,
                     state=d.state.name,  # type: ignore[arg-type]
-                    reason=d.cause.name,
+                    reason=d.cause.name + (f" (reset refused: {refused})" if refused else ""),
                     cap=d.cap,
                     since=max(d.since, 0.0),
                 ),

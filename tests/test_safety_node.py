@@ -1,0 +1,130 @@
+"""The standalone supervisor on its own timer (as `pure-hil supervisor` runs it), fed healthy traffic by a
+stand-in robot on a virtual bus, driven by `pure-hil estop` over zenoh on loopback."""
+
+import threading
+import time
+import uuid
+
+import pytest
+
+from drivers.can_bus import BusConfig, CanNode, open_bus
+from drivers.schemas import ScCommand, ScRequest, TesWrench
+from drivers.zenoh_link import ZenohLink, open_session
+from hil.cli import main
+from safety.machine import BALANCING
+from safety.node import SupervisorNode, SupervisorThread
+from tests.helpers import wait_for
+from tests.zenoh_helpers import hub_endpoint, wait_matching
+
+
+class StandInRobot:
+    """Drives, IMU, controller heartbeat and SYNC at 400 Hz on the bus; the seat wrench on zenoh."""
+
+    def __init__(self, bus_config: BusConfig, link: ZenohLink):
+        self.bus = open_bus(bus_config)
+        self.node = CanNode(self.bus, name="robot")
+        self.link = link
+        self.heartbeat = True
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.frames: list = []
+        self.thread.start()
+
+    def _run(self):
+        tick = 0
+        send = self.node.send
+        while not self.stop.is_set():
+            tick += 1
+            for i in (1, 2, 3):
+                send(f"DRIVE{i}_FEEDBACK", {"Position": 0, "Velocity": 0.0, "Enabled": 1, "WatchdogTripped": 0})
+            send("IMU_ATTITUDE", {"Roll": 0.0, "Pitch": 0.0, "Yaw": 0.0, "Valid": 1})
+            send("IMU_RATE", {"RateX": 0.0, "RateY": 0.0, "RateZ": 0.0, "Valid": 1})
+            if self.heartbeat:
+                send("CONTROLLER_HEARTBEAT", {"State": BALANCING, "Mode": 0, "FaultCode": 0})
+            send("SYNC", {"Tick": tick % 65536})
+            self.link.put(
+                self.link.keys.tes_wrench,
+                TesWrench(seq=tick, stamp=tick / 400, force=(0.0, 0.0, -600.0), moment=(0.0,) * 3, cop=(0.0, 0.0)),
+            )
+            while (rx := self.node.recv(timeout=0.0)) is not None:
+                if rx.name == "SUPERVISOR_ESTOP":
+                    self.frames.append((time.monotonic(), rx.signals))
+            time.sleep(0.0025)
+
+    def estop_frames_since(self, t0: float):
+        return [s for t, s in self.frames if t >= t0]
+
+    def close(self):
+        self.stop.set()
+        self.thread.join(2)
+        self.bus.shutdown()
+
+
+@pytest.fixture
+def bench():
+    endpoint = hub_endpoint()
+    hub = open_session(role="hub", hub_endpoint=endpoint)
+    hub_link = ZenohLink(hub)
+    bus_config = BusConfig(channel=f"safety-{uuid.uuid4().hex[:8]}")
+    sup_bus = open_bus(bus_config)
+    node = SupervisorNode(CanNode(sup_bus, name="supervisor"), hub_link)
+    thread = SupervisorThread(node).start()
+    robot = StandInRobot(bus_config, hub_link)
+    try:
+        yield endpoint, node, robot, hub_link
+    finally:
+        robot.close()
+        thread.stop()
+        hub_link.close()
+        hub.close()
+        sup_bus.shutdown()
+
+
+def test_estop_frame_at_100_hz_and_sc_requests_clamped(bench):
+    endpoint, node, robot, link = bench
+    t0 = time.monotonic()
+    time.sleep(1.0)
+    frames = robot.estop_frames_since(t0)
+    assert 80 <= len(frames) <= 105, "SUPERVISOR_ESTOP at 100 Hz"
+    assert all(f["Estop"] == 0 and f["State"] == 0 for f in frames)
+    commands = link.subscribe(link.keys.sc_command, ScCommand)
+    pub = link.publisher(link.keys.sc_request)
+    link.put(link.keys.sc_request, ScRequest(seq=1, stamp=0.0, mode="limit", speed_cap=3.0, source="agent"))
+    assert wait_matching(pub)
+    assert wait_for(lambda: any(c.source == "agent" for c in commands.drain()), 3.0)
+    last = commands.latest()
+    assert (last.mode, last.speed_cap, last.source) == ("limit", 2.0, "agent")
+
+
+def test_operator_estop_and_reset_through_the_cli(bench, capsys):
+    endpoint, node, robot, _ = bench
+    time.sleep(0.7)  # past the start-up grace
+    assert main(["estop", "--hub", endpoint, "--source", "alice"]) == 0
+    assert "STOPPING" in capsys.readouterr().out
+    # At standstill the controlled stop ends with the drives off after standstill_time.
+    assert wait_for(lambda: robot.frames and robot.frames[-1][1]["Estop"] == 1, 3.0)
+    assert robot.frames[-1][1]["State"] == 3
+    assert main(["estop", "--reset", "--hub", endpoint, "--source", "alice"]) == 0
+    assert "NORMAL" in capsys.readouterr().out
+    assert node.machine.reset_by and node.machine.reset_by[-1][1] == "alice"
+    assert wait_for(lambda: robot.frames[-1][1]["Estop"] == 0, 2.0)
+
+
+def test_reset_refused_while_the_controller_is_silent(bench, capsys):
+    endpoint, node, robot, _ = bench
+    time.sleep(0.7)
+    robot.heartbeat = False
+    assert wait_for(lambda: node.machine.cause.name == "HEARTBEAT_LOST", 2.0)
+    assert robot.frames and wait_for(lambda: robot.frames[-1][1]["Estop"] == 1, 1.0)
+    assert main(["estop", "--reset", "--hub", endpoint]) == 1
+    assert "reset refused: heartbeat silent" in capsys.readouterr().out
+    robot.heartbeat = True
+    time.sleep(0.2)
+    assert main(["estop", "--reset", "--hub", endpoint]) == 0
+
+
+def test_the_wired_estop_frame_trips_it(bench):
+    endpoint, node, robot, _ = bench
+    time.sleep(0.7)
+    robot.node.send("OPERATOR_ESTOP", {"Request": 1})
+    assert wait_for(lambda: node.machine.cause.name == "BUTTON_ESTOP", 2.0)
