@@ -36,7 +36,7 @@ class StandInRobot:
         while not self.stop.is_set():
             tick += 1
             for i in (1, 2, 3):
-                send(f"DRIVE{i}_FEEDBACK", {"Position": 0, "Velocity": 0.0, "Enabled": 1, "WatchdogTripped": 0})
+                send(f"DRIVE{i}_FEEDBACK", {"Position": 0, "Velocity": 0.0, "Enabled": 1})
             send("IMU_ATTITUDE", {"Roll": 0.0, "Pitch": 0.0, "Yaw": 0.0, "Valid": 1})
             send("IMU_RATE", {"RateX": 0.0, "RateY": 0.0, "RateZ": 0.0, "Valid": 1})
             if self.heartbeat:
@@ -44,7 +44,7 @@ class StandInRobot:
             send("SYNC", {"Tick": tick % 65536})
             self.link.put(
                 self.link.keys.tes_wrench,
-                TesWrench(seq=tick, stamp=tick / 400, force=(0.0, 0.0, -600.0), moment=(0.0,) * 3, cop=(0.0, 0.0)),
+                TesWrench(seq=tick, stamp=tick / 400, force=(0, 0, -600.0), moment=(0, 0, 0), cop=(0, 0)),
             )
             while (rx := self.node.recv(timeout=0.0)) is not None:
                 if rx.name == "SUPERVISOR_ESTOP":
@@ -81,7 +81,7 @@ def bench():
 
 
 def test_estop_frame_at_100_hz_and_sc_requests_clamped(bench):
-    endpoint, node, robot, link = bench
+    _endpoint, _node, robot, link = bench
     t0 = time.monotonic()
     time.sleep(1.0)
     frames = robot.estop_frames_since(t0)
@@ -124,7 +124,7 @@ def test_reset_refused_while_the_controller_is_silent(bench, capsys):
 
 
 def test_the_wired_estop_frame_trips_it(bench):
-    endpoint, node, robot, _ = bench
+    _endpoint, node, robot, _ = bench
     time.sleep(0.7)
     robot.node.send("OPERATOR_ESTOP", {"Request": 1})
     assert wait_for(lambda: node.machine.cause.name == "BUTTON_ESTOP", 2.0)
