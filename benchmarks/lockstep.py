@@ -23,9 +23,10 @@ from drivers.config import load_toml
 from hil.runner import run_scenario
 from hil.scenario import Scenario
 from plant.ballbot import Plant
+from safety.node import SupervisorNode
 
 ROOT = Path(__file__).resolve().parents[1]
-FRAMES_PER_TICK = 12  # 3 feedback, 3 IMU, SYNC, 3 commands, heartbeat, + DRIVEn_TORQUE / 4 ≈ 0.75
+FRAMES_PER_TICK = 12  # 3 feedback, 3 IMU, SYNC, 3 commands, heartbeat, + (DRIVEn_TORQUE, estop) / 4
 
 
 def timed(totals: dict[str, float], name: str, fn):
@@ -64,9 +65,10 @@ def main() -> None:
         scenario = msgspec.structs.replace(scenario, duration=args.duration)
     totals: dict[str, float] = {}
     rig = rig_module.Rig
-    for name in ("_send_sensors", "_publish_tes", "_publish_sc", "_collect_commands"):
+    for name in ("_send_sensors", "_publish_tes", "_publish_sc_request", "_collect_commands"):
         setattr(rig, name, timed(totals, name, getattr(rig, name)))
     Plant.step = timed(totals, "plant.step", Plant.step)
+    SupervisorNode.update = timed(totals, "supervisor", SupervisorNode.update)
     t0 = time.perf_counter()
     result = run_scenario(scenario)
     wall = time.perf_counter() - t0
@@ -88,8 +90,9 @@ def main() -> None:
         "plant.step": "plant step (RK4, rider)",
         "_send_sensors": "sample + 7 frames out",
         "_publish_tes": "seat wrench -> zenoh",
-        "_publish_sc": "SC command -> zenoh",
+        "_publish_sc_request": "SC request -> zenoh",
         "_collect_commands": "wait for the controller's answer",
+        "supervisor": "supervisor (frames, decide, emit)",
     }
     for name, label in labels.items():
         print(f"    {label:<34} {totals.get(name, 0.0) / ticks * 1e6:8.0f} us/tick")
