@@ -325,3 +325,65 @@ def test_leaving_the_floor_envelope_is_a_fall():
             break
     assert plant.fallen and plant.fallen.startswith("left the floor envelope")
     assert abs(plant.x[1]) < deg(30.0)
+
+
+def test_without_permission_drives_ignore_commands_until_a_fresh_one():
+    plant = Plant(RobotParams(), None, sim(fixture="clamped"))
+    plant.drives.set_commands((1.0, 1.0, 1.0), True, 0.0)
+    plant.step()
+    assert plant.drives.powered
+    plant.drives.set_permission(False)
+    assert not plant.drives.powered and plant.drives.torques == (0.0, 0.0, 0.0), "off at once"
+    plant.drives.set_commands((2.0, 2.0, 2.0), True, plant.t)  # queued while not permitted: never applied
+    plant.step()
+    assert plant.drives.torques == (0.0, 0.0, 0.0)
+    plant.drives.set_permission(True)
+    plant.step()
+    assert not plant.drives.powered, "permission alone starts nothing"
+    plant.drives.set_commands((1.0, 1.0, 1.0), True, plant.t)
+    plant.step()
+    assert plant.drives.powered and plant.drives.torques[0] > 0.0
+
+
+def _balanced(speed: float) -> tuple[Plant, TruthBalancer]:
+    plant = Plant(RobotParams(), RIDER_75, sim())
+    bal = TruthBalancer(plant)
+    bal.set_velocity(speed)
+    for _ in range(4 * 400):
+        bal.drive()
+        plant.step()
+    assert plant.fallen is None and plant.drives.powered
+    return plant, bal
+
+
+def test_power_off_at_standstill_comes_to_rest():
+    plant, _ = _balanced(0.0)
+    plant.drives.set_permission(False)
+    position = plant.position[0]
+    for _ in range(3 * 400):
+        plant.step()
+    assert plant.resting and plant.fallen is None
+    assert plant.velocity == (0.0, 0.0) and plant.position[0] == pytest.approx(position, abs=1e-3)
+
+
+def test_power_off_in_motion_tips_over():
+    plant, _ = _balanced(1.0)
+    plant.drives.set_permission(False)
+    for _ in range(3 * 400):
+        plant.step()
+        if plant.fallen:
+            break
+    assert not plant.resting and plant.fallen and "tilt" in plant.fallen
+
+
+def test_rest_ends_when_a_drive_is_powered_again():
+    plant, bal = _balanced(0.0)
+    plant.drives.set_permission(False)
+    plant.step()
+    plant.step()
+    assert plant.resting
+    plant.drives.set_permission(True)
+    for _ in range(2 * 400):
+        bal.drive()
+        plant.step()
+    assert not plant.resting and plant.fallen is None and plant.drives.powered
