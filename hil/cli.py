@@ -228,7 +228,7 @@ def _supervisor(args: argparse.Namespace) -> int:
     session = open_session(args.zenoh or LOOPBACK, args.role, args.hub)
     link = ZenohLink(session)
     node = SupervisorNode(CanNode(bus, name="supervisor"), link, config, robot, tick_hz=args.tick_hz)
-    thread = SupervisorThread(node).start()
+    thread = SupervisorThread(node, sync=args.clock == "sync").start()
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
@@ -359,6 +359,12 @@ def build_parser() -> argparse.ArgumentParser:
     sup.add_argument("--config", default="configs/safety/default.toml")
     sup.add_argument("--robot", default="configs/robot/pure.toml")
     sup.add_argument("--tick-hz", type=float, default=400.0, help="the rig's SYNC rate (time stamps)")
+    sup.add_argument(
+        "--clock",
+        choices=("wall", "sync"),
+        default="wall",
+        help="wall: its own 400 Hz timer (real time); sync: the SYNC tick's time (beside a lockstep rig)",
+    )
     sup.add_argument("--role", choices=("member", "hub"), default="member")
     sup.add_argument("--zenoh", default=None)
     sup.add_argument("--hub", default=None)

@@ -114,6 +114,8 @@ class Rig:
         self._estop_asserted = False
         self.safety_state = -1
         """SUPERVISOR_ESTOP.State of the last trusted frame (-1: none yet)."""
+        self.safety_states = None
+        """With an external supervisor: its pure/safety/state announcements (a Subscription)."""
         self._permitted = False
         plant.drives.set_permission(False)  # until the supervisor's first frame
         self.zenoh_inputs: list[tuple[int, str, bytes]] = []

@@ -19,6 +19,7 @@ from drivers.can_bus import BusConfig, BusRecorder, CanNode, open_bus
 from drivers.config import load_toml
 from drivers.dut import DutSpec, start_dut
 from drivers.keys import Keys
+from drivers.schemas import SafetyState
 from drivers.zenoh_link import LOOPBACK, ZenohLink, open_session
 from hil.clock import LockstepClock, RealtimeClock, TimingStats
 from hil.rig import OperatorStep, Rig, ScStep, TickStats
@@ -140,6 +141,8 @@ def run(spec: RunSpec) -> Trace:
             supervisor=supervisor,
             operator=spec.operator,
         )
+        if supervisor is None:  # an external supervisor: its transitions as it announces them
+            rig.safety_states = link.subscribe(link.keys.safety_state, SafetyState, capacity=1 << 14)
         if spec.controller != "external":
             dut = start_dut(
                 spec.controller,
@@ -258,9 +261,19 @@ def _loop(rig: Rig, plant: Plant, spec: RunSpec, dut) -> Trace:
         safety_speed=rows[:, 16],
         powered=rows[:, 17].astype(bool),
         resting=rows[:, 18].astype(bool),
-        safety_events=[] if supervisor is None else list(supervisor.events),
+        safety_events=_announced_events(rig) if supervisor is None else list(supervisor.events),
         fence_misses=0 if supervisor is None else supervisor.fence_misses,
     )
+
+
+def _announced_events(rig: Rig) -> list[Event]:
+    """An external supervisor's transitions, from its pure/safety/state announcements."""
+    events, previous = [], "NORMAL"
+    for s in rig.safety_states.drain() if rig.safety_states is not None else ():
+        if s.state != previous:
+            events.append(Event(s.since, "transition", previous, s.state, s.reason.split(" ")[0]))
+            previous = s.state
+    return events
 
 
 def _supervisor_speed(rig: Rig) -> float:

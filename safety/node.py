@@ -171,7 +171,7 @@ class SupervisorNode:
 
     # ------------------------------------------------------------------------------------ standalone
     def run(self, stop: threading.Event, clock: Callable[[], float] = time.monotonic) -> None:
-        """Standalone: update on the configured timer, taking frames in as they arrive."""
+        """Standalone, wall-clock time: update on the configured timer, taking frames in as they arrive."""
         start = clock()
         period = 1.0 / self.config.output.rate_hz
         next_update = clock()
@@ -185,16 +185,27 @@ class SupervisorNode:
             self.update(now - start)
             next_update = max(next_update + period, clock())
 
+    def run_on_sync(self, stop: threading.Event, poll: float = 0.1) -> None:
+        """Standalone beside a lockstep rig: time is the SYNC tick (simulated time, whatever the wall clock
+        does), and every SYNC triggers an update with the traffic of the tick before it."""
+        while not stop.is_set():
+            rx = self.can.recv(timeout=poll)
+            if rx is None:
+                continue
+            self.frame(rx, self._stamp(0.0))
+            if rx.name == "SYNC":
+                self.update(self._stamp(0.0))
+
 
 class SupervisorThread:
-    """The supervisor on a thread of its own (standalone, in the rig's process for tests)."""
+    """The supervisor on a thread of its own (standalone, in the rig's process for tests); `sync`: on the
+    SYNC time base (beside a lockstep rig) instead of the wall clock."""
 
-    def __init__(self, node: SupervisorNode):
+    def __init__(self, node: SupervisorNode, sync: bool = False):
         self.node = node
         self.stop_event = threading.Event()
-        self.thread = threading.Thread(
-            target=node.run, args=(self.stop_event,), name="supervisor", daemon=True
-        )
+        target = node.run_on_sync if sync else node.run
+        self.thread = threading.Thread(target=target, args=(self.stop_event,), name="supervisor", daemon=True)
 
     def start(self) -> SupervisorThread:
         self.thread.start()

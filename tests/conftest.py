@@ -2,3 +2,24 @@ import os
 
 # Tiny LAPACK calls (LQR) are 10-20x slower with OpenBLAS's thread pool: keep tests on one thread.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def shipped(tmp_path_factory):
+    """Every shipped scenario run once in lockstep (speed_limiting with its run folder): (results, folder)."""
+    from drivers.config import load_toml
+    from hil.runner import run_scenario
+    from hil.scenario import Scenario
+    from tests.helpers import ROOT
+    from tests.zenoh_helpers import hub_endpoint
+
+    out = tmp_path_factory.mktemp("runs")
+    results = {}
+    for path in sorted((ROOT / "configs/scenarios").glob("*.toml")):
+        scenario = load_toml(path, Scenario)
+        folder = out / scenario.name if scenario.name == "speed_limiting" else None
+        results[scenario.name] = run_scenario(scenario, out=folder, hub_endpoint=hub_endpoint())
+    return results, out

@@ -2,9 +2,13 @@
 the operator's e-stop, drives off when the controller or the supervisor dies, and a reset that permits
 motion without causing it. The plant's truth is the referee; the supervisor never sees it."""
 
+import uuid
+
 import numpy as np
 
+from drivers.can_bus import BusConfig, CanNode, open_bus
 from drivers.config import load_toml
+from drivers.zenoh_link import ZenohLink, open_session
 from hil.rig import OperatorStep
 from hil.runner import run_scenario
 from hil.scenario import Scenario
@@ -12,6 +16,7 @@ from hil.session import RunSpec, run
 from plant.params import RobotParams
 from safety.config import SupervisorConfig
 from safety.machine import State
+from safety.node import SupervisorNode, SupervisorThread
 from tests.helpers import ROOT
 from tests.zenoh_helpers import hub_endpoint
 
@@ -40,9 +45,9 @@ def quiet_run(**kw):
     return run(RunSpec(rider=REF, hub_endpoint=hub_endpoint(), **kw))
 
 
-def test_adversarial_rider_is_limited_then_stopped():
+def test_adversarial_rider_is_limited_then_stopped(shipped):
     scenario = load_toml(ROOT / "configs/scenarios/overpower_cap.toml", Scenario)
-    tr = run_scenario(scenario, hub_endpoint=hub_endpoint()).trace
+    tr = shipped[0]["overpower_cap"].trace
     assert transitions(tr)[:3] == [
         ("LIMITING", "OVER_CAP"),
         ("STOPPING", "OVERPOWERED"),
@@ -59,10 +64,8 @@ def test_adversarial_rider_is_limited_then_stopped():
     assert tr.fallen is None and tr.resting[-1]
 
 
-def test_operator_estop_at_speed_is_a_controlled_stop():
-    tr = run_scenario(
-        load_toml(ROOT / "configs/scenarios/estop_at_speed.toml", Scenario), hub_endpoint=hub_endpoint()
-    ).trace
+def test_operator_estop_at_speed_is_a_controlled_stop(shipped):
+    tr = shipped[0]["estop_at_speed"].trace
     assert transitions(tr) == [("STOPPING", "OPERATOR_ESTOP"), ("ESTOP", "OPERATOR_ESTOP")]
     stop = first(tr, "OPERATOR_ESTOP")
     speed_then = abs(tr.velocity[np.searchsorted(tr.t, stop.t), 0])
@@ -113,3 +116,29 @@ def test_reset_permits_motion_but_never_causes_it():
     assert tr.powered[after].all() and not tr.resting[after].any(), "the operator's enable starts it"
     assert tr.fallen is None
     assert np.abs(tr.velocity[tr.t > 4.0]).max() < 0.1
+
+
+def test_external_supervisor_on_the_sync_time_base():
+    """The rig without its embedded supervisor, one on the same bus instead (as `pure-hil supervisor
+    --clock sync` runs beside a lockstep rig): the same controlled stop, its transitions as announced."""
+    endpoint = hub_endpoint()
+    session = open_session(role="hub", hub_endpoint=endpoint)
+    link = ZenohLink(session)
+    bus_config = BusConfig(channel=f"ext-{uuid.uuid4().hex[:8]}")
+    bus = open_bus(bus_config)
+    node = SupervisorNode(CanNode(bus, name="supervisor"), link)
+    thread = SupervisorThread(node, sync=True).start()
+    scenario = load_toml(ROOT / "configs/scenarios/estop_at_speed.toml", Scenario)
+    try:
+        result = run_scenario(
+            scenario, can=bus_config, session=session, hub_endpoint=endpoint, supervisor="external"
+        )
+    finally:
+        thread.stop()
+        link.close()
+        session.close()
+        bus.shutdown()
+    tr = result.trace
+    assert transitions(tr) == [("STOPPING", "OPERATOR_ESTOP"), ("ESTOP", "OPERATOR_ESTOP")]
+    assert abs(first(tr, "OPERATOR_ESTOP").t - 4.0) < 0.01
+    assert result.passed, [v for v in result.verdicts if not v.passed]

@@ -28,17 +28,6 @@ def load(name: str) -> Scenario:
 
 
 @pytest.fixture(scope="module")
-def shipped(tmp_path_factory):
-    out = tmp_path_factory.mktemp("runs")
-    results = {}
-    for path in SCENARIOS:
-        scenario = load_toml(path, Scenario)
-        folder = out / scenario.name if scenario.name == "speed_limiting" else None
-        results[scenario.name] = run_scenario(scenario, out=folder, hub_endpoint=hub_endpoint())
-    return results, out
-
-
-@pytest.fixture(scope="module")
 def hacs(shipped):
     return {
         task: run_scenario(load(task), controller="hacs", hub_endpoint=hub_endpoint()) for task in PAPER_TASKS
