@@ -11,8 +11,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import control
 import numpy as np
+import scipy.linalg
 
 from controller.config import Lqr, RobotModel
 
@@ -77,11 +77,15 @@ def seat_load_height(robot: RobotModel, rider_height: float) -> float:
 
 
 def lqr_gain(model: PlaneModel, weights: Lqr) -> np.ndarray:
-    """K (1×4) on s = [θ, φ, θ̇, φ̇] with no gain on φ, from python-control's LQR on [θ, θ̇, φ̇]."""
+    """K (1×4) on s = [θ, φ, θ̇, φ̇] with no gain on φ: continuous LQR on [θ, θ̇, φ̇], K = R⁻¹ Bᵀ P with P
+    from scipy's Riccati solver (what python-control's `lqr` solves; importing python-control pulls in
+    scipy.signal and matplotlib, 40 s of start-up on an emulated bench CPU)."""
     idx = [0, 2, 3]
+    a, b = model.a[np.ix_(idx, idx)], model.b[idx]
     q = np.diag([weights.q_tilt, weights.q_tilt_rate, weights.q_ball_rate])
-    k, _, _ = control.lqr(model.a[np.ix_(idx, idx)], model.b[idx], q, np.array([[weights.r_torque]]))
-    k = np.asarray(k).ravel()
+    r = np.array([[weights.r_torque]])
+    p = scipy.linalg.solve_continuous_are(a, b, q, r)
+    k = np.linalg.solve(r, b.T @ p).ravel()
     return np.array([k[0], 0.0, k[1], k[2]])
 
 

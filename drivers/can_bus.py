@@ -93,6 +93,8 @@ class BusStats:
     malformed: Counter[str] = field(default_factory=Counter)
     """Undecodable frames by reason: unknown_id, wrong_length, error_frame, remote, extended_id."""
     sent: Counter[str] = field(default_factory=Counter)
+    send_errors: Counter[str] = field(default_factory=Counter)
+    """Frames the bus refused (transmit queue full, bus-off), per message."""
 
     def as_dict(self) -> dict[str, Any]:
         return {
@@ -101,6 +103,7 @@ class BusStats:
             "e2e": {f"{m}:{s}": n for (m, s), n in self.e2e.items()},
             "lost_frames": dict(self.lost_frames),
             "malformed": dict(self.malformed),
+            "send_errors": dict(self.send_errors),
         }
 
 
@@ -125,9 +128,18 @@ class CanNode:
             payload = raw.to_bytes(codec.length, "little")
         return can.Message(arbitration_id=codec.frame_id, is_extended_id=False, data=payload)
 
-    def send(self, name: str, values: dict[str, float]) -> None:
-        self.bus.send(self.message(name, values))
+    def send(self, name: str, values: dict[str, float]) -> bool:
+        """Send a frame; a full transmit queue (ENOBUFS on SocketCAN with a real qdisc) or a bus that
+        refuses it loses the frame, as on a real bus: counted and logged, never raised."""
+        msg = self.message(name, values)
+        try:
+            self.bus.send(msg)
+        except can.CanOperationError as exc:
+            self.stats.send_errors[name] += 1
+            self._warn("send_failed", msg.arbitration_id, exc)
+            return False
         self.stats.sent[name] += 1
+        return True
 
     def decode(self, msg: can.Message) -> Received | None:
         """A received frame -> Received, or None (counted and logged) if it is not a catalog frame."""

@@ -41,8 +41,8 @@ TORQUE = ("DRIVE1_TORQUE", "DRIVE2_TORQUE", "DRIVE3_TORQUE")
 TORQUE_EVERY = 4  # DRIVEn_TORQUE at 100 Hz on a 400 Hz tick (the DBC's GenMsgCycleTime)
 SC_REPEAT_EVERY = 40  # ticks between repeats of an unchanged SC request (keeps it fresh for the supervisor)
 SILENT_GUARD = 0.005
-"""s to wait per tick once the controller has been silent MAX_SILENT_TICKS in a row (it may be dead: the
-run goes on so the supervisor and the drives can be seen to react)."""
+"""s to wait per tick once the controller, having answered before, has been silent MAX_SILENT_TICKS in a
+row (it may be dead: the run goes on so the supervisor and the drives can be seen to react)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -109,6 +109,9 @@ class Rig:
         self._sc_sent_tick = -SC_REPEAT_EVERY
         self._operator_next = 0
         self._silent_ticks = 0
+        self._answered = False
+        """The controller has answered a tick: only then does silence count (a fresh process may take
+        several guards to warm up, especially on an emulated CPU)."""
         self.permission_timeout = plant.robot.drive.permission_timeout
         self._permission_seen = -math.inf
         self._estop_asserted = False
@@ -125,10 +128,10 @@ class Rig:
             # What it puts at the end of tick k reaches the controller for tick k + 1.
             supervisor.on_put = lambda key, data: self._record(self.plant.tick + 1, key, data)
 
-    def wait_for_controller(self, timeout: float = 10.0) -> bool:
-        """The controller's zenoh subscriptions are in place (the rig's publishers have a match)."""
+    def wait_for_subscriber(self, key: str, timeout: float = 10.0) -> bool:
+        """Someone subscribes to `key` (the controller: the seat wrench; the supervisor: SC requests)."""
         deadline = time.monotonic() + timeout
-        pub = self.link.publisher(self.keys.tes_wrench)
+        pub = self.link.publisher(key)
         while not pub.matching_status.matching:
             if time.monotonic() > deadline:
                 return False
@@ -297,7 +300,11 @@ class Rig:
             drive.set_command(rx.signals["Torque"], bool(rx.signals["Enable"]), self.plant.t)
             pending.discard(rx.name)
         self._silent_ticks = 0
+        self._answered = True
 
     def _missed(self, pending: set[str]) -> None:
         self.stats.missing_commands += len(pending)
-        self._silent_ticks = self._silent_ticks + 1 if len(pending) == len(COMMANDS) else 0
+        if len(pending) < len(COMMANDS):
+            self._answered = True
+        silent = self._answered and len(pending) == len(COMMANDS)
+        self._silent_ticks = self._silent_ticks + 1 if silent else 0

@@ -19,8 +19,6 @@ import numpy as np
 from drivers.can_bus import BusConfig
 from drivers.config import load_toml
 from hil.metrics import plane_metrics
-from hil.plots import write_plots
-from hil.recording import write_rrd
 from hil.rig import OperatorStep, ScStep
 from hil.scenario import ROOT, UNITS, Criterion, Scenario, resolve
 from hil.session import RunSpec, Trace, run
@@ -265,10 +263,24 @@ def safety_summary(tr: Trace) -> dict:
         "drives_permission_lost": tr.stats.permission_lost,
         "fence_misses": tr.fence_misses,
         "ended_resting": bool(len(tr.resting) and tr.resting[-1]),
+        "drives_off_at": _drives_off_at(tr),
     }
 
 
+def _drives_off_at(tr: Trace) -> float | None:
+    """The time from which every drive stayed off to the end of the run (None: on at the end)."""
+    if not len(tr.powered) or tr.powered[-1]:
+        return None
+    on = np.nonzero(tr.powered)[0]
+    return round(float(tr.t[on[-1] + 1 if len(on) else 0]), 6)
+
+
 def write_outputs(result: RunResult, out: Path) -> None:
+    # Imported here: matplotlib and rerun cost seconds of start-up (a minute on an emulated CPU), and a
+    # run without a folder never needs them.
+    from hil.plots import write_plots
+    from hil.recording import write_rrd
+
     (out / "summary.json").write_bytes(msgspec.json.format(msgspec.json.encode(summary(result)), indent=2))
     (out / "zenoh_inputs.msgpack").write_bytes(msgspec.msgpack.encode(result.trace.zenoh_inputs))
     write_rrd(out / "recording.rrd", result.trace, result.scenario.name)

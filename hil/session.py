@@ -159,10 +159,12 @@ def run(spec: RunSpec) -> Trace:
                 ),
             )
         wait = 10.0 if dut is not None else 120.0
-        if not rig.wait_for_controller(wait):
+        if not rig.wait_for_subscriber(rig.keys.tes_wrench, wait):
             raise ControllerUnavailable(
                 f"no controller subscribed to {rig.keys.tes_wrench} within {wait:g} s"
             )
+        if supervisor is None and not rig.wait_for_subscriber(rig.keys.sc_request, 120.0):
+            raise ControllerUnavailable(f"no supervisor subscribed to {rig.keys.sc_request} within 120 s")
         return _loop(rig, plant, spec, dut)
     finally:
         if dut is not None:

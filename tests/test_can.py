@@ -231,3 +231,24 @@ def test_recorder_tees_all_traffic_into_python_can_logs(pair, tmp_path, suffix):
         first = path.read_text().splitlines()[0]
         assert first.startswith("(") and " 080#0000" in first
     assert list(itertools.islice(can.LogReader(str(path)), 1))
+
+
+class FullQueueBus(can.BusABC):
+    """A bus whose transmit queue is full, as SocketCAN reports it with a real qdisc (ENOBUFS)."""
+
+    def __init__(self):
+        super().__init__(channel="full")
+
+    def send(self, msg, timeout=None):
+        raise can.CanOperationError("Failed to transmit: No buffer space available", error_code=105)
+
+    def _recv_internal(self, timeout):
+        return None, False
+
+
+def test_a_refused_frame_is_counted_not_raised():
+    node = CanNode(FullQueueBus(), name="tx")
+    assert node.send("SYNC", {"Tick": 1}) is False
+    assert node.send("SYNC", {"Tick": 2}) is False
+    assert node.stats.send_errors["SYNC"] == 2 and node.stats.sent["SYNC"] == 0
+    assert node.stats.as_dict()["send_errors"] == {"SYNC": 2}
