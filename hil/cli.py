@@ -62,6 +62,9 @@ def _run(args: argparse.Namespace) -> int:
         print(f"pure-hil: {exc}", file=sys.stderr)
         return 2
     controller = args.controller or scenario.controller
+    mode = controller if controller in ("hacs", "ihacs") else "hacs"
+    if args.spawn_controller:
+        controller = "external"
     shared_bus = can is not None and can.interface != "virtual"
     for what, external in (
         ("--controller", controller == "external"),
@@ -76,7 +79,9 @@ def _run(args: argparse.Namespace) -> int:
             return 2
     out = Path(args.out) if args.out else Path("runs") / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}"
     show_progress = sys.stderr.isatty() and not args.quiet
-    print(f"pure-hil run: {scenario.name} ({controller}, {args.clock or scenario.clock}) -> {out}")
+    clock = args.clock or scenario.clock
+    print(f"pure-hil run: {scenario.name} ({controller}, {clock}) -> {out}")
+    spawned = _spawn_controller(args.can, scenario, mode, clock) if args.spawn_controller else None
     try:
         result = run_scenario(
             scenario,
@@ -91,11 +96,46 @@ def _run(args: argparse.Namespace) -> int:
     except ControllerUnavailable as exc:
         print(f"\npure-hil: {exc}", file=sys.stderr)
         return 1
+    finally:
+        if spawned is not None:
+            _stop(spawned)
     if show_progress:
         print(file=sys.stderr)
     print(format_table(result))
     print(f"outputs: {out}/summary.json, can.log, recording.rrd, plots.png")
     return 0 if result.passed else 1
+
+
+def _spawn_controller(can_spec: str, scenario, mode: str, clock: str):
+    """`pure-controller` as a subprocess on the rig's bus (the rig is the zenoh hub it joins)."""
+    import subprocess
+
+    script = Path(sys.executable).with_name("pure-controller")
+    command = [str(script) if script.exists() else "pure-controller", "--can", can_spec]
+    command += [
+        "--rider",
+        str(resolve(scenario.rider)),
+        "--robot",
+        str(resolve(scenario.robot)),
+        "--mode",
+        mode,
+    ]
+    if clock == "lockstep":
+        command.append("--lockstep")
+    print(f"pure-hil run: spawned {' '.join(command)}")
+    return subprocess.Popen(command)
+
+
+def _stop(proc) -> None:
+    import signal
+    import subprocess
+
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
 
 
 def _compare(args: argparse.Namespace) -> int:
@@ -316,6 +356,11 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("embedded", "external"),
         default="embedded",
         help="embedded: in the rig's tick (default); external: `pure-hil supervisor` on the shared bus",
+    )
+    run.add_argument(
+        "--spawn-controller",
+        action="store_true",
+        help="start pure-controller (the scenario's mode) as a subprocess on the same shared bus",
     )
     run.add_argument("--seed", type=int, default=None)
     run.add_argument("--out", default=None, help="run folder (default runs/NAME-TIMESTAMP)")

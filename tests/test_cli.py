@@ -31,3 +31,10 @@ def test_console_script_is_installed():
     script = Path(sys.executable).with_name("pure-hil")
     out = subprocess.run([str(script), "--help"], capture_output=True, text=True, check=True)
     assert "simulate" in out.stdout
+
+
+def test_spawn_controller_needs_a_shared_bus(capsys):
+    from hil.cli import main
+
+    assert main(["run", "configs/scenarios/balance.toml", "--spawn-controller"]) == 2
+    assert "needs a bus shared with another process" in capsys.readouterr().err
