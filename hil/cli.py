@@ -199,6 +199,12 @@ def _serve(args: argparse.Namespace) -> int:
     from drivers.zenoh_link import LOOPBACK, open_session
     from hil.service import RigService
 
+    view = None
+    if args.view:
+        import rerun as rr
+
+        # The operator's own viewer (`rerun` on their machine); the rig connects out to it and never serves.
+        view = rr.GrpcSink(args.view)
     session = open_session(args.zenoh or LOOPBACK, "hub", args.hub)
     service = RigService(
         session,
@@ -207,6 +213,7 @@ def _serve(args: argparse.Namespace) -> int:
         clock=args.clock,
         out_root=Path(args.out),
         hub_endpoint=args.hub,
+        view=view,
     )
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -383,6 +390,12 @@ def build_parser() -> argparse.ArgumentParser:
     srv.add_argument("--zenoh", default=None, help="zenoh config (default: loopback)")
     srv.add_argument("--hub", default=None, help="hub endpoint override, e.g. tcp/127.0.0.1:7447")
     srv.add_argument("--out", default="runs", help="where run folders go")
+    srv.add_argument(
+        "--view",
+        default=None,
+        metavar="URL",
+        help="stream every run live to a rerun viewer you run, e.g. rerun+http://127.0.0.1:9876/proxy",
+    )
     srv.set_defaults(func=_serve)
 
     rig = sub.add_parser(

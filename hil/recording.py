@@ -65,3 +65,58 @@ def write_rrd(path: Path, trace, name: str = "pure-hil") -> None:
         rec.log("events", rr.TextLog(f"fell: {trace.fallen}", level="ERROR"))
     rec.flush()
     rec.disconnect()
+
+
+LIVE = {
+    # entity path: (series names, how to read them from a Truth)
+    "speed/actual": (["forward", "left"], lambda tr: tr.velocity),
+    "tilt/chassis": (["pitch", "roll"], lambda tr: np.degrees(tr.tilt)),
+    "rider/lean": (["pitch", "roll"], lambda tr: np.degrees(tr.lean)),
+    "motor/torque": (["m1", "m2", "m3"], lambda tr: tr.motor_torque),
+}
+
+
+class LiveView:
+    """The running rig as it happens, for a bench operator's rerun viewer (`pure-hil serve --view URL`).
+
+    Ticks are buffered and sent as one `send_columns` per signal group every `every` ticks (0.1 s at
+    400 Hz), never one call per signal per tick. The viewer is the user's, started by them; the rig only
+    connects to the address it is given (`sink`: an `rr.GrpcSink(url)`; tests use an `rr.FileSink`).
+    """
+
+    def __init__(self, sink, name: str = "pure-hil live", every: int = 40):
+        self.rec = rr.RecordingStream(f"pure_hil_live_{name}")
+        self.rec.set_sinks(sink)
+        self.rec.set_log_time_enabled(False)
+        for entity, (names, _) in LIVE.items():
+            self.rec.log(entity, rr.SeriesLines(names=names), static=True)
+        self.every = every
+        self._t: list[float] = []
+        self._rows: dict[str, list] = {entity: [] for entity in LIVE}
+
+    def add(self, truth) -> None:
+        self._t.append(truth.t)
+        for entity, (_, read) in LIVE.items():
+            self._rows[entity].append(read(truth))
+        if len(self._t) >= self.every:
+            self.flush()
+
+    def mark(self, t: float, text: str, level: str = "INFO") -> None:
+        self.rec.set_time("sim_time", duration=t)
+        self.rec.log("events", rr.TextLog(text, level=level))
+
+    def flush(self) -> None:
+        if not self._t:
+            return
+        times = rr.TimeColumn("sim_time", duration=np.asarray(self._t, float))
+        for entity, rows in self._rows.items():
+            self.rec.send_columns(
+                entity, indexes=[times], columns=rr.Scalars.columns(scalars=np.asarray(rows, float))
+            )
+            rows.clear()
+        self._t.clear()
+
+    def close(self) -> None:
+        self.flush()
+        self.rec.flush()
+        self.rec.disconnect()

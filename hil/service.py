@@ -37,8 +37,13 @@ class RigService:
         clock: str | None = None,
         out_root: Path = Path("runs"),
         hub_endpoint: str | None = None,
+        view=None,
     ):
+        """`view`: a rerun sink (e.g. `rr.GrpcSink(url)` to the operator's own viewer) that receives every
+        run live; None: no live view (the run folder's recording.rrd is always written)."""
         self.session, self.keys, self.hub_endpoint = session, keys or Keys(), hub_endpoint
+        self.view_sink = view
+        self._view = None
         self.can, self.controller, self.clock, self.out_root = can, controller, clock, out_root
         self.state = "idle"
         self.scenario: Scenario | None = None
@@ -121,11 +126,18 @@ class RigService:
     # ----------------------------------------------------------------------------------------- runs
     def _on_tick(self, plant: Plant) -> None:
         self.sim_time = plant.t
+        if self._view is not None:
+            self._view.add(plant.truth())
         intent, self._pending_intent = self._pending_intent, None
         if intent is not None:
             plant.set_intent(intent)
 
     def _run(self, scenario: Scenario, out: Path) -> None:
+        if self.view_sink is not None:
+            from hil.recording import LiveView
+
+            self._view = LiveView(self.view_sink, scenario.name)
+            self._view.mark(0.0, f"run {scenario.name} started")
         try:
             result = run_scenario(
                 scenario,
@@ -149,6 +161,10 @@ class RigService:
         except Exception as exc:  # a failed run is reported on status, never kills the service
             self.last = {"scenario": scenario.name, "passed": False, "error": f"{type(exc).__name__}: {exc}"}
         finally:
+            if self._view is not None:
+                self._view.mark(self.sim_time, f"run {scenario.name} ended: {self.last}")
+                self._view.close()
+                self._view = None
             self.state = "idle"
 
     def wait_idle(self, timeout: float | None = None) -> bool:
