@@ -13,11 +13,10 @@ from __future__ import annotations
 
 import argparse
 import time
-import uuid
 
 import numpy as np
 
-from drivers.can_bus import BusConfig, CanNode, open_bus
+from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
 
 TICK = [
     ("DRIVE1_FEEDBACK", {"Position": 123456, "Velocity": 12.34, "Enabled": 1}),
@@ -78,7 +77,7 @@ def main() -> None:
     args = parser.parse_args()
     where = "under CPU emulation (vcan-vm, QEMU TCG)" if args.emulated else "on this host"
     print(f"one tick's frames through CanNode, one at a time, {args.frames} frames, measured {where}:")
-    v_rate, v_lat = measure(BusConfig(channel=f"bench-{uuid.uuid4().hex[:8]}"), args.frames)
+    v_rate, v_lat = measure(BusConfig(channel=private_channel("bench")), args.frames)
     report("virtual (in-process)", v_rate, v_lat)
     if args.socketcan:
         s_rate, s_lat = measure(BusConfig(interface="socketcan", channel=args.socketcan), args.frames)

@@ -9,9 +9,8 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
-import uuid
 
-from drivers.can_bus import BusConfig, CanNode, open_bus
+from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
 from drivers.can_codec import Catalog
 
 # One tick's worth of frames, in the order the rig and the controller send them.
@@ -46,7 +45,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=50000)
     args = parser.parse_args()
     catalog = Catalog()
-    config = BusConfig(channel=f"bench-{uuid.uuid4().hex}")
+    config = BusConfig(channel=private_channel("bench"))
     a, b = open_bus(config), open_bus(config)
     tx, rx = CanNode(a, catalog, "tx"), CanNode(b, catalog, "rx")
     prebuilt = [tx.message(name, values) for name, values in TICK]

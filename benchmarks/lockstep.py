@@ -10,7 +10,6 @@ from __future__ import annotations
 import argparse
 import os
 import time
-import uuid
 from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -19,6 +18,7 @@ import can
 import msgspec
 
 import hil.rig as rig_module
+from drivers.can_bus import private_channel
 from drivers.config import load_toml
 from hil.runner import run_scenario
 from hil.scenario import Scenario
@@ -42,7 +42,7 @@ def timed(totals: dict[str, float], name: str, fn):
 
 def bare_floor(ticks: int) -> float:
     """Seconds of bare python-can virtual send+recv for FRAMES_PER_TICK frames per tick."""
-    channel = f"bench-{uuid.uuid4().hex}"
+    channel = private_channel("bench")
     a, b = can.Bus(interface="virtual", channel=channel), can.Bus(interface="virtual", channel=channel)
     msg = can.Message(arbitration_id=0x181, is_extended_id=False, data=bytes(8))
     t0 = time.perf_counter()

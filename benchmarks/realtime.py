@@ -13,11 +13,10 @@ from __future__ import annotations
 import argparse
 import os
 import threading
-import uuid
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from drivers.can_bus import BusConfig, CanNode, open_bus
+from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
 from hil.clock import RealtimeClock
 from plant.ballbot import Plant, RiderIntent
 from plant.params import RiderParams, RobotParams, SimParams
@@ -47,7 +46,7 @@ def main() -> None:
         SimParams(tick_hz=args.hz, fixture="clamped"),
         RiderIntent(pitch=[Sine(amplitude=5.0, frequency_hz=0.5, duration=1e9)]),
     )
-    config = BusConfig(channel=f"rt-{uuid.uuid4().hex}")
+    config = BusConfig(channel=private_channel("rt"))
     tx_bus, rx_bus = open_bus(config), open_bus(config)
     node = CanNode(tx_bus, name="rig")
     stop = threading.Event()

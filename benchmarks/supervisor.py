@@ -23,12 +23,11 @@ import random
 import statistics
 import threading
 import time
-import uuid
 
 import can
 import numpy as np
 
-from drivers.can_bus import BusConfig, CanNode, open_bus
+from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
 from drivers.config import load_toml
 from drivers.schemas import EstopCommand, TesWrench
 from drivers.zenoh_link import ZenohLink, open_session
@@ -108,7 +107,7 @@ def decision_cost(ticks: int) -> None:
 def reaction_latency(trips: int) -> None:
     from safety.node import SupervisorNode, SupervisorThread
 
-    config = BusConfig(channel=f"bench-{uuid.uuid4().hex[:8]}")
+    config = BusConfig(channel=private_channel("bench"))
     endpoint = "tcp/127.0.0.1:7463"
     session = open_session(role="hub", hub_endpoint=endpoint)
     link = ZenohLink(session)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import time
+import uuid
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -50,6 +51,12 @@ class BusConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only
             )
         if not 0.0 < self.max_load <= 1.0:
             raise ValueError("max_load must be in (0, 1]")
+
+
+def private_channel(prefix: str = "pure") -> str:
+    """A fresh in-process `virtual` channel name. It never ends in digits: python-can's log writers (BLF)
+    read trailing digits as a channel number and fail on one above 65535."""
+    return f"{prefix}-{uuid.uuid4().hex[:12]}-vbus"
 
 
 def parse_can_spec(spec: str, base: BusConfig | None = None) -> BusConfig:

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import time
-import uuid
 from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,7 +18,7 @@ from pathlib import Path
 import can
 import msgspec
 
-from drivers.can_bus import BusConfig, open_bus
+from drivers.can_bus import BusConfig, open_bus, private_channel
 from drivers.can_codec import Catalog
 from drivers.dut import DutSpec, start_dut
 from drivers.zenoh_link import ZenohLink, open_session
@@ -77,7 +76,7 @@ def replay(
     for tick, key, data in msgspec.msgpack.decode((run_dir / "zenoh_inputs.msgpack").read_bytes()):
         inputs[tick].append((key, data))
     first_tick = min(inputs) if inputs else 1
-    bus_config = BusConfig(channel=f"replay-{uuid.uuid4().hex[:12]}")
+    bus_config = BusConfig(channel=private_channel("replay"))
     bus = open_bus(bus_config)
     session = open_session(role="hub", hub_endpoint=hub_endpoint)
     link = ZenohLink(session)

@@ -7,7 +7,6 @@ from __future__ import annotations
 import math
 import threading
 import time
-import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -15,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from drivers.can_bus import BusConfig, BusRecorder, CanNode, open_bus
+from drivers.can_bus import BusConfig, BusRecorder, CanNode, open_bus, private_channel
 from drivers.config import load_toml
 from drivers.dut import DutSpec, start_dut
 from drivers.keys import Keys
@@ -116,7 +115,7 @@ def run(spec: RunSpec) -> Trace:
     robot = load_toml(spec.robot, RobotParams)
     rider = load_toml(spec.rider, RiderParams)
     plant = Plant(robot, rider, spec.sim, spec.intent, tuple(math.radians(a) for a in spec.initial_tilt_deg))
-    bus_config = spec.can or BusConfig(channel=f"pure-{uuid.uuid4().hex[:12]}")
+    bus_config = spec.can or BusConfig(channel=private_channel())
     bus = open_bus(bus_config)
     recorder = BusRecorder(bus_config, spec.can_log) if spec.can_log is not None else None
     session = spec.session or open_session(spec.zenoh_config, "hub", spec.hub_endpoint)

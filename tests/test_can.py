@@ -1,7 +1,6 @@
 """CAN catalog, codecs, E2E protection, bus load and buses (python-can `virtual`)."""
 
 import itertools
-import uuid
 
 import can
 import pytest
@@ -10,7 +9,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drivers.bus_load import BusLoadError, bus_load, check_bus_load, frame_bits
-from drivers.can_bus import BusConfig, BusConfigError, BusRecorder, CanNode, open_bus, parse_can_spec
+from drivers.can_bus import (
+    BusConfig,
+    BusConfigError,
+    BusRecorder,
+    CanNode,
+    open_bus,
+    parse_can_spec,
+    private_channel,
+)
 from drivers.can_codec import Catalog
 from drivers.e2e import E2EStatus, crc8, is_protected
 from tests.helpers import wait_for
@@ -79,7 +86,7 @@ def test_every_safety_frame_is_protected():
 # ------------------------------------------------------------------------------------------ buses
 @pytest.fixture
 def pair():
-    config = BusConfig(channel=f"test-{uuid.uuid4().hex}")
+    config = BusConfig(channel=private_channel("test"))
     a, b = open_bus(config), open_bus(config)
     yield CanNode(a, CATALOG, "a"), CanNode(b, CATALOG, "b"), config
     a.shutdown()
@@ -252,3 +259,10 @@ def test_a_refused_frame_is_counted_not_raised():
     assert node.send("SYNC", {"Tick": 2}) is False
     assert node.stats.send_errors["SYNC"] == 2 and node.stats.sent["SYNC"] == 0
     assert node.stats.as_dict()["send_errors"] == {"SYNC": 2}
+
+
+def test_private_channels_never_end_in_digits():
+    # python-can's BLF writer reads trailing digits as a channel number (and fails above 65535).
+    names = {private_channel("x") for _ in range(200)}
+    assert len(names) == 200 and not any(n[-1].isdigit() for n in names)
+    assert can.util.channel2int(private_channel()) is None

@@ -2,11 +2,9 @@
 the operator's e-stop, drives off when the controller or the supervisor dies, and a reset that permits
 motion without causing it. The plant's truth is the referee; the supervisor never sees it."""
 
-import uuid
-
 import numpy as np
 
-from drivers.can_bus import BusConfig, CanNode, open_bus
+from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
 from drivers.config import load_toml
 from drivers.zenoh_link import ZenohLink, open_session
 from hil.rig import OperatorStep
@@ -124,7 +122,7 @@ def test_external_supervisor_on_the_sync_time_base():
     endpoint = hub_endpoint()
     session = open_session(role="hub", hub_endpoint=endpoint)
     link = ZenohLink(session)
-    bus_config = BusConfig(channel=f"ext-{uuid.uuid4().hex[:8]}")
+    bus_config = BusConfig(channel=private_channel("ext"))
     bus = open_bus(bus_config)
     node = SupervisorNode(CanNode(bus, name="supervisor"), link)
     thread = SupervisorThread(node, sync=True).start()

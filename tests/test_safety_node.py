@@ -3,11 +3,10 @@ stand-in robot on a virtual bus, driven by `pure-hil estop` over zenoh on loopba
 
 import threading
 import time
-import uuid
 
 import pytest
 
-from drivers.can_bus import BusConfig, CanNode, open_bus
+from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
 from drivers.schemas import ScCommand, ScRequest, TesWrench
 from drivers.zenoh_link import ZenohLink, open_session
 from hil.cli import main
@@ -65,7 +64,7 @@ def bench():
     endpoint = hub_endpoint()
     hub = open_session(role="hub", hub_endpoint=endpoint)
     hub_link = ZenohLink(hub)
-    bus_config = BusConfig(channel=f"safety-{uuid.uuid4().hex[:8]}")
+    bus_config = BusConfig(channel=private_channel("safety"))
     sup_bus = open_bus(bus_config)
     node = SupervisorNode(CanNode(sup_bus, name="supervisor"), hub_link)
     thread = SupervisorThread(node).start()
