@@ -7,12 +7,17 @@ loopback. zenoh's built-in default config (multicast scouting on, listening on a
 Roles: the *hub* (the rig) listens on the config's endpoint; *members* (controller, supervisor, operator
 tools) listen on an ephemeral loopback port and connect to the hub; gossip then introduces members to
 each other over those loopback sessions.
+
+Secured bench (docs/security.md): `bench-router.json5` and `bench-client.json5` hold `@CERTS@` (the folder
+of `pure-hil certs init`) and `@ROLE@` (the client's certificate, hence its ACL identity); private keys and
+credential files must not be readable by group or others.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import stat
 import threading
 from collections import Counter, deque
 from collections.abc import Iterable
@@ -30,7 +35,12 @@ CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs" / "zenoh"
 LOOPBACK = CONFIG_DIR / "loopback.json5"
 Role = Literal["hub", "member"]
 MEMBER_LISTEN = "tcp/127.0.0.1:0"
-LOOPBACK_PREFIXES = ("tcp/127.", "tcp/[::1]", "udp/127.", "unixsock-stream/")
+LOOPBACK_PREFIXES = ("tcp/127.", "tcp/[::1]", "tls/127.", "udp/127.", "unixsock-stream/")
+SECRET_KEYS = (
+    "transport/link/tls/listen_private_key",
+    "transport/link/tls/connect_private_key",
+    "transport/auth/usrpwd/dictionary_file",
+)
 
 
 class ZenohConfigError(ValueError):
@@ -57,26 +67,62 @@ def load_config(
     role: Role = "member",
     hub_endpoint: str | None = None,
     allow_network: bool = False,
+    certs: Path | str | None = None,
+    identity: str | None = None,
 ) -> zenoh.Config:
     """A zenoh Config from a project file, with the role applied and the network rule checked.
 
-    hub_endpoint replaces the file's hub endpoint (tests use a free port per test).
+    hub_endpoint replaces the file's hub endpoint (tests use a free port per test); certs and identity
+    fill a secured bench file's @CERTS@ and @ROLE@. Router and client files keep their own roles.
     """
     path = Path(path)
     try:
-        config = zenoh.Config.from_file(str(path))
-    except Exception as exc:  # zenoh raises its own ZError for unreadable or invalid files
+        text = path.read_text()
+    except OSError as exc:
+        raise ZenohConfigError(f"{path}: cannot read: {exc.strerror or exc}") from exc
+    for placeholder, value, what in (("@CERTS@", certs, "certs"), ("@ROLE@", identity, "identity")):
+        if placeholder in text:
+            if value is None:
+                raise ZenohConfigError(f"{path}: needs {what} (the file uses {placeholder})")
+            text = text.replace(placeholder, str(value))
+    try:
+        config = zenoh.Config.from_json5(text)
+    except Exception as exc:  # zenoh raises its own ZError for invalid files
         raise ZenohConfigError(f"{path}: cannot load zenoh config: {exc}") from exc
     if hub_endpoint is not None:
         config.insert_json5("listen/endpoints", json.dumps([hub_endpoint]))
         config.insert_json5("connect/endpoints", json.dumps([hub_endpoint]))
-    if _get(config, "mode") == "peer":
+    mode = _get(config, "mode")
+    if mode == "router":
+        config.insert_json5("connect/endpoints", "[]")
+    elif mode == "client":  # no listener: a client reachable directly would bypass the router's ACL
+        config.insert_json5("listen/endpoints", "[]")
+    elif mode == "peer":
         if role == "hub":
             config.insert_json5("connect/endpoints", "[]")
         else:
             config.insert_json5("listen/endpoints", json.dumps([MEMBER_LISTEN]))
     check_config(config, path, allow_network)
+    check_secrets(config, path)
     return config
+
+
+def check_secrets(config: zenoh.Config, origin: Path | str = "<config>") -> None:
+    """Private keys and credential files must exist and be readable by their owner only."""
+    for key in SECRET_KEYS:
+        value = _get(config, key)
+        if not value:
+            continue
+        secret = Path(value)
+        try:
+            mode = secret.stat().st_mode
+        except OSError as exc:
+            raise ZenohConfigError(f"{origin}: {key} = {secret}: {exc.strerror or exc}") from exc
+        if mode & (stat.S_IRWXG | stat.S_IRWXO):
+            raise ZenohConfigError(
+                f"{origin}: {key} = {secret} is readable by group or others (mode {stat.S_IMODE(mode):04o}); "
+                f"chmod 600 {secret}"
+            )
 
 
 def check_config(config: zenoh.Config, origin: Path | str = "<config>", allow_network: bool = False) -> None:
@@ -99,8 +145,10 @@ def open_session(
     role: Role = "member",
     hub_endpoint: str | None = None,
     allow_network: bool = False,
+    certs: Path | str | None = None,
+    identity: str | None = None,
 ) -> zenoh.Session:
-    return zenoh.open(load_config(path, role, hub_endpoint, allow_network))
+    return zenoh.open(load_config(path, role, hub_endpoint, allow_network, certs, identity))
 
 
 P = TypeVar("P", bound=Payload)

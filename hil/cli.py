@@ -304,7 +304,9 @@ def _estop(args: argparse.Namespace) -> int:
 
     action = "reset" if args.reset else "estop"
     source = args.source or f"{getpass.getuser()}@{socket.gethostname()}"
-    session = open_session(args.zenoh or LOOPBACK, "member", args.hub)
+    session = open_session(
+        args.zenoh or LOOPBACK, "member", args.hub, certs=args.certs, identity=args.identity
+    )
     link = ZenohLink(session, Keys())
     try:
         states = link.subscribe(link.keys.safety_state, SafetyState)
@@ -333,6 +335,46 @@ def _estop(args: argparse.Namespace) -> int:
     finally:
         link.close()
         session.close()
+
+
+def _certs(args: argparse.Namespace) -> int:
+    from hil.certs import init
+
+    try:
+        paths = init(args.folder, days=args.days, force=args.force)
+    except FileExistsError as exc:
+        print(f"pure-hil certs: {exc}", file=sys.stderr)
+        return 2
+    print(
+        f"pure-hil certs: CA and {len(paths) - 1} certificates in {args.folder} "
+        "(keys 0600; never commit them)"
+    )
+    for name, path in paths.items():
+        print(f"  {name:<11} {path}")
+    return 0
+
+
+def _router(args: argparse.Namespace) -> int:
+    import signal
+    import threading
+
+    from drivers.zenoh_link import CONFIG_DIR, ZenohConfigError, open_session
+
+    config = args.config or CONFIG_DIR / "bench-router.json5"
+    try:
+        session = open_session(
+            config, hub_endpoint=args.listen, allow_network=args.allow_network, certs=args.certs
+        )
+    except ZenohConfigError as exc:
+        print(f"pure-hil router: {exc}", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    print(f"pure-hil router: {config} (mutual TLS, ACL default deny); Ctrl-C to stop", flush=True)
+    stop.wait()
+    session.close()
+    return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -432,9 +474,27 @@ def build_parser() -> argparse.ArgumentParser:
     est.add_argument("--reset", action="store_true", help="reset a latched e-stop (at standstill only)")
     est.add_argument("--source", default=None, help="who (default user@host)")
     est.add_argument("--timeout", type=float, default=5.0)
-    est.add_argument("--zenoh", default=None)
+    est.add_argument("--zenoh", default=None, help="e.g. configs/zenoh/bench-client.json5 on a secured bench")
     est.add_argument("--hub", default=None)
+    est.add_argument("--certs", default=None, help="certificate folder (pure-hil certs init)")
+    est.add_argument("--identity", default="operator", help="the certificate's role (secured bench)")
     est.set_defaults(func=_estop)
+
+    crt = sub.add_parser("certs", help="certificates for the secured bench router (docs/security.md)")
+    crt.add_argument("action", choices=("init",))
+    crt.add_argument("folder")
+    crt.add_argument("--days", type=int, default=365)
+    crt.add_argument("--force", action="store_true", help="replace the certificates in a non-empty folder")
+    crt.set_defaults(func=_certs)
+
+    rtr = sub.add_parser("router", help="the secured bench router: mutual TLS + ACL (docs/security.md)")
+    rtr.add_argument("--certs", required=True, help="certificate folder (pure-hil certs init)")
+    rtr.add_argument("--config", default=None, help="default: configs/zenoh/bench-router.json5")
+    rtr.add_argument(
+        "--listen", default=None, help="endpoint, e.g. tls/BENCH_HOST_IP:7448 (default loopback)"
+    )
+    rtr.add_argument("--allow-network", action="store_true", help="needed for a non-loopback endpoint")
+    rtr.set_defaults(func=_router)
 
     ctl = sub.add_parser(
         "controller", help="start the reference controller as its own process (pure-controller)"
@@ -451,6 +511,13 @@ def main(argv: list[str] | None = None) -> int:
         return args.func(args)
     except ConfigError as exc:
         print(f"pure-hil: config error: {exc}", file=sys.stderr)
+        return 2
+    except ValueError as exc:
+        from drivers.zenoh_link import ZenohConfigError
+
+        if not isinstance(exc, ZenohConfigError):
+            raise
+        print(f"pure-hil: zenoh config error: {exc}", file=sys.stderr)
         return 2
 
 

@@ -262,6 +262,7 @@ def safety_summary(tr: Trace) -> dict:
         "drives_refused_commands": tr.stats.refused_commands,
         "drives_permission_lost": tr.stats.permission_lost,
         "fence_misses": tr.fence_misses,
+        "identity_rejected": tr.identity_rejected,
         "ended_resting": bool(len(tr.resting) and tr.resting[-1]),
         "drives_off_at": _drives_off_at(tr),
     }

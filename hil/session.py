@@ -109,6 +109,8 @@ class Trace:
     safety_events: list[Event]
     """The embedded supervisor's transitions and refused resets."""
     fence_misses: int = 0
+    identity_rejected: dict[str, int] = field(default_factory=dict)
+    """SC requests and resets the embedded supervisor ignored for want of an operator's identity."""
 
 
 def run(spec: RunSpec) -> Trace:
@@ -264,6 +266,7 @@ def _loop(rig: Rig, plant: Plant, spec: RunSpec, dut) -> Trace:
         resting=rows[:, 18].astype(bool),
         safety_events=_announced_events(rig) if supervisor is None else list(supervisor.events),
         fence_misses=0 if supervisor is None else supervisor.fence_misses,
+        identity_rejected={} if supervisor is None else dict(supervisor.monitors.rejected_identity),
     )
 
 

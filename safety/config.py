@@ -139,7 +139,15 @@ class Output(_Strict):
     """Standalone: the supervisor's own timer (it also updates on every SYNC)."""
 
 
+class Identity(_Strict):
+    operators: list[str] = []
+    """Sources (the payload's `source`) allowed to reset an e-stop or request an SC mode. Empty: not checked
+    (the loopback default). On a bench this is defence in depth behind the router's ACL (docs/security.md):
+    anything else is counted and ignored. An e-stop is accepted from anyone, always."""
+
+
 class SupervisorConfig(_Strict):
+    identity: Identity = Identity()
     speed: SpeedRules = SpeedRules()
     stop: StopRules = StopRules()
     motion: MotionRules = MotionRules()

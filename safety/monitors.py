@@ -9,7 +9,7 @@ ball radius. Untrusted frames (E2E) update nothing and count as integrity errors
 from __future__ import annotations
 
 import math
-from collections import deque
+from collections import Counter, deque
 
 import numpy as np
 
@@ -58,6 +58,9 @@ class Monitors:
         self.operator: str | None = None
         self.operator_source = ""
         self._errors: deque[tuple[float, int]] = deque()
+        self.operators = frozenset(config.identity.operators)
+        self.rejected_identity: Counter[str] = Counter()
+        """SC requests and resets ignored because their source is not a configured operator."""
         self._imu_parts = [-math.inf, -math.inf]
 
     # ------------------------------------------------------------------------------------------ inputs
@@ -95,11 +98,21 @@ class Monitors:
         self.seat_load = -w.force[2]
         self.last["wrench"] = t
 
+    def _trusted(self, source: str, kind: str) -> bool:
+        if not self.operators or source in self.operators:
+            return True
+        self.rejected_identity[kind] += 1
+        return False
+
     def sc_request(self, r: ScRequest, t: float) -> None:
+        if not self._trusted(r.source, "sc_request"):
+            return
         self.request = Request(r.mode, r.speed_cap, r.source)
         self.last["sc"] = t
 
     def operator_command(self, cmd: EstopCommand) -> None:
+        if cmd.action == "reset" and not self._trusted(cmd.source, "reset"):
+            return  # an e-stop is accepted from anyone; a reset only from an operator
         # Within one update an e-stop outranks a reset, whatever the order they arrived in.
         if cmd.action == "estop" or self.operator != "estop":
             self.operator, self.operator_source = cmd.action, cmd.source
