@@ -272,7 +272,9 @@ def _supervisor(args: argparse.Namespace) -> int:
         )
         return 2
     bus = open_bus(can)
-    session = open_session(args.zenoh or LOOPBACK, args.role, args.hub)
+    session = open_session(
+        args.zenoh or LOOPBACK, args.role, args.hub, certs=args.certs, identity=args.identity
+    )
     link = ZenohLink(session)
     node = SupervisorNode(CanNode(bus, name="supervisor"), link, config, robot, tick_hz=args.tick_hz)
     thread = SupervisorThread(node, sync=args.clock == "sync").start()
@@ -468,6 +470,8 @@ def build_parser() -> argparse.ArgumentParser:
     sup.add_argument("--role", choices=("member", "hub"), default="member")
     sup.add_argument("--zenoh", default=None)
     sup.add_argument("--hub", default=None)
+    sup.add_argument("--certs", default=None, help="certificate folder, with --zenoh bench-client.json5")
+    sup.add_argument("--identity", default="supervisor", help="the certificate's role (secured bench)")
     sup.set_defaults(func=_supervisor)
 
     est = sub.add_parser("estop", help="operator e-stop (or --reset) to the supervisor over zenoh")
