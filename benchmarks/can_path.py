@@ -15,22 +15,9 @@ import argparse
 import time
 
 import numpy as np
+from can_roundtrip import TICK  # one tick's frames, shared with the other CAN benchmark
 
 from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
-
-TICK = [
-    ("DRIVE1_FEEDBACK", {"Position": 123456, "Velocity": 12.34, "Enabled": 1}),
-    ("DRIVE2_FEEDBACK", {"Position": -654321, "Velocity": -3.21, "Enabled": 1}),
-    ("DRIVE3_FEEDBACK", {"Position": 42, "Velocity": 0.5, "Enabled": 1}),
-    ("IMU_ATTITUDE", {"Roll": 0.01, "Pitch": -0.02, "Yaw": 1.5, "Valid": 1}),
-    ("IMU_RATE", {"RateX": 0.1, "RateY": -0.2, "RateZ": 0.05, "Valid": 1}),
-    ("IMU_ACCEL", {"AccX": 0.3, "AccY": -0.1, "AccZ": 9.81, "Valid": 1}),
-    ("SYNC", {"Tick": 7}),
-    ("DRIVE1_COMMAND", {"Torque": 1.25, "Tick": 7, "Enable": 1}),
-    ("DRIVE2_COMMAND", {"Torque": -0.75, "Tick": 7, "Enable": 1}),
-    ("DRIVE3_COMMAND", {"Torque": 0.5, "Tick": 7, "Enable": 1}),
-    ("CONTROLLER_HEARTBEAT", {"State": 3, "Mode": 1}),
-]
 
 
 def measure(config: BusConfig, frames: int) -> tuple[float, np.ndarray]:

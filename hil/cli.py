@@ -191,9 +191,19 @@ def _replay(args: argparse.Namespace) -> int:
     return 0 if result.identical else 1
 
 
-def _serve(args: argparse.Namespace) -> int:
+def _until_interrupted(message: str) -> None:
+    """Print `message`, then block until SIGINT or SIGTERM (the long-running commands' clean stop)."""
     import signal
     import threading
+
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    print(message, flush=True)
+    stop.wait()
+
+
+def _serve(args: argparse.Namespace) -> int:
 
     from drivers.can_bus import parse_can_spec
     from drivers.zenoh_link import LOOPBACK, open_session
@@ -215,14 +225,9 @@ def _serve(args: argparse.Namespace) -> int:
         hub_endpoint=args.hub,
         view=view,
     )
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    print(
-        f"pure-hil serve: queryables {service.keys.rig('{status,start,stop,intent}')}; Ctrl-C to stop",
-        flush=True,
+    _until_interrupted(
+        f"pure-hil serve: queryables {service.keys.rig('{status,start,stop,intent}')}; Ctrl-C to stop"
     )
-    stop.wait()
     service.close()
     session.close()
     print("pure-hil serve: stopped")
@@ -250,8 +255,6 @@ def _rig(args: argparse.Namespace) -> int:
 
 def _supervisor(args: argparse.Namespace) -> int:
     """The supervisor as its own process, on its own timer (what runs beside a real robot)."""
-    import signal
-    import threading
 
     from drivers.can_bus import BusConfigError, CanNode, open_bus, parse_can_spec
     from drivers.zenoh_link import LOOPBACK, ZenohLink, open_session
@@ -278,14 +281,9 @@ def _supervisor(args: argparse.Namespace) -> int:
     link = ZenohLink(session)
     node = SupervisorNode(CanNode(bus, name="supervisor"), link, config, robot, tick_hz=args.tick_hz)
     thread = SupervisorThread(node, sync=args.clock == "sync").start()
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    print(
-        f"pure-hil supervisor: on {can.interface}:{can.channel}, zenoh {args.role}; Ctrl-C to stop",
-        flush=True,
+    _until_interrupted(
+        f"pure-hil supervisor: on {can.interface}:{can.channel}, zenoh {args.role}; Ctrl-C to stop"
     )
-    stop.wait()
     thread.stop()
     link.close()
     session.close()
@@ -357,8 +355,6 @@ def _certs(args: argparse.Namespace) -> int:
 
 
 def _router(args: argparse.Namespace) -> int:
-    import signal
-    import threading
 
     from drivers.zenoh_link import CONFIG_DIR, ZenohConfigError, open_session
 
@@ -370,11 +366,7 @@ def _router(args: argparse.Namespace) -> int:
     except ZenohConfigError as exc:
         print(f"pure-hil router: {exc}", file=sys.stderr)
         return 2
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    print(f"pure-hil router: {config} (mutual TLS, ACL default deny); Ctrl-C to stop", flush=True)
-    stop.wait()
+    _until_interrupted(f"pure-hil router: {config} (mutual TLS, ACL default deny); Ctrl-C to stop")
     session.close()
     return 0
 

@@ -281,7 +281,6 @@ def _announced_events(rig: Rig) -> list[Event]:
 
 
 def _supervisor_speed(rig: Rig) -> float:
-    if rig.supervisor is None:
-        return math.nan
-    speed = rig.supervisor.monitors.speed()
+    observed = None if rig.supervisor is None else rig.supervisor.observation
+    speed = None if observed is None else observed.speed
     return math.nan if speed is None else speed

@@ -406,11 +406,13 @@ class Supervisor:
 
     def _enforced_cap(self, obs: Observation) -> float:
         """The cap the speed is held to: the active cap, and the request's if it is enforced."""
-        cap = self.config.speed.reduced_cap if self._sc_silent(obs) else self.config.speed.absolute_cap
+        speed = self.config.speed
+        if self._sc_silent(obs):
+            return speed.reduced_cap
         r = obs.request
-        if r is not None and self.config.speed.enforce_requested_cap and not self._sc_silent(obs):
-            cap = min(cap, 0.0 if r.mode == "idle" else r.cap if r.mode == "limit" else cap)
-        return cap
+        if r is None or not speed.enforce_requested_cap or r.mode == "free":
+            return speed.absolute_cap
+        return min(speed.absolute_cap, 0.0 if r.mode == "idle" else r.cap)
 
     def _decision(self, obs: Observation) -> Decision:
         cap = self.active_cap()
@@ -426,7 +428,7 @@ class Supervisor:
     def forward(self, request: Request | None, cap: float) -> Forward:
         """The request clamped to `cap`: never above it, `free` becomes `limit` at the cap, 0 is idle."""
         reason = "" if self.cause is Cause.NONE else self.cause.name
-        if request is None or self._sc_silent_now():
+        if request is None or self.cause is Cause.SC_SILENT:  # a silent agent's last request is stale
             want, source = math.inf, "supervisor"
         else:
             want = 0.0 if request.mode == "idle" else request.cap if request.mode == "limit" else math.inf
@@ -438,6 +440,3 @@ class Supervisor:
         if granted <= 0.0:
             return Forward("idle", 0.0, source, reason)
         return Forward("limit", granted, source, reason)
-
-    def _sc_silent_now(self) -> bool:
-        return self.cause is Cause.SC_SILENT

@@ -22,7 +22,7 @@ from drivers.can_bus import CanNode, Received
 from drivers.schemas import EstopCommand, SafetyState, ScCommand, ScRequest, TesWrench, encode
 from drivers.zenoh_link import ZenohLink
 from safety.config import RobotGeometry, SupervisorConfig
-from safety.machine import Decision, Event, Forward, State, Supervisor
+from safety.machine import Decision, Event, Forward, Observation, State, Supervisor
 from safety.monitors import Monitors
 
 log = logging.getLogger(__name__)
@@ -53,6 +53,8 @@ class SupervisorNode:
         self.wrench = link.subscribe(keys.tes_wrench, TesWrench, capacity=64)
         link.declare_publishers([keys.sc_command, keys.safety_state])
         self.decision: Decision | None = None
+        self.observation: Observation | None = None
+        """What the last update saw (the rig records its speed estimate next to the truth)."""
         self.tick: int | None = None
         self.fence_misses = 0
         """Lockstep updates that went ahead without the seat sample of their tick."""
@@ -101,7 +103,8 @@ class SupervisorNode:
         """Take in everything that arrived, decide, and emit what is due at time t."""
         self._drain_can(t)
         self._drain_zenoh(t, fence)
-        decision = self.machine.update(self.monitors.observe(t))
+        self.observation = self.monitors.observe(t)
+        decision = self.machine.update(self.observation)
         new = self.machine.events[self._events_seen :]
         changed = any(e.kind == "transition" for e in new)
         refused = next((e.detail for e in reversed(new) if e.kind == "reset_refused"), "")
