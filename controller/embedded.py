@@ -32,8 +32,19 @@ class EmbeddedController:
             build_controller(spec), CanNode(self.bus, name="controller"), self.link, lockstep=spec.lockstep
         )
         self.thread = ControllerThread(self.node).start()
+        self._stopped = False
+
+    def pause(self) -> None:
+        """Hang: stop handling frames (they queue up on the bus) until `resume` (a fault-injection hook)."""
+        self.thread.paused.set()
+
+    def resume(self) -> None:
+        self.thread.paused.clear()
 
     def stop(self) -> None:
+        if self._stopped:
+            return
+        self._stopped = True
         self.thread.stop()
         self.link.close()
         self.session.close()

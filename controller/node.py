@@ -23,6 +23,9 @@ log = logging.getLogger(__name__)
 TICK_MODULO = 1 << 16
 DRIVE_COMMANDS = ("DRIVE1_COMMAND", "DRIVE2_COMMAND", "DRIVE3_COMMAND")
 FEEDBACK = {"DRIVE1_FEEDBACK": 0, "DRIVE2_FEEDBACK": 1, "DRIVE3_FEEDBACK": 2}
+LATE_RUN = 3
+SILENT_TES_WAIT = 0.005
+"""s the lockstep controller waits for the seat once it has been late LATE_RUN ticks in a row."""
 
 
 class ControllerNode:
@@ -44,6 +47,7 @@ class ControllerNode:
         self.estop = False
         self.tick: int | None = None
         self.tes_late = 0
+        self._tes_late_run = 0
         """Lockstep ticks computed without the seat sample of that tick (the wait timed out)."""
         self.last_output: Output | None = None
         self._wrench: TesWrench | None = None
@@ -116,15 +120,21 @@ class ControllerNode:
             if cmd.action == "enable":
                 self.controller.request_enable()
         if self.lockstep:
-            deadline = time.monotonic() + self.tes_wait
+            # Once the seat has been silent for a few ticks (dropped out, stale), wait only briefly: a long
+            # wait per tick would stall the whole lockstep run.
+            wait = self.tes_wait if self._tes_late_run < LATE_RUN else SILENT_TES_WAIT
+            deadline = time.monotonic() + wait
+            late = False
             while self._wrench is None or self._wrench.seq < tick:
                 self._take_wrench()
                 if self._wrench is not None and self._wrench.seq >= tick:
                     break
                 remaining = deadline - time.monotonic()
                 if remaining <= 0 or not self.tes.wait(remaining):
-                    self.tes_late += 1
+                    late = True
                     break
+            self.tes_late += late
+            self._tes_late_run = self._tes_late_run + 1 if late else 0
         self._take_wrench()
         latest_sc = self.sc.latest()
         if latest_sc is not None:
@@ -136,9 +146,13 @@ class ControllerNode:
             self._wrench = samples[-1]
 
     # -------------------------------------------------------------------------------------------- loop
-    def run(self, stop: threading.Event, poll: float = 0.1) -> None:
-        """Receive until `stop` is set (recv blocks at most `poll` seconds, so stopping is prompt)."""
+    def run(self, stop: threading.Event, poll: float = 0.1, paused: threading.Event | None = None) -> None:
+        """Receive until `stop` is set (recv blocks at most `poll` seconds, so stopping is prompt); while
+        `paused` is set, take nothing in (a hung controller, for fault injection)."""
         while not stop.is_set():
+            if paused is not None and paused.is_set():
+                stop.wait(0.001)
+                continue
             rx = self.can.recv(timeout=poll)
             if rx is not None:
                 self.handle(rx)
@@ -150,8 +164,9 @@ class ControllerThread:
     def __init__(self, node: ControllerNode):
         self.node = node
         self.stop_event = threading.Event()
+        self.paused = threading.Event()
         self.thread = threading.Thread(
-            target=node.run, args=(self.stop_event,), name="controller", daemon=True
+            target=node.run, args=(self.stop_event, 0.1, self.paused), name="controller", daemon=True
         )
 
     def start(self) -> ControllerThread:

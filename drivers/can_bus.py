@@ -13,6 +13,7 @@ import logging
 import time
 import uuid
 from collections import Counter
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -125,6 +126,11 @@ class CanNode:
         self._protector = E2EProtector()
         self._checker = E2EChecker()
         self._warned: set[tuple[str, int]] = set()
+        self.tx_hook: Callable[[str, can.Message], Iterable[can.Message]] | None = None
+        """Sees every frame `send` makes and returns the frames to put on the bus instead (fault injection:
+        none, altered, several)."""
+        self.rx_hook: Callable[[can.Message], can.Message | None] | None = None
+        """Sees every received frame before decoding; returns it (maybe altered) or None (lost)."""
 
     def message(self, name: str, values: dict[str, float]) -> can.Message:
         codec = self.catalog[name]
@@ -139,6 +145,13 @@ class CanNode:
         """Send a frame; a full transmit queue (ENOBUFS on SocketCAN with a real qdisc) or a bus that
         refuses it loses the frame, as on a real bus: counted and logged, never raised."""
         msg = self.message(name, values)
+        if self.tx_hook is None:
+            return self.transmit(name, msg)
+        sent = [self.transmit(name, m) for m in self.tx_hook(name, msg)]
+        return all(sent)
+
+    def transmit(self, name: str, msg: can.Message) -> bool:
+        """Put one ready-made frame on the bus (counted under `name`)."""
         try:
             self.bus.send(msg)
         except can.CanOperationError as exc:
@@ -175,6 +188,10 @@ class CanNode:
             msg = self.bus.recv(remaining)
             if msg is None:
                 return None
+            if self.rx_hook is not None and (msg := self.rx_hook(msg)) is None:
+                if deadline is not None and remaining == 0.0:
+                    return None
+                continue
             frame = self.decode(msg)
             if frame is not None:
                 return frame

@@ -114,6 +114,21 @@ class E2EProtector:
         return (raw | crc << lay.crc_shift).to_bytes(lay.length, "little")
 
 
+def with_counter(codec: MessageCodec, payload: bytes | bytearray, counter: int) -> bytes:
+    """A protected payload with its alive counter replaced and the CRC made valid again (a sender whose
+    counter is wrong, as opposed to a frame corrupted on the wire)."""
+    lay = _layout(codec)
+    raw = int.from_bytes(payload, "little") & lay.crc_clear
+    raw = raw & ~((COUNTER_MODULO - 1) << lay.counter_shift) | (counter % COUNTER_MODULO) << lay.counter_shift
+    crc = _crc_continue(lay.seed, raw.to_bytes(lay.length, "little")) ^ 0xFF
+    return (raw | crc << lay.crc_shift).to_bytes(lay.length, "little")
+
+
+def counter_of(codec: MessageCodec, payload: bytes | bytearray) -> int:
+    lay = _layout(codec)
+    return (int.from_bytes(payload, "little") >> lay.counter_shift) & (COUNTER_MODULO - 1)
+
+
 class E2EChecker:
     """Receiver side: classifies every protected frame; never raises."""
 

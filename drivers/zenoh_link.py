@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import logging
+import socket
 import stat
 import threading
 from collections import Counter, deque
@@ -138,6 +139,13 @@ def check_config(config: zenoh.Config, origin: Path | str = "<config>", allow_ne
             f"{origin}: endpoints {outside} are not on loopback "
             "(allow_network=True is for a bench network with a router only)"
         )
+
+
+def free_loopback_endpoint() -> str:
+    """A hub endpoint on a port free right now on 127.0.0.1 (parallel runs must not share a hub)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
 
 def open_session(

@@ -138,6 +138,35 @@ def _stop(proc) -> None:
             proc.kill()
 
 
+def _campaign(args: argparse.Namespace) -> int:
+    """A campaign's cases in parallel processes: progress, a report (worst first) and JUnit XML."""
+    from hil.campaign import expand, junit_xml, load_campaign, report, run_campaign
+
+    campaign = load_campaign(resolve(args.file))
+    try:
+        cases = expand(campaign)
+    except ValueError as exc:
+        print(f"pure-hil campaign: {exc}", file=sys.stderr)
+        return 2
+    out = Path(args.out or f"runs/campaign-{campaign.name}-{time.strftime('%Y%m%d-%H%M%S')}")
+    out.mkdir(parents=True, exist_ok=True)
+    print(f"campaign {campaign.name}: {len(cases)} cases on {args.workers} worker(s) -> {out}", flush=True)
+
+    def progress(done: int, total: int, r) -> None:
+        verdict = "ERROR" if r.error else "PASS" if r.passed else "FAIL"
+        print(f"[{done}/{total}] {verdict:5s} {r.case_id} ({r.wall:.1f} s)", flush=True)
+        for line in r.message().splitlines() if not r.passed else ():
+            print(f"        {line}", flush=True)
+
+    results = run_campaign(cases, args.workers, out, progress)
+    text = report(campaign.name, results)
+    (out / "report.md").write_text(text)
+    (out / "junit.xml").write_bytes(junit_xml(campaign.name, results))
+    print(text)
+    print(f"report: {out / 'report.md'}  junit: {out / 'junit.xml'}")
+    return 0 if all(r.passed for r in results) else 1
+
+
 def _compare(args: argparse.Namespace) -> int:
     from hil.compare import PAPER_RIDERS, compare, write
     from hil.runner import load_scenario
@@ -247,6 +276,54 @@ def _rig(args: argparse.Namespace) -> int:
         session.close()
     if not replies or replies[0].ok is None:
         print(f"pure-hil rig {args.action}: no answer (is `pure-hil serve` running?)", file=sys.stderr)
+        return 1
+    body = replies[0].ok.payload.to_string()
+    print(body)
+    return 0 if json.loads(body).get("ok") else 1
+
+
+def _fault(args: argparse.Namespace) -> int:
+    """The fault catalog, or live injection into a running `pure-hil serve` over its zenoh API."""
+    import json
+
+    from drivers.keys import Keys
+    from drivers.zenoh_link import LOOPBACK, open_session
+    from hil.faults import describe_catalog, parse_fault
+
+    if args.action == "list":
+        print(describe_catalog())
+        return 0
+    if args.action == "inject":
+        if not args.kind:
+            print("pure-hil fault inject: which fault? (pure-hil fault list)", file=sys.stderr)
+            return 2
+        fault: dict = {"kind": args.kind, "at": args.at}
+        if args.duration is not None:
+            fault["duration"] = args.duration
+        for item in args.param:
+            name, sep, value = item.partition("=")
+            if not sep:
+                print(f"pure-hil fault inject: --param {item!r}: expected NAME=VALUE", file=sys.stderr)
+                return 2
+            try:
+                fault[name] = json.loads(value)
+            except json.JSONDecodeError:
+                fault[name] = value  # a bare word: a channel, a message name
+        try:
+            parse_fault(fault, "pure-hil fault inject")  # the same check the service makes, before sending
+        except ValueError as exc:
+            print(f"pure-hil: {exc}", file=sys.stderr)
+            return 2
+        key, payload = "fault/inject", json.dumps(fault)
+    else:
+        key, payload = "fault/clear", "" if args.kind is None else args.kind
+    session = open_session(args.zenoh or LOOPBACK, "member", args.hub)
+    try:
+        replies = list(session.get(Keys().rig(key), payload=payload, timeout=10.0))
+    finally:
+        session.close()
+    if not replies or replies[0].ok is None:
+        print(f"pure-hil fault {args.action}: no answer (is `pure-hil serve` running?)", file=sys.stderr)
         return 1
     body = replies[0].ok.payload.to_string()
     print(body)
@@ -419,6 +496,14 @@ def build_parser() -> argparse.ArgumentParser:
     cmp_.add_argument("--out", default=None)
     cmp_.set_defaults(func=_compare)
 
+    cam = sub.add_parser(
+        "campaign", help="scenarios x riders x faults x seeds in parallel; report + JUnit; exit 0 all pass"
+    )
+    cam.add_argument("file", help="configs/campaigns/*.toml")
+    cam.add_argument("--workers", type=int, default=1, help="parallel processes (lockstep runs)")
+    cam.add_argument("--out", default=None, help="report folder (default runs/campaign-NAME-TIMESTAMP)")
+    cam.set_defaults(func=_campaign)
+
     srv = sub.add_parser("serve", help="the long-running rig service, controlled over zenoh (pure/rig/*)")
     srv.add_argument("--can", default=None)
     srv.add_argument("--controller", choices=("hacs", "ihacs", "external"), default=None)
@@ -442,6 +527,18 @@ def build_parser() -> argparse.ArgumentParser:
     rig.add_argument("--zenoh", default=None)
     rig.add_argument("--hub", default=None)
     rig.set_defaults(func=_rig)
+
+    flt = sub.add_parser(
+        "fault", help="the fault catalog (list), or inject/clear a fault in a running `pure-hil serve`"
+    )
+    flt.add_argument("action", choices=("list", "inject", "clear"))
+    flt.add_argument("kind", nargs="?", default=None, help="inject: the fault's kind; clear: its number")
+    flt.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="a fault parameter")
+    flt.add_argument("--at", type=float, default=0.0, help="seconds from now (simulated)")
+    flt.add_argument("--duration", type=float, default=None, help="seconds (default: until cleared)")
+    flt.add_argument("--zenoh", default=None)
+    flt.add_argument("--hub", default=None)
+    flt.set_defaults(func=_fault)
 
     rep = sub.add_parser("replay", help="replay a run's CAN log and zenoh inputs into a fresh controller")
     rep.add_argument("run_dir")

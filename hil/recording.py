@@ -60,6 +60,12 @@ def write_rrd(path: Path, trace, name: str = "pure-hil") -> None:
         level = "WARN" if e.to_state in ("STOPPING", "ESTOP") or e.kind != "transition" else "INFO"
         text = f"supervisor {e.kind}: {e.from_state} -> {e.to_state} ({e.cause}) {e.detail}".strip()
         rec.log("events", rr.TextLog(text, level=level))
+    for f in getattr(trace, "fault_events", ()):
+        rec.set_time("sim_time", duration=float(f.t))
+        rec.log(
+            "events/faults",
+            rr.TextLog(f"fault {f.fault} {f.action}: {f.kind} {f.detail}".strip(), level="WARN"),
+        )
     if trace.fallen:
         rec.set_time("sim_time", duration=float(trace.t[-1]))
         rec.log("events", rr.TextLog(f"fell: {trace.fallen}", level="ERROR"))

@@ -3,20 +3,21 @@
 One tick k:
   1. the plant advances one tick under the torques the drives hold;
   2. sensors sample the truth;
-  3. the rig publishes the SC request of the schedule, any operator action due and the seat wrench,
+  3. faults start or end, and alter the samples, frames and puts of the tick (hil/faults);
+  4. the rig publishes the SC request of the schedule, any operator action due and the seat wrench,
      sends drive feedback and IMU frames, then SYNC(k);
-  4. it waits for the three drive commands tagged k (bounded by a wall-clock guard: a miss is counted,
+  5. it waits for the three drive commands tagged k (bounded by a wall-clock guard: a miss is counted,
      never a hang) and hands them to the drives;
-  5. the supervisor (in-process) updates from the same traffic; its SUPERVISOR_ESTOP frame is the drives'
+  6. the supervisor (in-process) updates from the same traffic; its SUPERVISOR_ESTOP frame is the drives'
      permission to run: they turn off when it asserts e-stop or goes silent;
-  6. the recorder keeps the tick.
+  7. the recorder keeps the tick.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass, field
 
 from drivers.can_bus import CanNode, Received
@@ -25,11 +26,14 @@ from drivers.schemas import (
     ControllerTelemetry,
     EstopCommand,
     Payload,
+    PayloadError,
     ScRequest,
     TesWrench,
+    decode,
     encode,
 )
 from drivers.zenoh_link import ZenohLink
+from hil.faults import FaultSet
 from plant.ballbot import Plant
 from plant.drives import DriveState
 from safety.node import SupervisorNode
@@ -90,6 +94,8 @@ class Rig:
         command_guard: float = 1.0,
         supervisor: SupervisorNode | None = None,
         operator: list[OperatorStep] | tuple[OperatorStep, ...] = (),
+        faults: FaultSet | None = None,
+        bitrate: int = 1_000_000,
     ):
         self.plant, self.can, self.link = plant, can, link
         self.keys = link.keys
@@ -98,6 +104,14 @@ class Rig:
         self.command_guard = command_guard
         self.supervisor = supervisor
         """In-process supervisor, updated every tick; None: a supervisor elsewhere on the bus."""
+        self.dut = None
+        """The in-process controller's handle (process faults stop or pause it); None: external."""
+        self.faults = faults or FaultSet()
+        self.bitrate = bitrate
+        self._held: deque[tuple[int, int, float, bool]] = deque()
+        """Commands a loop-delay fault holds back: (due tick, drive, torque, enable)."""
+        self._fence = True
+        """The seat sample of this tick went out intact (the supervisor may wait for it in lockstep)."""
         self.stats = TickStats()
         self.telemetry = link.subscribe(self.keys.controller_telemetry, ControllerTelemetry, capacity=1 << 16)
         keys = self.keys
@@ -144,31 +158,41 @@ class Rig:
         Lockstep also waits for the heartbeat that follows the commands, so every frame of tick k is on
         the bus before tick k + 1 starts (a deterministic CAN log).
         """
-        plant = self.plant
+        plant, faults = self.plant, self.faults
         plant.step()
         k = plant.tick
+        faults.update(plant.t)
+        feedback, imu, tes = plant.sample_drives(), plant.sample_imu(), plant.sample_tes()
+        silent: set[str] = set()
+        if faults.sensing:
+            feedback, imu, tes, silent = faults.sensors(plant, feedback, imu, tes)
         # zenoh first: its delivery to the controller overlaps with sending the CAN frames.
         self._publish_sc_request(k)
         self._publish_operator()
-        self._publish_tes(k)
-        self._send_sensors(k)
+        self._publish_tes(k, tes)
+        if faults:
+            self._publish_fault_traffic(k)
+        self._send_sensors(k, feedback, imu, silent)
+        faults.flush(plant.t)
         self.can.send("SYNC", {"Tick": k % TICK_MODULO})
         if deadline is None:
             deadline = time.monotonic() + self.command_guard
         if self._silent_ticks >= MAX_SILENT_TICKS:
             deadline = min(deadline, time.monotonic() + SILENT_GUARD)
-        self._collect_commands(k, deadline, lockstep)
+        self._collect_commands(k, deadline, lockstep, faults.command_delay())
+        self._deliver_held(k)
         if self.supervisor is not None:
-            self.supervisor.update(plant.t, fence=k if lockstep else None)
+            self.supervisor.update(plant.t, fence=k if lockstep and self._fence else None)
         self._drain_nowait()
         self._update_permission()
         self.stats.ticks += 1
 
     # ------------------------------------------------------------------------------------------ outputs
-    def _send_sensors(self, k: int) -> None:
+    def _send_sensors(self, k: int, feedback, imu, silent: set[str]) -> None:
         plant, send = self.plant, self.can.send
-        feedback = plant.sample_drives()
         for name, fb, motor in zip(FEEDBACK, feedback, plant.drives.motors, strict=True):
+            if silent and name in silent:
+                continue
             send(
                 name,
                 {
@@ -180,14 +204,16 @@ class Rig:
             )
         if k % TORQUE_EVERY == 0:
             for name, fb in zip(TORQUE, feedback, strict=True):
-                send(name, {"Torque": fb.torque})
-        imu = plant.sample_imu()
-        send(
-            "IMU_ATTITUDE",
-            {"Roll": imu.attitude[0], "Pitch": imu.attitude[1], "Yaw": imu.attitude[2], "Valid": 1},
+                if not (silent and name in silent):
+                    send(name, {"Torque": fb.torque})
+        frames = (
+            ("IMU_ATTITUDE", {"Roll": imu.attitude[0], "Pitch": imu.attitude[1], "Yaw": imu.attitude[2]}),
+            ("IMU_RATE", {"RateX": imu.rate[0], "RateY": imu.rate[1], "RateZ": imu.rate[2]}),
+            ("IMU_ACCEL", {"AccX": imu.accel[0], "AccY": imu.accel[1], "AccZ": imu.accel[2]}),
         )
-        send("IMU_RATE", {"RateX": imu.rate[0], "RateY": imu.rate[1], "RateZ": imu.rate[2], "Valid": 1})
-        send("IMU_ACCEL", {"AccX": imu.accel[0], "AccY": imu.accel[1], "AccZ": imu.accel[2], "Valid": 1})
+        for name, signals in frames:
+            if not (silent and name in silent):
+                send(name, {**signals, "Valid": 1})
 
     def _record(self, k: int, key: str, data: bytes) -> None:
         if key in (self.keys.tes_wrench, self.keys.sc_command, self.keys.controller_command):
@@ -202,13 +228,24 @@ class Rig:
         self._seq[key] += 1
         return self._seq[key]
 
-    def _publish_tes(self, k: int) -> None:
-        s = self.plant.sample_tes()
-        self._put(
-            k,
-            self.keys.tes_wrench,
-            TesWrench(seq=k, stamp=self.plant.t, force=s.force, moment=s.moment, cop=s.cop),
-        )
+    def _publish_tes(self, k: int, s) -> None:
+        key = self.keys.tes_wrench
+        payload = TesWrench(seq=k, stamp=self.plant.t, force=s.force, moment=s.moment, cop=s.cop)
+        if not self.faults.topical:
+            self._put(k, key, payload)
+            self._fence = True
+            return
+        data = encode(payload)
+        sent = self.faults.wrench(payload, data)
+        for d in sent:
+            self.link.publisher(key).put(d)
+            self._record(k, key, d)
+        self._fence = any(_seq_at_least(d, k) for d in sent)
+
+    def _publish_fault_traffic(self, k: int) -> None:
+        for key, data in self.faults.extra_puts():
+            self.link.publisher(key).put(data)
+            self._record(k, key, data)
 
     def _publish_sc_request(self, k: int) -> None:
         current = None
@@ -271,7 +308,7 @@ class Rig:
             self._permitted = permitted
 
     # ------------------------------------------------------------------------------------------- inputs
-    def _collect_commands(self, k: int, deadline: float, wait_heartbeat: bool) -> None:
+    def _collect_commands(self, k: int, deadline: float, wait_heartbeat: bool, delay: int = 0) -> None:
         tag = k % TICK_MODULO
         pending = set(COMMANDS)
         heartbeat_due = wait_heartbeat
@@ -294,13 +331,27 @@ class Rig:
             if int(rx.signals["Tick"]) != tag:
                 self.stats.late_commands += 1  # stale: never applied
                 continue
-            drive = drives[COMMANDS[rx.name]]
-            if not drive.permitted and rx.signals["Enable"]:
-                self.stats.refused_commands += 1
-            drive.set_command(rx.signals["Torque"], bool(rx.signals["Enable"]), self.plant.t)
+            index, torque, enable = COMMANDS[rx.name], rx.signals["Torque"], bool(rx.signals["Enable"])
+            if delay or self._held:
+                # A late loop: a command never overtakes an earlier one.
+                due = max(k + delay, self._held[-1][0] if self._held else k)
+                self._held.append((due, index, torque, enable))
+            else:
+                self._command(drives[index], torque, enable)
             pending.discard(rx.name)
         self._silent_ticks = 0
         self._answered = True
+
+    def _command(self, drive, torque: float, enable: bool) -> None:
+        if not drive.permitted and enable:
+            self.stats.refused_commands += 1
+        drive.set_command(torque, enable, self.plant.t)
+
+    def _deliver_held(self, k: int) -> None:
+        drives = self.plant.drives.motors
+        while self._held and self._held[0][0] <= k:
+            _, index, torque, enable = self._held.popleft()
+            self._command(drives[index], torque, enable)
 
     def _missed(self, pending: set[str]) -> None:
         self.stats.missing_commands += len(pending)
@@ -308,3 +359,11 @@ class Rig:
             self._answered = True
         silent = self._answered and len(pending) == len(COMMANDS)
         self._silent_ticks = self._silent_ticks + 1 if silent else 0
+
+
+def _seq_at_least(data: bytes, k: int) -> bool:
+    """A seat payload that decodes and is at least as new as tick k (the supervisor's fence waits for it)."""
+    try:
+        return decode(data, TesWrench).seq >= k
+    except PayloadError:
+        return False

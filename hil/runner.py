@@ -18,25 +18,17 @@ import numpy as np
 
 from drivers.can_bus import BusConfig
 from drivers.config import load_toml
+from hil.faults import FaultSet
+from hil.faults.verdicts import fault_verdicts
 from hil.metrics import plane_metrics
 from hil.rig import OperatorStep, ScStep
-from hil.scenario import ROOT, UNITS, Criterion, Scenario, resolve
+from hil.scenario import ROOT, UNITS, Criterion, Scenario, Verdict, resolve
 from hil.session import RunSpec, Trace, run
 from plant.ballbot import RiderIntent
 from plant.params import RobotParams, SimParams
 
 STOPPED = 0.1
 """m/s below which the robot counts as stopped (stop_time)."""
-
-
-@dataclass(frozen=True, slots=True)
-class Verdict:
-    criterion: str
-    value: float
-    limit: str
-    units: str
-    passed: bool
-    note: str = ""
 
 
 @dataclass(slots=True)
@@ -48,6 +40,8 @@ class RunResult:
     trace: Trace
     metrics: dict[str, float]
     verdicts: list[Verdict] = field(default_factory=list)
+    ball_radius: float = math.nan
+    """Of the plant's robot (metrics in rad/s need it)."""
 
     @property
     def passed(self) -> bool:
@@ -127,7 +121,10 @@ def run_scenario(
     stop=None,
     session=None,
     supervisor: str = "embedded",
+    fault_set: FaultSet | None = None,
 ) -> RunResult:
+    """Run and judge a scenario. `fault_set`: a FaultSet built from the scenario's faults that the caller
+    keeps to inject more live (the service)."""
     controller = controller or scenario.controller
     clock = clock or scenario.clock
     seed = scenario.seed if seed is None else seed
@@ -149,6 +146,8 @@ def run_scenario(
         operator=tuple(OperatorStep(e.at, e.action) for e in scenario.operator),
         safety=scenario.safety,
         supervisor=supervisor,
+        faults=tuple(scenario.faults),
+        fault_set=fault_set,
         initial_tilt_deg=scenario.initial_tilt_deg,
         can=can,
         clock=clock,
@@ -161,10 +160,20 @@ def run_scenario(
         controller_config=ROOT / "configs/controller/default.toml",
     )
     trace = run(spec)
-    result = RunResult(scenario, controller, clock, seed, trace, summary_metrics(trace, robot.ball.radius))
+    result = RunResult(
+        scenario,
+        controller,
+        clock,
+        seed,
+        trace,
+        summary_metrics(trace, robot.ball.radius),
+        [],
+        robot.ball.radius,
+    )
     for c in scenario.criteria:
         value = measure(trace, c, robot.ball.radius)
         result.verdicts.append(Verdict(c.label, value, c.describe(), UNITS[c.metric], c.check(value), c.note))
+    result.verdicts += fault_verdicts(trace)
     if out is not None:
         write_outputs(result, out)
     return result
@@ -226,6 +235,15 @@ def summary(result: RunResult) -> dict:
             "controller_telemetry_missing": tr.controller_telemetry_missing,
         },
         "safety": safety_summary(tr),
+        "faults": [
+            {
+                "number": n,
+                "fault": msgspec.to_builtins(spec),
+                "acted": None if window is None else [round(window[0], 6), round(window[1], 6)],
+            }
+            for n, (spec, window) in enumerate(zip(tr.faults, tr.fault_windows, strict=True))
+        ],
+        "fault_events": [msgspec.to_builtins(e) for e in tr.fault_events],
         "bus": tr.bus,
         "timing": {
             "wall_time": round(t.wall_time, 3),

@@ -1,18 +1,21 @@
 """Scenarios: typed TOML files that say what to run and how to judge it (`configs/scenarios/*.toml`).
 
 A scenario names the robot and rider files, the controller, the clock, the duration, the shared
-controller's schedule, the rider's intent, scheduled faults (none yet), and its pass/fail criteria.
+controller's schedule, the rider's intent, scheduled faults with their expected reactions, and its
+pass/fail criteria.
 Criteria are declarative measurements with validators and units (after OpenHTF): a metric of the run,
 a plane, and bounds; the verdict of each is recorded with the measured value.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Literal
 
 import msgspec
 
+from hil.faults import Fault
 from plant.rider import Segment
 from safety.config import SupervisorConfig
 from safety.machine import Cause
@@ -126,6 +129,18 @@ class Criterion(_Record):
         return " and ".join(parts)
 
 
+@dataclass(frozen=True, slots=True)
+class Verdict:
+    """A criterion's outcome: what was measured, against which limit, and why it failed (`note`)."""
+
+    criterion: str
+    value: float
+    limit: str
+    units: str
+    passed: bool
+    note: str = ""
+
+
 class Scenario(_Record):
     name: str
     description: str = ""
@@ -142,13 +157,9 @@ class Scenario(_Record):
     operator: list[OperatorEntry] = []
     safety: SupervisorConfig = SupervisorConfig()
     """The embedded supervisor's rules (defaults: configs/safety/default.toml, docs/safety.md)."""
-    faults: list[dict] = []
-    """Scheduled faults (the fault catalog is a later issue; must stay empty for now)."""
+    faults: list[Fault] = []
+    """Scheduled faults, each with the reaction it expects (hil/faults, docs/faults.md)."""
     criteria: list[Criterion] = []
-
-    def __post_init__(self) -> None:
-        if self.faults:
-            raise ValueError("faults are not supported yet (fault catalog: a later issue)")
 
 
 ROOT = Path(__file__).resolve().parents[1]

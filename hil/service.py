@@ -4,6 +4,9 @@
     pure/rig/start    <- a scenario: a file path, or the TOML text itself; runs it in the background
     pure/rig/stop     -> ends the current run early
     pure/rig/intent   <- JSON {"pitch": [...], "roll": [...], "twist": [...]}: the rider's intent from now on
+    pure/rig/fault/inject <- JSON fault {"kind": "sensor.stuck", "channel": "imu.pitch", ...}: into the
+                         running run, `at` counted from the tick that takes it in (docs/faults.md)
+    pure/rig/fault/clear  <- a fault's number, or nothing for all: ends it (them) at the next tick
 
 Every reply is JSON with "ok" and either the result or an "error" that says what was wrong. Queryable
 callbacks only validate and hand over; runs happen on a worker thread, so zenoh's threads never block.
@@ -22,6 +25,7 @@ import zenoh
 from drivers.can_bus import BusConfig
 from drivers.config import ConfigError, decode_toml
 from drivers.keys import Keys
+from hil.faults import FaultSet, parse_fault
 from hil.runner import load_scenario, run_scenario
 from hil.scenario import Intent, Scenario, resolve
 from plant.ballbot import Plant, RiderIntent
@@ -60,8 +64,11 @@ class RigService:
                 ("start", self._start),
                 ("stop", self._stop_run),
                 ("intent", self._intent),
+                ("fault/inject", self._fault_inject),
+                ("fault/clear", self._fault_clear),
             )
         ]
+        self._faults: FaultSet | None = None
 
     # ---------------------------------------------------------------------------------- queryables
     def _reply(self, query: zenoh.Query, body: dict) -> None:
@@ -75,8 +82,18 @@ class RigService:
             "state": self.state,
             "scenario": self.scenario.name if self.scenario else None,
             "sim_time": round(self.sim_time, 3),
+            "faults": self._fault_status(),
             "last": self.last,
         }
+
+    def _fault_status(self) -> list[dict]:
+        faults = self._faults
+        if faults is None:
+            return []
+        return [
+            {"number": n, "fault": spec.describe(), "active": state.active, "started": state.started}
+            for n, (spec, state) in enumerate(zip(list(faults.specs), list(faults.states), strict=False))
+        ]
 
     def _start(self, query: zenoh.Query) -> None:
         text = query.payload.to_string() if query.payload is not None else ""
@@ -123,6 +140,39 @@ class RigService:
             query, {"ok": True, "applies_to": self.scenario.name if self.state == "running" else None}
         )
 
+    def _fault_inject(self, query: zenoh.Query) -> None:
+        text = query.payload.to_string() if query.payload is not None else ""
+        try:
+            obj = json.loads(text)
+            spec = parse_fault(obj, "pure/rig/fault/inject payload")
+        except (ValueError, json.JSONDecodeError) as exc:
+            self._reply(query, {"ok": False, "error": str(exc)})
+            return
+        faults = self._faults
+        if self.state != "running" or faults is None:
+            self._reply(query, {"ok": False, "error": "no run in progress: start one first"})
+            return
+        try:
+            faults.inject(spec)
+        except ValueError as exc:
+            self._reply(query, {"ok": False, "error": str(exc)})
+            return
+        self._reply(query, {"ok": True, "fault": spec.describe(), "scenario": self.scenario.name})
+
+    def _fault_clear(self, query: zenoh.Query) -> None:
+        text = (query.payload.to_string() if query.payload is not None else "").strip()
+        faults = self._faults
+        if self.state != "running" or faults is None:
+            self._reply(query, {"ok": False, "error": "no run in progress"})
+            return
+        try:
+            number = int(text) if text else None
+        except ValueError:
+            self._reply(query, {"ok": False, "error": f"expected a fault number or nothing, got {text!r}"})
+            return
+        faults.clear(number)
+        self._reply(query, {"ok": True, "cleared": "all" if number is None else number})
+
     # ----------------------------------------------------------------------------------------- runs
     def _on_tick(self, plant: Plant) -> None:
         self.sim_time = plant.t
@@ -138,6 +188,8 @@ class RigService:
 
             self._view = LiveView(self.view_sink, scenario.name)
             self._view.mark(0.0, f"run {scenario.name} started")
+        self._faults = FaultSet(scenario.faults, scenario.seed)
+        self._faults.on_event = self._fault_event
         try:
             result = run_scenario(
                 scenario,
@@ -149,6 +201,7 @@ class RigService:
                 stop=self._stop,
                 session=self.session,
                 hub_endpoint=self.hub_endpoint,
+                fault_set=self._faults,
             )
             self.last = {
                 "scenario": scenario.name,
@@ -157,6 +210,7 @@ class RigService:
                 "stopped_early": self._stop.is_set(),
                 "out": str(out),
                 "metrics": result.metrics,
+                "fault_events": [msgspec.to_builtins(e) for e in result.trace.fault_events],
             }
         except Exception as exc:  # a failed run is reported on status, never kills the service
             self.last = {"scenario": scenario.name, "passed": False, "error": f"{type(exc).__name__}: {exc}"}
@@ -166,6 +220,12 @@ class RigService:
                 self._view.close()
                 self._view = None
             self.state = "idle"
+
+    def _fault_event(self, event) -> None:
+        if self._view is not None:
+            self._view.mark(
+                event.t, f"fault {event.fault} {event.action}: {event.kind} {event.detail}", "WARN"
+            )
 
     def wait_idle(self, timeout: float | None = None) -> bool:
         worker = self._worker

@@ -21,6 +21,7 @@ from drivers.keys import Keys
 from drivers.schemas import SafetyState
 from drivers.zenoh_link import LOOPBACK, ZenohLink, open_session
 from hil.clock import LockstepClock, RealtimeClock, TimingStats
+from hil.faults import FaultEvent, FaultSet, FaultSpec
 from hil.rig import OperatorStep, Rig, ScStep, TickStats
 from hil.scenario import ROOT
 from plant.ballbot import Plant, RiderIntent
@@ -68,8 +69,10 @@ class RunSpec:
     """Set it to end the run early (the service's stop)."""
     session: zenoh.Session | None = None
     """An open hub session to use instead of opening one (the long-running service owns its session)."""
-    kill: tuple[tuple[str, float], ...] = ()
-    """(process, time): stop the in-process 'controller' or 'supervisor' dead at that simulated time."""
+    faults: tuple[FaultSpec, ...] = ()
+    """Scheduled faults (hil/faults; docs/faults.md)."""
+    fault_set: FaultSet | None = None
+    """The run's fault set, if the caller wants to inject live (the service); built from `faults` if None."""
 
 
 @dataclass(slots=True)
@@ -111,6 +114,11 @@ class Trace:
     fence_misses: int = 0
     identity_rejected: dict[str, int] = field(default_factory=dict)
     """SC requests and resets the embedded supervisor ignored for want of an operator's identity."""
+    faults: list[FaultSpec] = field(default_factory=list)
+    """Every fault of the run, scheduled and injected live, by number."""
+    fault_events: list[FaultEvent] = field(default_factory=list)
+    fault_windows: list[tuple[float, float] | None] = field(default_factory=list)
+    """Per fault: (start, end) of the time it acted, None if it never started."""
 
 
 def run(spec: RunSpec) -> Trace:
@@ -134,6 +142,7 @@ def run(spec: RunSpec) -> Trace:
                 load_toml(spec.robot, RobotGeometry),
                 tick_hz=spec.sim.tick_hz,
             )
+        faults = spec.fault_set if spec.fault_set is not None else FaultSet(spec.faults, spec.sim.seed)
         rig = Rig(
             plant,
             CanNode(bus, name="rig"),
@@ -141,6 +150,8 @@ def run(spec: RunSpec) -> Trace:
             spec.sc_schedule,
             supervisor=supervisor,
             operator=spec.operator,
+            faults=faults,
+            bitrate=bus_config.bitrate,
         )
         if supervisor is None:  # an external supervisor: its transitions as it announces them
             rig.safety_states = link.subscribe(link.keys.safety_state, SafetyState, capacity=1 << 14)
@@ -159,6 +170,8 @@ def run(spec: RunSpec) -> Trace:
                     tick_hz=spec.sim.tick_hz,
                 ),
             )
+        rig.dut = dut
+        faults.attach(rig)
         wait = 10.0 if dut is not None else 120.0
         if not rig.wait_for_subscriber(rig.keys.tes_wrench, wait):
             raise ControllerUnavailable(
@@ -178,16 +191,6 @@ def run(spec: RunSpec) -> Trace:
         if spec.session is None:
             session.close()
         bus.shutdown()
-
-
-def _kill(rig: Rig, dut, what: str) -> None:
-    """A process dies without a word: the controller's thread stops, the supervisor stops updating."""
-    if what == "controller" and dut is not None:
-        dut.stop()
-    elif what == "supervisor":
-        rig.supervisor = None
-    else:
-        raise ValueError(f"cannot kill {what!r}: expected 'controller' (in-process) or 'supervisor'")
 
 
 def _loop(rig: Rig, plant: Plant, spec: RunSpec, dut) -> Trace:
@@ -221,9 +224,6 @@ def _loop(rig: Rig, plant: Plant, spec: RunSpec, dut) -> Trace:
             break
         if spec.on_tick is not None:
             spec.on_tick(plant)
-        for what, at in spec.kill:
-            if at <= tr.t < at + plant.dt / 2:
-                _kill(rig, dut, what)
         if spec.stop is not None and spec.stop.is_set():
             break
         if spec.progress is not None and time.monotonic() > next_report:
@@ -231,6 +231,7 @@ def _loop(rig: Rig, plant: Plant, spec: RunSpec, dut) -> Trace:
             next_report = time.monotonic() + 0.5
         clock.wait_next()
     clock.stop()
+    rig.faults.finish(plant.t)
     timing = clock.stats()
     rows = rows[:n]
     command = np.full((n, 2), np.nan)
@@ -267,6 +268,9 @@ def _loop(rig: Rig, plant: Plant, spec: RunSpec, dut) -> Trace:
         safety_events=_announced_events(rig) if supervisor is None else list(supervisor.events),
         fence_misses=0 if supervisor is None else supervisor.fence_misses,
         identity_rejected={} if supervisor is None else dict(supervisor.monitors.rejected_identity),
+        faults=list(rig.faults.specs),
+        fault_events=list(rig.faults.events),
+        fault_windows=[rig.faults.window(n, plant.t) for n in range(len(rig.faults.specs))],
     )
 
 

@@ -30,29 +30,36 @@ class MotorDrive:
     last_command_time: float = -math.inf
     permitted: bool = True
     """The supervisor's permission to run (its SUPERVISOR_ESTOP frame, fresh and not asserting e-stop)."""
+    gain: float = 1.0
+    """Torque actually produced per torque commanded (a failing drive: < 1; lost: 0)."""
+    stuck_enabled: bool = False
+    """A failed power stage that cannot be switched off: disable, loss of permission and the watchdog are
+    ignored, the last setpoint is held."""
 
     def set_command(self, torque: float, enable: bool, now: float) -> None:
         """A command frame arrived: store the setpoint and feed the watchdog (ignored without permission:
         commands from before the permission returned are never applied)."""
-        if not self.permitted:
+        if not self.permitted and not self.stuck_enabled:
             return
         if not math.isfinite(torque):
             torque = 0.0
             enable = False
         self.command = torque
         self.last_command_time = now
-        self.state = DriveState.ENABLED if enable else DriveState.DISABLED
+        self.state = DriveState.ENABLED if enable or self.stuck_enabled else DriveState.DISABLED
 
     def advance(self, dt: float, now: float) -> float:
         """Advance the current loop by dt ending at `now`; returns the torque held over the interval."""
-        if self.state is DriveState.ENABLED and now - self.last_command_time > self.params.watchdog_timeout:
+        if self.stuck_enabled:
+            self.state = DriveState.ENABLED
+        elif self.state is DriveState.ENABLED and now - self.last_command_time > self.params.watchdog_timeout:
             self.state = DriveState.WATCHDOG
         if self.state is not DriveState.ENABLED:
             # Power stage off: no torque, at once.
             self.torque = 0.0
             return 0.0
         limit = self.params.torque_limit
-        target = min(max(self.command, -limit), limit)
+        target = min(max(self.command * self.gain, -limit), limit)
         start = self.torque
         decay = math.exp(-dt / self.params.current_loop_tau)
         self.torque = target + (start - target) * decay
@@ -61,7 +68,7 @@ class MotorDrive:
 
     def set_permission(self, permitted: bool) -> None:
         """Losing it turns the power stage off at once; regaining it enables nothing until a command."""
-        if not permitted:
+        if not permitted and not self.stuck_enabled:
             self.state = DriveState.DISABLED
             self.torque = 0.0
             self.command = 0.0

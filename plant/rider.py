@@ -127,6 +127,8 @@ class TorsoController:
         self.gravity = 9.80665 * hat_mass * hat_com
         self.lean_cmd = 0.0
         self.lean_rate_cmd = 0.0
+        self.shift = 0.0
+        """A sudden shift of the rider's weight (rad of lean), outside the rate limit (a fault)."""
 
     def update(self, t: float, dt: float, speed: float) -> None:
         """Move the lean command toward the profile's target (once per tick)."""
@@ -140,7 +142,7 @@ class TorsoController:
         """Hip torque on the torso: gravity compensation of the rider's own torso + PD, saturated."""
         u = (
             -self.gravity * math.sin(torso_angle)
-            + self.kp * (self.lean_cmd - lean)
+            + self.kp * (self.lean_cmd + self.shift - lean)
             + self.kd * (self.lean_rate_cmd - lean_rate)
         )
         return min(max(u, -self.max_torque), self.max_torque)

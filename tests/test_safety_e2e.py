@@ -7,6 +7,7 @@ import numpy as np
 from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
 from drivers.config import load_toml
 from drivers.zenoh_link import ZenohLink, open_session
+from hil.faults.processes import Kill
 from hil.rig import OperatorStep
 from hil.runner import run_scenario
 from hil.scenario import Scenario
@@ -75,7 +76,7 @@ def test_operator_estop_at_speed_is_a_controlled_stop(shipped):
 
 
 def test_controller_killed_turns_the_drives_off_within_the_watchdog_bound():
-    tr = quiet_run(duration=3.0, kill=(("controller", 1.5),))
+    tr = quiet_run(duration=3.0, faults=(Kill(at=1.5, target="controller"),))
     lost = first(tr, "HEARTBEAT_LOST")
     assert 1.5 < lost.t <= 1.5 + CFG.watchdogs.heartbeat + 2 * TICK
     assert lost.to_state == "ESTOP"
@@ -86,7 +87,7 @@ def test_controller_killed_turns_the_drives_off_within_the_watchdog_bound():
 
 
 def test_supervisor_killed_turns_the_drives_off_within_their_bound():
-    tr = quiet_run(duration=3.0, kill=(("supervisor", 1.5),))
+    tr = quiet_run(duration=3.0, faults=(Kill(at=1.5, target="supervisor"),))
     off = off_since(tr)
     # The last frame was sent at most one period before the kill; the drives wait permission_timeout.
     assert off <= 1.5 + DRIVE.permission_timeout + 2 * TICK

@@ -1,0 +1,93 @@
+"""Actuator and plant faults: the drives misbehave, or the world pushes on the robot and its rider."""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, Annotated, ClassVar
+
+import msgspec
+
+from hil.faults.base import FaultSpec, FaultState, NonNegative
+from plant.plane import Wrench
+
+if TYPE_CHECKING:
+    from hil.rig import Rig
+
+Motor = Annotated[int, msgspec.Meta(ge=1, le=3)]
+
+
+class PlantFault(FaultSpec, frozen=True, kw_only=True):
+    family: ClassVar[str] = "actuators"
+
+
+class DriveTorque(PlantFault, tag="plant.drive_torque"):
+    """Drive `motor` produces `scale` times the torque it is commanded (0: torque lost, the drive still
+    reports itself enabled)."""
+
+    motor: Motor
+    scale: NonNegative = 0.0
+
+    def start(self, rig: Rig, state: FaultState) -> None:
+        rig.plant.drives.motors[self.motor - 1].gain = self.scale
+
+    def stop(self, rig: Rig, state: FaultState) -> None:
+        rig.plant.drives.motors[self.motor - 1].gain = 1.0
+
+
+class DriveStuckEnabled(PlantFault, tag="plant.drive_stuck_enabled"):
+    """Drive `motor`'s power stage cannot be switched off: it ignores disable, its watchdog and the
+    supervisor's e-stop, and holds its last setpoint."""
+
+    motor: Motor
+
+    def start(self, rig, state):
+        rig.plant.drives.motors[self.motor - 1].stuck_enabled = True
+
+    def stop(self, rig, state):
+        rig.plant.drives.motors[self.motor - 1].stuck_enabled = False
+
+
+class Push(PlantFault, tag="plant.push"):
+    """A push on the robot for the fault's duration: `force` (N; forward, left) applied `height` metres
+    above the chassis top P (0: on the chassis; about 0.4: the rider's chest), and a `twist` about the
+    vertical (Nm). The rider is taken as rigid with the chassis for the push: its wrench acts at P."""
+
+    force: tuple[float, float] = (0.0, 0.0)
+    height: float = 0.0
+    twist: float = 0.0
+
+    def start(self, rig, state):
+        forward, left = self.force
+        # The roll plane's forward is −y; a force above P also turns the plane about P (r × F).
+        rig.plant.external = [
+            Wrench(forward=forward, moment=self.height * forward),
+            Wrench(forward=-left, moment=-self.height * left),
+        ]
+        rig.plant.external_yaw = self.twist
+
+    def stop(self, rig, state):
+        rig.plant.external = [None, None]
+        rig.plant.external_yaw = 0.0
+
+
+class MassShift(PlantFault, tag="plant.mass_shift"):
+    """The rider's weight shifts at once by a torso lean of `pitch_deg` (forward) and `roll_deg`, on top of
+    whatever the rider does (a slip on the seat, a reach for something); lasts the fault's duration."""
+
+    pitch_deg: float = 0.0
+    roll_deg: float = 0.0
+
+    def validate(self, rig):
+        if rig.plant.torso is None:
+            raise ValueError("plant.mass_shift needs a rider")
+
+    def start(self, rig, state):
+        for torso, deg in zip(rig.plant.torso, (self.pitch_deg, self.roll_deg), strict=True):
+            torso.shift = math.radians(deg)
+
+    def stop(self, rig, state):
+        for torso in rig.plant.torso:
+            torso.shift = 0.0
+
+
+FAULTS = (DriveTorque, DriveStuckEnabled, Push, MassShift)

@@ -1,0 +1,125 @@
+"""What every fault has: when it acts, what reaction it expects, and its per-run state.
+
+A fault is a typed, frozen msgspec Struct (its parameters, validated when a scenario or a live request is
+read) whose `kind` names it in TOML and JSON. Its behaviour lives in small hooks of its family's base class
+(sensors, frames, topics, actuators, processes); the runtime (hil/faults/runtime.py) owns the timing, the
+event log and the random streams, and calls a hook only while the fault is active.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal
+
+import msgspec
+import numpy as np
+
+from safety.machine import Cause
+
+if TYPE_CHECKING:
+    from hil.rig import Rig
+
+NonNegative = Annotated[float, msgspec.Meta(ge=0)]
+Positive = Annotated[float, msgspec.Meta(gt=0)]
+Probability = Annotated[float, msgspec.Meta(gt=0, le=1)]
+
+SAFETY_STATES = ("NORMAL", "LIMITING", "STOPPING", "ESTOP")
+
+
+class Expect(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """The reaction a fault should cause; each field given becomes a verdict of the run.
+
+    `reaction = "none"`: the fault must be tolerated, no supervisor transition from its start to the end of
+    the run. `state` and/or `cause`: the supervisor must enter that state with that cause within `within`
+    seconds of the fault's start. `fall = false`: the robot must not fall. `max_speed`: the true ground speed
+    stays at or below it (m/s) from the fault's start on."""
+
+    reaction: Literal["none", "supervisor"] | None = None
+    state: Literal["LIMITING", "STOPPING", "ESTOP"] | None = None
+    cause: str | None = None
+    within: Positive = 0.1
+    fall: bool | None = None
+    max_speed: NonNegative | None = None
+
+    def __post_init__(self) -> None:
+        if self.cause is not None and self.cause not in Cause.__members__:
+            raise ValueError(f"unknown cause {self.cause!r}: expected one of {', '.join(Cause.__members__)}")
+        if self.reaction == "none" and (self.state or self.cause):
+            raise ValueError("reaction 'none' cannot also name a state or cause")
+        if self.reaction == "supervisor" and not (self.state or self.cause):
+            raise ValueError("reaction 'supervisor' needs a state, a cause or both")
+        if self.reaction is None and not self.supervisor and self.fall is None and self.max_speed is None:
+            raise ValueError("expect needs reaction, state, cause, fall or max_speed")
+
+    @property
+    def supervisor(self) -> bool:
+        """A supervisor reaction is expected (a state or a cause is named)."""
+        return bool(self.state or self.cause)
+
+
+class FaultSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True, tag_field="kind"):
+    """Common to every fault: active from `at` (s) for `duration` (s; none: to the end of the run)."""
+
+    at: NonNegative = 0.0
+    duration: Positive | None = None
+    expect: Expect | None = None
+
+    family: ClassVar[str] = ""
+    summary: ClassVar[str] = ""
+
+    @property
+    def kind(self) -> str:
+        return msgspec.inspect.type_info(type(self)).tag  # type: ignore[attr-defined]
+
+    def window(self, t: float) -> bool:
+        return self.at - 1e-9 <= t and (self.duration is None or t < self.at + self.duration - 1e-9)
+
+    def describe(self) -> str:
+        """`kind` and the parameters that differ from their defaults, for logs and reports."""
+        params = {
+            k: v
+            for k, v in msgspec.structs.asdict(self).items()
+            if k not in ("at", "duration", "expect") and v != _default(type(self), k)
+        }
+        return self.kind + ("" if not params else " " + " ".join(f"{k}={v}" for k, v in params.items()))
+
+    # Hooks: no-ops unless a family needs them.
+    def validate(self, rig: Rig) -> None:
+        """Raise ValueError if the fault cannot act on this rig (unknown message, no such process, ...)."""
+
+    def start(self, rig: Rig, state: FaultState) -> None:
+        """The fault becomes active (before the plant's step of the tick)."""
+
+    def stop(self, rig: Rig, state: FaultState) -> None:
+        """The fault ends (its duration ran out, or it was cleared)."""
+
+
+def _default(cls: type, name: str) -> Any:
+    for f in msgspec.structs.fields(cls):
+        if f.name == name:
+            return f.default
+    return msgspec.NODEFAULT
+
+
+@dataclass(slots=True)
+class FaultState:
+    """One fault's life in a run: its random stream and whatever its hooks keep between ticks."""
+
+    rng: np.random.Generator
+    active: bool = False
+    started: float | None = None
+    ended: float | None = None
+    remaining: int | None = None
+    """Frames still to affect (CAN faults with a count)."""
+    memory: dict[str, Any] = field(default_factory=dict)
+
+
+class FaultEvent(msgspec.Struct, frozen=True):
+    """A line of the fault log: `action` is inject (live request taken), start, end or clear."""
+
+    t: float
+    fault: int
+    """The fault's number in the run (scenario order, then live injections)."""
+    kind: str
+    action: Literal["inject", "start", "end", "clear"]
+    detail: str = ""

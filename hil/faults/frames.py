@@ -1,0 +1,228 @@
+"""CAN frame faults: what happens to one message's frames between their sender and the drives, the
+controller and the supervisor.
+
+A frame fault names a DBC message. On frames the rig sends (drive feedback and torque, IMU, SYNC) it acts
+before they reach the bus, so every receiver sees it; on frames the rig receives as the emulated drives
+(DRIVEn_COMMAND, SUPERVISOR_ESTOP, CONTROLLER_HEARTBEAT) it acts on what the drives get (the controller
+and the supervisor still see their own traffic). `count` limits the fault to that many frames (a burst).
+Time is simulated time: in lockstep a delay of 10 ms is 4 ticks at 400 Hz, whatever the wall clock does.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
+
+import can
+import msgspec
+
+from drivers.bus_load import frame_bits
+from drivers.e2e import counter_of, is_protected, with_counter
+from hil.faults.base import FaultSpec, FaultState, Positive, Probability
+
+if TYPE_CHECKING:
+    from hil.rig import Rig
+
+Count = Annotated[int, msgspec.Meta(gt=0)]
+RX_MESSAGES = frozenset(
+    ["DRIVE1_COMMAND", "DRIVE2_COMMAND", "DRIVE3_COMMAND", "SUPERVISOR_ESTOP", "CONTROLLER_HEARTBEAT"]
+)
+"""Messages the rig receives (as the drives); the rest of the catalog the rig sends (or nobody does)."""
+
+
+def _copy(msg: can.Message, data: bytes | bytearray | None = None, arbitration_id: int | None = None):
+    return can.Message(
+        arbitration_id=msg.arbitration_id if arbitration_id is None else arbitration_id,
+        is_extended_id=False,
+        data=msg.data if data is None else data,
+        dlc=None if data is None else len(data),
+    )
+
+
+class CanFault(FaultSpec, frozen=True, kw_only=True):
+    message: str
+    count: Count | None = None
+
+    family: ClassVar[str] = "frames"
+    both_ways: ClassVar[bool] = True
+    """Acts on received frames too (else only on frames the rig sends)."""
+
+    def validate(self, rig: Rig) -> None:
+        try:
+            rig.can.catalog[self.message]
+        except KeyError:
+            names = ", ".join(c.name for c in rig.can.catalog)
+            raise ValueError(f"{self.kind}: no message {self.message!r} in the DBC (have {names})") from None
+        if not self.both_ways and self.message in RX_MESSAGES:
+            raise ValueError(f"{self.kind} acts on frames the rig sends; {self.message} is one it receives")
+
+    def tx(self, msg: can.Message, rig: Rig, state: FaultState) -> list[can.Message]:
+        """Frames to put on the bus instead of `msg`."""
+        out = self.rx(msg, rig, state)
+        return [] if out is None else [out]
+
+    def rx(self, msg: can.Message, rig: Rig, state: FaultState) -> can.Message | None:
+        """What the drives get instead of `msg` (None: nothing)."""
+        raise NotImplementedError
+
+    def flush(self, rig: Rig, state: FaultState, t: float) -> None:
+        """Send what the fault held back and is due by `t` (delay, reorder)."""
+
+
+class Drop(CanFault, tag="can.drop"):
+    """Frames are lost with probability `rate` (1: all; with `count`: a burst of that many)."""
+
+    rate: Probability = 1.0
+
+    def rx(self, msg, rig, state):
+        return None if self.rate >= 1.0 or state.rng.random() < self.rate else msg
+
+
+class Delay(CanFault, tag="can.delay"):
+    """Every frame arrives `delay` seconds late (a gateway or a queue in the way)."""
+
+    delay: Positive
+    both_ways: ClassVar[bool] = False
+
+    def tx(self, msg, rig, state):
+        state.memory.setdefault("queue", []).append((rig.plant.t + self.delay, msg))
+        return []
+
+    def flush(self, rig, state, t):
+        queue = state.memory.get("queue", [])
+        while queue and queue[0][0] <= t + 1e-9:
+            rig.can.transmit(self.message, queue.pop(0)[1])
+
+    def stop(self, rig, state):
+        self.flush(rig, state, float("inf"))
+
+
+class Repeat(CanFault, tag="can.repeat"):
+    """Every frame is sent `times` more times (a retransmission bug: the receiver sees REPEATED)."""
+
+    times: Count = 1
+    both_ways: ClassVar[bool] = False
+
+    def tx(self, msg, rig, state):
+        return [msg] * (1 + self.times)
+
+
+class Reorder(CanFault, tag="can.reorder"):
+    """Consecutive frames swap places: each is held and sent after the next one (OUT_OF_ORDER)."""
+
+    both_ways: ClassVar[bool] = False
+
+    def tx(self, msg, rig, state):
+        held = state.memory.pop("held", None)
+        if held is None:
+            state.memory["held"] = msg
+            return []
+        return [msg, held]
+
+    def stop(self, rig, state):
+        held = state.memory.pop("held", None)
+        if held is not None:
+            rig.can.transmit(self.message, held)
+
+
+class Corrupt(CanFault, tag="can.corrupt"):
+    """One payload bit flips on the wire (`bit`, counted from the payload's least significant bit; none: a
+    random bit per frame), so the CRC no longer matches."""
+
+    bit: Annotated[int, msgspec.Meta(ge=0, le=63)] | None = None
+
+    def rx(self, msg, rig, state):
+        nbits = 8 * len(msg.data)
+        bit = (self.bit if self.bit is not None else int(state.rng.integers(nbits))) % nbits
+        data = bytearray(msg.data)
+        data[bit // 8] ^= 1 << (bit % 8)
+        return _copy(msg, data)
+
+
+class WrongCounter(CanFault, tag="can.wrong_counter"):
+    """The sender's alive counter misbehaves with a valid CRC: `frozen` (every frame repeats the counter
+    it had when the fault started: REPEATED) or `skip` (it advances by 2: LOST every frame)."""
+
+    mode: Literal["frozen", "skip"] = "frozen"
+
+    def validate(self, rig):
+        super().validate(rig)
+        if not is_protected(rig.can.catalog[self.message]):
+            raise ValueError(f"{self.kind}: {self.message} carries no alive counter")
+
+    def rx(self, msg, rig, state):
+        codec = rig.can.catalog[self.message]
+        counter = state.memory.get("counter")
+        if counter is None:
+            counter = counter_of(codec, msg.data)
+        elif self.mode == "skip":
+            counter += 2
+        state.memory["counter"] = counter
+        return _copy(msg, with_counter(codec, msg.data, counter))
+
+
+class WrongDlc(CanFault, tag="can.wrong_dlc"):
+    """Frames carry `length` bytes instead of the DBC's (truncated, or padded with zeros)."""
+
+    length: Annotated[int, msgspec.Meta(ge=0, le=8)]
+
+    def rx(self, msg, rig, state):
+        data = bytes(msg.data[: self.length]).ljust(self.length, b"\0")
+        return _copy(msg, data)
+
+
+class Masquerade(CanFault, tag="can.masquerade"):
+    """A node sends this message's valid payload under `as_message`'s id as well (a node impersonating
+    another): the E2E data id in the CRC makes receivers of `as_message` see CRC errors."""
+
+    as_message: str
+    both_ways: ClassVar[bool] = False
+
+    def validate(self, rig):
+        super().validate(rig)
+        try:
+            target = rig.can.catalog[self.as_message]
+        except KeyError:
+            raise ValueError(f"{self.kind}: no message {self.as_message!r} in the DBC") from None
+        if target.length != rig.can.catalog[self.message].length:
+            raise ValueError(f"{self.kind}: {self.message} and {self.as_message} differ in length")
+
+    def tx(self, msg, rig, state):
+        return [msg, _copy(msg, arbitration_id=rig.can.catalog[self.as_message].frame_id)]
+
+
+class Babble(FaultSpec, frozen=True, kw_only=True, tag="can.babble"):
+    """A babbling node floods `per_tick` frames of id `can_id` (high priority: low id) every tick. When the
+    flood fills the tick's bus time (at the bus bitrate), frames with higher ids lose every arbitration:
+    the rig's own frames and those it receives above `can_id` are lost, as on a saturated real bus."""
+
+    can_id: Annotated[int, msgspec.Meta(ge=0, le=0x7FF)] = 0x001
+    per_tick: Count = 30
+    length: Annotated[int, msgspec.Meta(ge=0, le=8)] = 8
+
+    family: ClassVar[str] = "frames"
+
+    def saturates(self, rig: Rig) -> bool:
+        bitrate = rig.bitrate
+        return self.per_tick * frame_bits(self.length) >= bitrate * rig.plant.dt
+
+    def babble(self, rig: Rig) -> None:
+        msg = can.Message(arbitration_id=self.can_id, is_extended_id=False, data=b"\xaa" * self.length)
+        for _ in range(self.per_tick):
+            rig.can.transmit("BABBLE", msg)
+
+    def starves(self, rig: Rig, msg: can.Message) -> bool:
+        return msg.arbitration_id > self.can_id and self.saturates(rig)
+
+
+class BusOff(FaultSpec, frozen=True, kw_only=True, tag="can.bus_off"):
+    """The rig's node (the drives and the IMU) goes bus-off: it neither sends nor receives until it
+    recovers at the end of `duration` (bus silence as the controller and the supervisor see it)."""
+
+    family: ClassVar[str] = "frames"
+
+    def validate(self, rig):
+        if self.duration is None:
+            raise ValueError("can.bus_off needs a duration (the recovery time)")
+
+
+FAULTS = (Drop, Delay, Repeat, Reorder, Corrupt, WrongCounter, WrongDlc, Masquerade, Babble, BusOff)

@@ -1,0 +1,83 @@
+"""Process and timing faults: the controller or the supervisor dies or hangs, the control loop runs late.
+
+Kill and hang act on the in-process controller (the embedded reference, or any controller plugin whose
+handle offers `pause()`/`resume()` for a hang) and the embedded supervisor; external processes are killed
+from outside (tests/socketcan does it with SIGKILL). Loop delay and jitter are modelled as actuation
+delay in simulated time: the commands of tick k reach the drives `delay` seconds later (whole ticks), so
+they mean the same in lockstep and in real time.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, ClassVar, Literal
+
+from hil.faults.base import FaultSpec, FaultState, Positive
+
+if TYPE_CHECKING:
+    from hil.rig import Rig
+
+
+class ProcessFault(FaultSpec, frozen=True, kw_only=True):
+    family: ClassVar[str] = "processes"
+
+    def delay_ticks(self, rig: Rig, state: FaultState) -> int:
+        """How many ticks this tick's commands wait before the drives get them."""
+        return 0
+
+
+class Kill(ProcessFault, tag="process.kill"):
+    """`target` stops dead, without a word (no further frames or puts)."""
+
+    target: Literal["controller", "supervisor"] = "controller"
+
+    def validate(self, rig):
+        if self.target == "controller" and rig.dut is None:
+            raise ValueError("process.kill: the controller is external (kill it from outside)")
+        if self.target == "supervisor" and rig.supervisor is None:
+            raise ValueError("process.kill: the supervisor is external (kill it from outside)")
+
+    def start(self, rig, state):
+        if self.target == "controller":
+            rig.dut.stop()
+        else:
+            rig.supervisor = None
+
+
+class Hang(ProcessFault, tag="process.hang"):
+    """The controller stops answering for the fault's duration but stays alive; afterwards it works
+    through what queued up meanwhile (its late commands are counted and never applied)."""
+
+    target: Literal["controller"] = "controller"
+
+    def validate(self, rig):
+        if rig.dut is None or not hasattr(rig.dut, "pause"):
+            raise ValueError("process.hang: the controller's handle has no pause()/resume()")
+
+    def start(self, rig, state):
+        rig.dut.pause()
+
+    def stop(self, rig, state):
+        rig.dut.resume()
+
+
+class LoopDelay(ProcessFault, tag="process.loop_delay"):
+    """The control loop runs `delay` seconds late: every command reaches the drives that much later."""
+
+    delay: Positive
+
+    def delay_ticks(self, rig, state):
+        return math.ceil(self.delay / rig.plant.dt - 1e-9)
+
+
+class Jitter(ProcessFault, tag="process.jitter"):
+    """The control loop's latency varies uniformly in [0, `jitter`] seconds per tick (a command never
+    overtakes an earlier one: the drives keep the newest that has arrived)."""
+
+    jitter: Positive
+
+    def delay_ticks(self, rig, state):
+        return math.floor(state.rng.uniform(0.0, self.jitter) / rig.plant.dt + 0.5)
+
+
+FAULTS = (Kill, Hang, LoopDelay, Jitter)

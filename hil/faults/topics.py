@@ -1,0 +1,115 @@
+"""zenoh faults: the seat wrench and the shared-controller requests go wrong on their way.
+
+They act on what the rig publishes in the tick (the seat wrench; the scenario's SC requests) and add
+traffic of their own (floods, a conflicting SC agent, garbage). Receivers (the controller, the supervisor)
+see them through the real zenoh session.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
+
+import msgspec
+
+from drivers.schemas import ScRequest, TesWrench, encode
+from hil.faults.base import FaultSpec, FaultState, NonNegative, Positive
+
+if TYPE_CHECKING:
+    from hil.rig import Rig
+
+
+class TopicFault(FaultSpec, frozen=True, kw_only=True):
+    family: ClassVar[str] = "topics"
+
+    def wrench(self, payload: TesWrench, data: bytes, state: FaultState) -> list[bytes]:
+        """The payloads to publish on pure/tes/wrench instead of `data` (the encoded `payload`)."""
+        return [data]
+
+    def extra(self, rig: Rig, state: FaultState) -> list[tuple[str, bytes]]:
+        """More (key, payload) puts this tick."""
+        return []
+
+
+class WrenchDropout(TopicFault, tag="zenoh.wrench_dropout"):
+    """The seat stops publishing (a crashed TES node or a cut link)."""
+
+    def wrench(self, payload, data, state):
+        return []
+
+
+class WrenchStale(TopicFault, tag="zenoh.wrench_stale"):
+    """The seat keeps re-publishing its last sample from before the fault: same seq, same stamp."""
+
+    def wrench(self, payload, data, state):
+        return [state.memory.setdefault("last", data)]
+
+
+class WrenchFrozen(TopicFault, tag="zenoh.wrench_frozen"):
+    """The seat's values freeze at the fault's start while seq and stamp go on (a hung ADC behind a live
+    publisher): only a plausibility check can tell."""
+
+    def wrench(self, payload, data, state):
+        frozen = state.memory.setdefault("frozen", payload)
+        return [encode(msgspec.structs.replace(frozen, seq=payload.seq, stamp=payload.stamp))]
+
+
+class Malformed(TopicFault, tag="zenoh.malformed"):
+    """Undecodable bytes on `key` (`payload`, hex) every tick; on the seat wrench they replace the sample."""
+
+    key: Literal["tes/wrench", "sc/request", "safety/estop", "controller/command"] = "tes/wrench"
+    payload: str = "c1ffee"
+
+    def __post_init__(self) -> None:
+        try:
+            bytes.fromhex(self.payload)
+        except ValueError:
+            raise ValueError(f"zenoh.malformed: payload {self.payload!r} is not hex") from None
+
+    def wrench(self, payload, data, state):
+        return [bytes.fromhex(self.payload)] if self.key == "tes/wrench" else [data]
+
+    def extra(self, rig, state):
+        if self.key == "tes/wrench":
+            return []
+        return [(f"{rig.keys.prefix}/{self.key}", bytes.fromhex(self.payload))]
+
+
+class ScFlood(TopicFault, tag="zenoh.sc_flood"):
+    """An SC agent floods `per_tick` requests per tick (valid ones: `mode`, `cap`)."""
+
+    per_tick: Annotated[int, msgspec.Meta(gt=0)] = 20
+    mode: Literal["free", "idle", "limit"] = "free"
+    cap: NonNegative = 0.0
+    source: str = "flood"
+
+    def extra(self, rig, state):
+        puts = []
+        for _ in range(self.per_tick):
+            n = state.memory["seq"] = state.memory.get("seq", 0) + 1
+            request = ScRequest(
+                seq=n, stamp=rig.plant.t, mode=self.mode, speed_cap=self.cap, source=self.source
+            )
+            puts.append((rig.keys.sc_request, encode(request)))
+        return puts
+
+
+class ScConflict(TopicFault, tag="zenoh.sc_conflict"):
+    """A second SC agent (`source`) asks for something else (`mode`, `cap`) every `period` seconds,
+    interleaved with the scenario's own requests."""
+
+    mode: Literal["free", "idle", "limit"] = "free"
+    cap: NonNegative = 0.0
+    period: Positive = 0.05
+    source: str = "rogue-agent"
+
+    def extra(self, rig, state):
+        t = rig.plant.t
+        if t - state.memory.get("sent", -1e9) < self.period - 1e-9:
+            return []
+        state.memory["sent"] = t
+        n = state.memory["seq"] = state.memory.get("seq", 0) + 1
+        request = ScRequest(seq=n, stamp=t, mode=self.mode, speed_cap=self.cap, source=self.source)
+        return [(rig.keys.sc_request, encode(request))]
+
+
+FAULTS = (WrenchDropout, WrenchStale, WrenchFrozen, Malformed, ScFlood, ScConflict)

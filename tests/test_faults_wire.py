@@ -1,0 +1,488 @@
+"""Every fault of the catalog, injected into a rig with no controller: its effect on the wire (CAN frames,
+zenoh puts) or on the plant, against a healthy twin with the same seed where a comparison says more."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from drivers.e2e import E2EStatus
+from drivers.zenoh_link import LOOPBACK, open_session
+from hil.faults import CATALOG, FAMILIES, parse_fault
+from hil.faults.frames import RX_MESSAGES
+from tests.fault_bench import DT, Bench
+from tests.zenoh_helpers import hub_endpoint
+
+AT = 0.05
+START = round(AT / DT)  # tick 20
+TICKS = 60
+Q = 1e-4  # IMU attitude resolution, rad
+
+
+@pytest.fixture(scope="module")
+def session():
+    s = open_session(LOOPBACK, "hub", hub_endpoint())
+    yield s
+    s.close()
+
+
+@pytest.fixture
+def pair(session):
+    """run(fault) -> (faulty bench, healthy twin) after TICKS ticks."""
+    benches = []
+
+    def run(*faults, ticks=TICKS):
+        faulty, healthy = Bench(session, faults), Bench(session)
+        benches.extend([faulty, healthy])
+        faulty.run(ticks)
+        healthy.run(ticks)
+        return faulty, healthy
+
+    yield run
+    for b in benches:
+        b.close()
+
+
+def pitch(bench):
+    return bench.series("IMU_ATTITUDE", "Pitch")
+
+
+def imu_fault(kind, **params):
+    return {"kind": kind, "channel": "imu.pitch", "at": AT, **params}
+
+
+def test_every_fault_of_the_catalog_has_a_family_and_a_doc():
+    assert len(CATALOG) == sum(len(f) for f in FAMILIES.values()) == 35
+    for kind, cls in CATALOG.items():
+        assert kind.split(".")[0] in ("sensor", "can", "zenoh", "plant", "process")
+        assert cls.__doc__ and len(cls.__doc__.split()) >= 5, kind
+
+
+# ------------------------------------------------------------------------------------------- sensors
+def test_sensor_off_silences_the_frame_that_carries_the_channel(pair):
+    faulty, healthy = pair(imu_fault("sensor.off"))
+    assert set(pitch(healthy)) == set(range(1, TICKS + 1))
+    assert set(pitch(faulty)) == set(range(1, START))
+    assert set(faulty.series("IMU_RATE", "RateX")) == set(range(1, TICKS + 1)), "other frames go on"
+
+
+def test_sensor_stuck_holds_the_value_it_had_at_the_start(pair):
+    faulty, healthy = pair(imu_fault("sensor.stuck"))
+    f, h = pitch(faulty), pitch(healthy)
+    assert all(f[k] == h[k] for k in range(1, START))
+    assert {f[k] for k in range(START, TICKS + 1)} == {h[START]}
+    assert len({h[k] for k in range(START, TICKS + 1)}) > 5, "the healthy channel moves (noise)"
+
+
+def test_sensor_stuck_at_a_given_value(pair):
+    faulty, _ = pair(imu_fault("sensor.stuck", value=0.2))
+    held = [v for k, v in pitch(faulty).items() if k >= START]
+    assert len(held) == TICKS - START + 1 and all(v == pytest.approx(0.2, abs=Q) for v in held)
+
+
+@pytest.mark.parametrize(
+    "kind, params, expected",
+    [
+        ("sensor.bias", {"offset": 0.05}, lambda h, t: h + 0.05),
+        ("sensor.scale", {"factor": -3.0}, lambda h, t: -3.0 * h),
+        ("sensor.sign_flip", {}, lambda h, t: -h),
+        ("sensor.drift", {"rate": 2.0}, lambda h, t: h + 2.0 * (t - AT)),
+    ],
+)
+def test_deterministic_sensor_faults_follow_their_law(pair, kind, params, expected):
+    faulty, healthy = pair(imu_fault(kind, **params))
+    f, h = pitch(faulty), pitch(healthy)
+    for k in range(1, TICKS + 1):
+        want = expected(h[k], k * DT) if k >= START else h[k]
+        assert f[k] == pytest.approx(want, abs=1.5 * Q + 1e-3 * abs(want)), (kind, k)
+
+
+def test_sensor_noise_adds_noise_of_the_given_sigma(pair):
+    faulty, healthy = pair(imu_fault("sensor.noise", sigma=0.05), ticks=200)
+    f, h = pitch(faulty), pitch(healthy)
+    diff = np.array([f[k] - h[k] for k in range(START, 201)])
+    assert 0.04 < diff.std() < 0.06 and abs(diff.mean()) < 0.015
+    assert all(f[k] == h[k] for k in range(1, START))
+
+
+def test_sensor_spikes_are_single_samples_of_the_given_amplitude(pair):
+    faulty, healthy = pair(imu_fault("sensor.spikes", amplitude=0.5, rate=0.3), ticks=200)
+    f, h = pitch(faulty), pitch(healthy)
+    diff = np.array([f[k] - h[k] for k in range(START, 201)])
+    spikes = np.abs(diff) > 0.25
+    assert 0.15 < spikes.mean() < 0.45
+    assert np.allclose(np.abs(diff[spikes]), 0.5, atol=2 * Q)
+    assert np.allclose(diff[~spikes], 0.0, atol=Q)
+    assert (diff > 0.25).any() and (diff < -0.25).any(), "both signs"
+
+
+def test_sensor_delayed_reports_the_past(pair):
+    faulty, healthy = pair(imu_fault("sensor.delayed", delay=0.01))  # 4 ticks
+    f, h = pitch(faulty), pitch(healthy)
+    for k in range(START + 4, TICKS + 1):
+        assert f[k] == h[k - 4]
+    assert all(f[k] == h[START] for k in range(START, START + 4)), "held at its first value until then"
+
+
+def test_sensor_slow_updates_at_the_lower_rate(pair):
+    faulty, healthy = pair(imu_fault("sensor.slow", period=0.025))  # every 10 ticks
+    f, h = pitch(faulty), pitch(healthy)
+    for k in range(START, TICKS + 1):
+        assert f[k] == h[START + 10 * ((k - START) // 10)]
+
+
+def test_sensor_intermittent_drops_frames_at_the_given_rate(pair):
+    faulty, healthy = pair(imu_fault("sensor.intermittent", rate=0.5), ticks=200)
+    f, h = pitch(faulty), pitch(healthy)
+    missing = [k for k in range(START, 201) if k not in f]
+    assert 0.3 < len(missing) / (201 - START) < 0.7
+    assert all(f[k] == h[k] for k in f)
+
+
+def test_encoder_bias_is_in_radians_at_the_motor(pair):
+    faulty, healthy = pair({"kind": "sensor.bias", "channel": "encoder2", "offset": 1.0, "at": AT})
+    f, h = faulty.series("DRIVE2_FEEDBACK", "Position"), healthy.series("DRIVE2_FEEDBACK", "Position")
+    per_rad = 8192 / (2 * math.pi)
+    assert all(f[k] - h[k] == round(per_rad) or f[k] - h[k] == round(per_rad) + 1 for k in range(START, 61))
+    assert faulty.series("DRIVE1_FEEDBACK", "Position") == healthy.series("DRIVE1_FEEDBACK", "Position")
+
+
+def test_a_dead_load_cell_skews_the_wrench_along_its_calibration_column(pair):
+    faulty, healthy = pair({"kind": "sensor.off", "channel": "tes.cell1", "at": AT})
+    f = {w.seq: w for w in faulty.tes.drain()}
+    h = {w.seq: w for w in healthy.tes.drain()}
+    assert f[START - 1] == h[START - 1]
+    column = faulty.plant.tes_model.calibration[:, 0]
+    for k in range(START, TICKS + 1):
+        delta = np.array([*h[k].force, *h[k].moment]) - np.array([*f[k].force, *f[k].moment])
+        assert np.linalg.norm(delta) > 1.0, "a seated rider loads every cell"
+        cos = abs(delta @ column) / (np.linalg.norm(delta) * np.linalg.norm(column))
+        assert cos > 0.999, "the missing reading enters through its own column of −E"
+
+
+# -------------------------------------------------------------------------------------------- frames
+def can_fault(kind, message="IMU_RATE", **params):
+    return {"kind": kind, "message": message, "at": AT, **params}
+
+
+def test_can_drop_burst_loses_exactly_count_frames(pair):
+    faulty, _ = pair(can_fault("can.drop", count=5))
+    ticks = [k for k, _ in faulty.decoded("IMU_RATE")]
+    assert [k for k in range(1, TICKS + 1) if k not in ticks] == list(range(START, START + 5))
+    assert faulty.statuses("IMU_RATE").count("LOST") == 1
+    assert faulty.rig.faults.events[-1].action == "end", "the burst ends the fault"
+
+
+def test_can_drop_rate_loses_about_that_share(pair):
+    faulty, _ = pair(can_fault("can.drop", rate=0.5), ticks=200)
+    lost = 200 - len(faulty.decoded("IMU_RATE"))
+    assert 50 < lost < 130
+
+
+def test_can_delay_holds_frames_for_the_delay_in_simulated_time(pair):
+    faulty, healthy = pair(can_fault("can.delay", delay=0.01))
+    f = faulty.series("IMU_RATE", "RateX")
+    h = healthy.series("IMU_RATE", "RateX")
+    # The frame of tick k goes out with tick k + 4, before that tick's SYNC.
+    assert all(f[k] == h[k - 4] for k in range(START + 4, TICKS + 1))
+    assert all(k not in f for k in range(START, START + 4))
+    assert set(faulty.statuses("IMU_RATE")) == {"OK"}
+
+
+def test_can_repeat_sends_copies_the_receiver_sees_as_repeated(pair):
+    faulty, _ = pair(can_fault("can.repeat", times=2))
+    statuses = faulty.statuses("IMU_RATE")
+    assert statuses.count("REPEATED") == 2 * (TICKS - START + 1)
+
+
+def test_can_reorder_swaps_neighbours(pair):
+    faulty, _ = pair(can_fault("can.reorder"))
+    statuses = faulty.statuses("IMU_RATE")
+    assert statuses.count("OUT_OF_ORDER") >= (TICKS - START) // 2 - 1
+
+
+def test_can_corrupt_fails_the_crc(pair):
+    faulty, healthy = pair(can_fault("can.corrupt", bit=13))
+    statuses = faulty.statuses("IMU_RATE")
+    assert statuses[: START - 1] == ["OK"] * (START - 1)
+    assert set(statuses[START - 1 :]) == {"CRC_ERROR"}
+    f = [m for _, m, _ in faulty.frames if m.arbitration_id == 650]
+    h = [m for _, m, _ in healthy.frames if m.arbitration_id == 650]
+    assert int.from_bytes(f[-1].data, "little") ^ int.from_bytes(h[-1].data, "little") == 1 << 13
+
+
+@pytest.mark.parametrize("mode, status", [("frozen", "REPEATED"), ("skip", "LOST")])
+def test_can_wrong_counter_keeps_a_valid_crc(pair, mode, status):
+    faulty, _ = pair(can_fault("can.wrong_counter", mode=mode))
+    statuses = faulty.statuses("IMU_RATE")
+    assert set(statuses[START:]) == {status}, "every frame after the first faulty one"
+    assert "CRC_ERROR" not in statuses
+
+
+def test_can_wrong_dlc_is_malformed_for_the_receiver(pair):
+    faulty, _ = pair(can_fault("can.wrong_dlc", length=5))
+    assert faulty.listener.stats.malformed["wrong_length"] == TICKS - START + 1
+    assert all(len(m.data) == 5 for k, m, _ in faulty.frames if m.arbitration_id == 650 and k >= START)
+
+
+def test_can_masquerade_under_another_id_fails_its_crc(pair):
+    faulty, _ = pair(can_fault("can.masquerade", as_message="IMU_ACCEL"))
+    statuses = faulty.statuses("IMU_ACCEL")
+    assert statuses.count("CRC_ERROR") == TICKS - START + 1
+    assert set(faulty.statuses("IMU_RATE")) == {"OK"}
+
+
+def test_can_babble_floods_and_starves_lower_priority_frames_when_it_saturates(pair):
+    faulty, _ = pair({"kind": "can.babble", "at": AT, "duration": 0.025, "per_tick": 30})  # 10 ticks
+    babble = [k for k, m, _ in faulty.frames if m.arbitration_id == 0x001]
+    assert len(babble) == 30 * 10 and faulty.listener.stats.malformed["unknown_id"] == 300
+    sync = {k for k, rx in faulty.decoded("SYNC")}
+    assert not sync & set(range(START, START + 10)), "SYNC (0x080) loses every arbitration"
+    assert set(range(START + 10, TICKS + 1)) <= sync
+
+
+def test_can_babble_below_saturation_starves_nothing(pair):
+    faulty, _ = pair({"kind": "can.babble", "at": AT, "per_tick": 5})
+    assert len({k for k, _ in faulty.decoded("SYNC")}) == TICKS
+
+
+def test_can_bus_off_silences_the_node_then_it_recovers(pair):
+    faulty, _ = pair({"kind": "can.bus_off", "at": AT, "duration": 0.02})  # 8 ticks
+    ticks = {k for k, m, _ in faulty.frames}
+    assert not ticks & set(range(START, START + 8))
+    assert set(range(START + 8, TICKS + 1)) <= ticks
+
+
+def test_receive_side_frame_faults_act_on_what_the_drives_get(session):
+    bench = Bench(
+        session, [can_fault("can.drop", "DRIVE1_COMMAND"), can_fault("can.corrupt", "DRIVE2_COMMAND")]
+    )
+    try:
+        bench.run(START + 1)
+        node = bench.rig.can
+        commands = {
+            n: node.message(n, {"Torque": 1.0, "Tick": 1, "Enable": 1}) for n in RX_MESSAGES if "COMMAND" in n
+        }
+        assert node.rx_hook(commands["DRIVE1_COMMAND"]) is None
+        corrupted = node.rx_hook(commands["DRIVE2_COMMAND"])
+        assert node.decode(corrupted).e2e.status is E2EStatus.CRC_ERROR
+        assert node.rx_hook(commands["DRIVE3_COMMAND"]) is commands["DRIVE3_COMMAND"]
+    finally:
+        bench.close()
+
+
+def test_a_frame_fault_on_an_unknown_message_or_the_wrong_direction_is_refused(session):
+    with pytest.raises(ValueError, match="no message 'IMU_RATES'"):
+        Bench(session, [can_fault("can.drop", "IMU_RATES")])
+    with pytest.raises(ValueError, match="receives"):
+        Bench(session, [can_fault("can.delay", "DRIVE1_COMMAND", delay=0.01)])
+
+
+# -------------------------------------------------------------------------------------------- topics
+def seqs(bench):
+    return [w.seq for w in bench.tes.drain()]
+
+
+def test_wrench_dropout_publishes_nothing_in_its_window(pair):
+    faulty, _ = pair({"kind": "zenoh.wrench_dropout", "at": AT, "duration": 0.025})
+    got = seqs(faulty)
+    assert got == [k for k in range(1, TICKS + 1) if not START <= k < START + 10]
+
+
+def test_wrench_stale_repeats_the_last_sample_unchanged(pair):
+    faulty, _ = pair({"kind": "zenoh.wrench_stale", "at": AT})
+    got = seqs(faulty)
+    assert got == [*range(1, START + 1), *[START] * (TICKS - START)]
+
+
+def test_wrench_frozen_keeps_the_values_while_seq_goes_on(pair):
+    faulty, healthy = pair({"kind": "zenoh.wrench_frozen", "at": AT})
+    f = faulty.tes.drain()
+    h = {w.seq: w for w in healthy.tes.drain()}
+    assert [w.seq for w in f] == list(range(1, TICKS + 1))
+    assert {w.force for w in f if w.seq >= START} == {h[START].force}
+    assert len({h[k].force for k in range(START, TICKS + 1)}) > 5
+
+
+@pytest.mark.parametrize("key", ["tes/wrench", "sc/request"])
+def test_malformed_payloads_are_put_and_rejected_by_typed_subscribers(pair, key):
+    faulty, _ = pair({"kind": "zenoh.malformed", "key": key, "at": AT, "payload": "c1c1"})
+    garbage = [k for k, data in faulty.raw if data == b"\xc1\xc1"]
+    assert len(garbage) == TICKS - START + 1
+    sub = faulty.tes if key == "tes/wrench" else faulty.sc
+    sub.drain()
+    assert sub.rejected["garbage"] == TICKS - START + 1
+    if key == "tes/wrench":
+        assert faulty.tes.accepted == START - 1, "the sample itself was replaced"
+
+
+def test_sc_flood_puts_that_many_requests_per_tick(pair):
+    faulty, _ = pair({"kind": "zenoh.sc_flood", "at": AT, "per_tick": 7, "mode": "idle"})
+    flood = [r for r in faulty.sc.drain() if r.source == "flood"]
+    assert len(flood) == 7 * (TICKS - START + 1) and {r.mode for r in flood} == {"idle"}
+
+
+def test_sc_conflict_adds_a_second_source_at_its_period(pair):
+    faulty, _ = pair({"kind": "zenoh.sc_conflict", "at": AT, "mode": "limit", "cap": 0.3, "period": 0.01})
+    requests = faulty.sc.drain()
+    rogue = [r for r in requests if r.source == "rogue-agent"]
+    assert len(rogue) == math.ceil((TICKS - START + 1) / 4)
+    assert {(r.mode, r.speed_cap) for r in rogue} == {("limit", 0.3)}
+    assert any(r.source == "scenario" for r in requests)
+
+
+# ----------------------------------------------------------------------------------------- actuators
+def enable_all(bench, torque=0.5):
+    bench.plant.drives.set_permission(True)
+    bench.plant.drives.set_commands((torque,) * 3, True, bench.plant.t)
+
+
+def test_drive_torque_scale_is_what_the_motor_produces(session):
+    bench = Bench(session, [{"kind": "plant.drive_torque", "motor": 2, "scale": 0.5, "at": AT}])
+    try:
+        bench.run(START)
+        enable_all(bench)
+        for _ in range(40):
+            bench.plant.drives.motors[0].last_command_time = bench.plant.drives.motors[
+                1
+            ].last_command_time = bench.plant.t
+            bench.plant.drives.motors[2].last_command_time = bench.plant.t
+            bench.plant.step()
+        m = bench.plant.drives.motors
+        assert m[0].torque == pytest.approx(0.5, rel=1e-3) and m[1].torque == pytest.approx(0.25, rel=1e-3)
+    finally:
+        bench.close()
+
+
+def test_drive_stuck_enabled_ignores_the_supervisors_permission(session):
+    bench = Bench(session, [{"kind": "plant.drive_stuck_enabled", "motor": 3, "at": AT}])
+    try:
+        bench.run(START)
+        enable_all(bench)
+        bench.plant.drives.set_permission(False)
+        bench.plant.step()
+        states = [m.state.name for m in bench.plant.drives.motors]
+        assert states == ["DISABLED", "DISABLED", "ENABLED"] and bench.plant.drives.torques[2] != 0.0
+    finally:
+        bench.close()
+
+
+def test_push_accelerates_the_robot_by_its_impulse(session):
+    """Held upright by nothing, the robot gains forward momentum from a forward push: its speed rises
+    faster than its unpushed twin's, and the pushing stops with the fault."""
+    push = {"kind": "plant.push", "force": [100.0, 0.0], "at": AT, "duration": 0.05}
+    faulty, healthy = Bench(session, [push]), Bench(session)
+    try:
+        faulty.run(START + 20)
+        healthy.run(START + 20)
+        assert faulty.plant.external == [None, None], "ended with the fault"
+        dv = faulty.plant.velocity[0] - healthy.plant.velocity[0]
+        # 5 N s into robot + rider (105 kg; part of it goes into rotation, not speed).
+        assert 0.01 < dv < 5.0 / 105.0
+        assert abs(faulty.plant.velocity[1] - healthy.plant.velocity[1]) < 1e-6, "no sideways push"
+    finally:
+        faulty.close()
+        healthy.close()
+
+
+def test_mass_shift_moves_the_torso_at_once(session):
+    faulty, healthy = (
+        Bench(session, [{"kind": "plant.mass_shift", "pitch_deg": 10.0, "at": AT}]),
+        Bench(session),
+    )
+    try:
+        faulty.run(START + 60)
+        healthy.run(START + 60)
+        lean = math.degrees(faulty.plant.truth().lean[0] - healthy.plant.truth().lean[0])
+        assert 5.0 < lean < 15.0
+    finally:
+        faulty.close()
+        healthy.close()
+
+
+# ----------------------------------------------------------------------------------------- processes
+def test_process_faults_refuse_a_target_that_is_not_in_process(session):
+    with pytest.raises(ValueError, match="external"):
+        Bench(session, [{"kind": "process.kill", "target": "controller", "at": AT}])
+    with pytest.raises(ValueError, match="pause"):
+        Bench(session, [{"kind": "process.hang", "at": AT}])
+
+
+def test_fault_parameters_are_checked_with_clear_errors():
+    with pytest.raises(ValueError, match=r"unknown kind 'sensor.stuk'"):
+        parse_fault({"kind": "sensor.stuk", "channel": "imu.pitch"})
+    with pytest.raises(ValueError, match=r"sensor.bias.*Object missing required field `offset`"):
+        parse_fault({"kind": "sensor.bias", "channel": "imu.pitch"})
+    with pytest.raises(ValueError, match=r"Expected `float` >= 0"):
+        parse_fault({"kind": "plant.drive_torque", "motor": 1, "scale": -1})
+    with pytest.raises(ValueError, match="not hex"):
+        parse_fault({"kind": "zenoh.malformed", "payload": "xyz"})
+    with pytest.raises(ValueError, match="unknown cause 'TILTED'"):
+        parse_fault({"kind": "sensor.off", "channel": "imu.pitch", "expect": {"cause": "TILTED"}})
+
+
+class Responder:
+    """A stand-in controller: answers SYNC(k) with torque k/1000 on every drive, at once."""
+
+    def __init__(self, bench):
+        import threading
+
+        from drivers.can_bus import CanNode, open_bus
+
+        self.node = CanNode(open_bus(bench.bus_config), name="responder")
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self):
+        while not self.stop.is_set():
+            rx = self.node.recv(0.05)
+            if rx is not None and rx.name == "SYNC":
+                k = int(rx.signals["Tick"])
+                for n in (1, 2, 3):
+                    self.node.send(f"DRIVE{n}_COMMAND", {"Torque": k / 1000, "Tick": k, "Enable": 1})
+
+    def close(self):
+        self.stop.set()
+        self.thread.join(1.0)
+        self.node.bus.shutdown()
+
+
+def applied_commands(session, fault, ticks=80):
+    """(tick, the torque drive 1 holds after it) with a responder that answers every tick."""
+    import time
+
+    bench = Bench(session, [fault] if fault else [])
+    responder = Responder(bench)
+    bench.rig._update_permission = lambda: None  # no supervisor here: permission is not the subject
+    bench.plant.drives.set_permission(True)
+    out = []
+    try:
+        for _ in range(ticks):
+            bench.rig.tick(deadline=time.monotonic() + 1.0, lockstep=False)
+            out.append((bench.plant.tick, bench.plant.drives.motors[0].command))
+    finally:
+        responder.close()
+        bench.close()
+    return out
+
+
+def test_loop_delay_hands_each_command_to_the_drives_that_much_later(session):
+    healthy = applied_commands(session, None)
+    assert all(c == pytest.approx(k / 1000) for k, c in healthy)
+    late = applied_commands(session, {"kind": "process.loop_delay", "delay": 0.01, "at": AT})
+    for k, c in late:
+        want = k if k < START else k - 4
+        if START <= k < START + 4:
+            want = START - 1  # nothing new arrives for 4 ticks: the drive holds the last command
+        assert c == pytest.approx(want / 1000), k
+
+
+def test_jitter_delays_vary_within_the_bound_and_never_reorder(session):
+    got = applied_commands(session, {"kind": "process.jitter", "jitter": 0.01, "at": AT}, ticks=200)
+    source = [round(c * 1000) for _, c in got]
+    lags = [k - s for (k, _), s in zip(got, source, strict=True) if k >= START]
+    assert source == sorted(source), "a command never overtakes an earlier one"
+    assert max(lags) <= 4 and min(lags) == 0 and len(set(lags)) >= 3
