@@ -141,14 +141,25 @@ class CaseResult:
         return "\n".join(lines)
 
 
-def run_case(case: Case, out: Path | None = None) -> CaseResult:
-    """Run one case in this process (lockstep, virtual bus, its own hub on a free loopback port)."""
+def run_case(
+    case: Case, out: Path | None = None, can: str | None = None, controller: str | None = None
+) -> CaseResult:
+    """Run one case in this process, lockstep, with its own zenoh hub on a free loopback port; on a private
+    virtual bus unless `can` names the lab's bus (INTERFACE:CHANNEL), with the scenario's controller unless
+    `controller` says otherwise (`external`: the lab's own, already on that bus)."""
+    from drivers.can_bus import parse_can_spec
     from drivers.zenoh_link import free_loopback_endpoint
     from hil.runner import run_scenario, summary
 
     start = time.monotonic()
     try:
-        result = run_scenario(case.build(), clock="lockstep", hub_endpoint=free_loopback_endpoint())
+        result = run_scenario(
+            case.build(),
+            clock="lockstep",
+            hub_endpoint=None if controller == "external" else free_loopback_endpoint(),
+            can=None if can is None else parse_can_spec(can),
+            controller=controller,
+        )
     except Exception as exc:  # a broken case is a result (an error), never the end of the campaign
         detail = "".join(traceback.format_exception_only(type(exc), exc)).strip()
         return CaseResult(case.id, case.scenario, False, time.monotonic() - start, error=detail)
@@ -177,13 +188,16 @@ def run_campaign(
     workers: int = 1,
     out: Path | None = None,
     progress: Callable[[int, int, CaseResult], None] | None = None,
+    can: str | None = None,
+    controller: str | None = None,
 ) -> list[CaseResult]:
-    """Every case, `workers` at a time in fresh processes (spawned: no zenoh or bus state is inherited)."""
+    """Every case, `workers` at a time in fresh processes (spawned: no zenoh or bus state is inherited).
+    On a shared bus (`can`) cases run one at a time in this process: they would share the bus."""
     results: list[CaseResult] = []
     folder = (lambda c: out / c.id) if out is not None else (lambda c: None)
-    if workers <= 1:
+    if workers <= 1 or can is not None:
         for case in cases:
-            results.append(run_case(case, folder(case)))
+            results.append(run_case(case, folder(case), can, controller))
             if progress:
                 progress(len(results), len(cases), results[-1])
         return results

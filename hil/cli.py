@@ -158,7 +158,9 @@ def _campaign(args: argparse.Namespace) -> int:
         for line in r.message().splitlines() if not r.passed else ():
             print(f"        {line}", flush=True)
 
-    results = run_campaign(cases, args.workers, out, progress)
+    if args.can and args.workers > 1:
+        print("pure-hil campaign: on a shared bus (--can) cases run one at a time", file=sys.stderr)
+    results = run_campaign(cases, args.workers, out, progress, args.can, args.controller)
     text = report(campaign.name, results)
     (out / "report.md").write_text(text)
     (out / "junit.xml").write_bytes(junit_xml(campaign.name, results))
@@ -502,6 +504,10 @@ def build_parser() -> argparse.ArgumentParser:
     cam.add_argument("file", help="configs/campaigns/*.toml")
     cam.add_argument("--workers", type=int, default=1, help="parallel processes (lockstep runs)")
     cam.add_argument("--out", default=None, help="report folder (default runs/campaign-NAME-TIMESTAMP)")
+    cam.add_argument(
+        "--can", default=None, help="the lab's bus, e.g. socketcan:vcan0 (default: private virtual)"
+    )
+    cam.add_argument("--controller", choices=("hacs", "ihacs", "external"), default=None)
     cam.set_defaults(func=_campaign)
 
     srv = sub.add_parser("serve", help="the long-running rig service, controlled over zenoh (pure/rig/*)")

@@ -31,7 +31,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
         "--hil-controller",
         default=None,
         choices=("hacs", "ihacs", "external"),
-        help="controller for hil_rig runs (external: your own, already on --hil-can)",
+        help="controller for HIL runs and campaign cases (external: your own, already on --hil-can)",
     )
 
 
@@ -67,8 +67,14 @@ class CampaignItem(pytest.Item):
     def runtest(self) -> None:
         from hil.campaign import run_case
 
-        root = self.config.getoption("--hil-out")
-        result = run_case(self.case, None if root is None else Path(root) / self.case.id)
+        config = self.config
+        root = config.getoption("--hil-out")
+        result = run_case(
+            self.case,
+            None if root is None else Path(root) / self.case.id,
+            config.getoption("--hil-can"),
+            config.getoption("--hil-controller"),
+        )
         for v in result.verdicts:
             self.user_properties.append((v["criterion"], v["value"]))
         if not result.passed:

@@ -106,7 +106,7 @@ class Rig:
         """In-process supervisor, updated every tick; None: a supervisor elsewhere on the bus."""
         self.dut = None
         """The in-process controller's handle (process faults stop or pause it); None: external."""
-        self.faults = faults or FaultSet()
+        self.faults = faults if faults is not None else FaultSet()
         self.bitrate = bitrate
         self._held: deque[tuple[int, int, float, bool]] = deque()
         """Commands a loop-delay fault holds back: (due tick, drive, torque, enable)."""

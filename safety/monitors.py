@@ -57,6 +57,9 @@ class Monitors:
         self.request: Request | None = None
         self.operator: str | None = None
         self.operator_source = ""
+        self._wrench_id: tuple[int, float] | None = None
+        self.stale_wrench = 0
+        """Seat samples that repeated the previous one unchanged (not counted as fresh)."""
         self._errors: deque[tuple[float, int]] = deque()
         self.operators = frozenset(config.identity.operators)
         self.rejected_identity: Counter[str] = Counter()
@@ -96,7 +99,12 @@ class Monitors:
 
     def wrench(self, w: TesWrench, t: float) -> None:
         self.seat_load = -w.force[2]
-        self.last["wrench"] = t
+        # A sample repeated unchanged (same seq and stamp: a stale publisher) does not feed the watchdog.
+        if (w.seq, w.stamp) != self._wrench_id:
+            self._wrench_id = (w.seq, w.stamp)
+            self.last["wrench"] = t
+        else:
+            self.stale_wrench += 1
 
     def _trusted(self, source: str, kind: str) -> bool:
         if not self.operators or source in self.operators:

@@ -6,6 +6,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import pytest
 
+pytest_plugins = ["pytester"]  # tests of the HIL pytest plugin run pytest inside pytest
+
 
 @pytest.fixture(scope="session")
 def shipped(tmp_path_factory):

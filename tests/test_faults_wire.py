@@ -486,3 +486,11 @@ def test_jitter_delays_vary_within_the_bound_and_never_reorder(session):
     lags = [k - s for (k, _), s in zip(got, source, strict=True) if k >= START]
     assert source == sorted(source), "a command never overtakes an earlier one"
     assert max(lags) <= 4 and min(lags) == 0 and len(set(lags)) >= 3
+
+
+def test_the_docs_list_every_fault_of_the_catalog():
+    from tests.helpers import ROOT
+
+    text = (ROOT / "docs/faults.md").read_text()
+    missing = [kind for kind in CATALOG if f"`{kind}`" not in text]
+    assert not missing, f"docs/faults.md does not list {missing}"

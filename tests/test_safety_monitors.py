@@ -114,3 +114,16 @@ def test_zenoh_inputs_set_ages_and_values():
     assert (obs.request.mode, obs.request.cap) == ("limit", 0.5)
     assert obs.ages["wrench"] == obs.ages["sc"] == 0.5
     assert obs.ages["heartbeat"] == math.inf
+
+
+def test_a_stale_wrench_repeated_unchanged_does_not_feed_the_watchdog():
+    """Found by the zenoh.wrench_stale fault: a seat re-publishing its last sample looked alive."""
+    m = monitors()
+    sample = TesWrench(seq=7, stamp=0.1, force=(0.0, 0.0, -600.0), moment=(0.0, 0.0, 0.0), cop=(0.0, 0.0))
+    m.wrench(sample, 1.0)
+    m.wrench(sample, 1.2)
+    m.wrench(sample, 1.4)
+    assert m.observe(1.5).ages["wrench"] == pytest.approx(0.5)
+    assert m.stale_wrench == 2
+    m.wrench(TesWrench(seq=0, stamp=0.0, force=(0.0, 0.0, -600.0), moment=(0.0,) * 3, cop=(0.0, 0.0)), 1.5)
+    assert m.observe(1.5).ages["wrench"] == 0.0, "a restarted seat (seq from 0) is fresh"

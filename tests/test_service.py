@@ -109,3 +109,36 @@ def test_live_view_streams_each_run_in_batches(tmp_path):
         assert sum(rows[entity]) == 800, (entity, rows[entity])
         assert max(rows[entity]) >= 40
     assert "/events" in rows
+
+
+def test_live_fault_injection_lands_in_the_event_log_and_the_recording(service, tmp_path):
+    svc, client = service
+    assert not ask(client, "fault/inject", '{"kind": "zenoh.wrench_dropout"}')["ok"], "no run yet"
+    assert ask(client, "start", SHORT)["ok"]
+    deadline = time.monotonic() + 60
+    while ask(client, "status")["sim_time"] < 1.0 and time.monotonic() < deadline:
+        time.sleep(0.1)
+    bad = ask(client, "fault/inject", '{"kind": "can.drop", "message": "NOPE"}')
+    assert not bad["ok"] and "no message 'NOPE'" in bad["error"]
+    bad = ask(client, "fault/inject", '{"kind": "sensor.bias", "channel": "imu.pitch"}')
+    assert not bad["ok"] and "offset" in bad["error"]
+    reply = ask(client, "fault/inject", '{"kind": "sensor.bias", "channel": "imu.rate_z", "offset": 0.01}')
+    assert reply == {"ok": True, "fault": "sensor.bias offset=0.01 channel=imu.rate_z", "scenario": "served"}
+    while not any(f["active"] for f in ask(client, "status")["faults"]) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert ask(client, "fault/clear", "0") == {"ok": True, "cleared": 0}
+    assert ask(client, "stop")["stopping"] is True
+    assert svc.wait_idle(30)
+    last = ask(client, "status")["last"]
+    actions = [(e["fault"], e["action"]) for e in last["fault_events"]]
+    assert actions == [(0, "inject"), (0, "start"), (0, "clear"), (0, "end")]
+    inject = last["fault_events"][0]
+    assert inject["t"] >= 1.0 and inject["detail"] == "sensor.bias offset=0.01 channel=imu.rate_z"
+
+    from rerun.chunk import RrdReader  # the recording has the same log
+
+    summary = json.loads((tmp_path / last["out"].split("/")[-1] / "summary.json").read_text())
+    assert [e["action"] for e in summary["fault_events"]] == ["inject", "start", "clear", "end"]
+    rrd = tmp_path / last["out"].split("/")[-1] / "recording.rrd"
+    rows = sum(c.num_rows for c in RrdReader(str(rrd)).stream() if c.entity_path == "/events/faults")
+    assert rows == 4, "every fault event in the rerun recording"

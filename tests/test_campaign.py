@@ -1,0 +1,209 @@
+"""Campaigns: expansion, the report and JUnit, the CLI with worker processes, the pytest plugin, and the
+test of the tests: a fault the supervisor does not catch makes the verdict fail, saying why."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+
+import msgspec
+import pytest
+
+from hil.campaign import Campaign, CaseResult, expand, junit_xml, load_campaign, report
+from tests.helpers import ROOT
+
+SMOKE = ROOT / "configs/campaigns/smoke.toml"
+
+# bench_smoke whose supervisor is told a silent seat is no fault: the wrench dropout goes uncaught.
+BLIND = """
+name = "blind_to_the_seat"
+rider = "configs/riders/ref_60kg_180.toml"
+duration = 1.6
+initial_tilt_deg = [3.0, 0.0]
+[safety.watchdogs]
+require_wrench = false
+[[criteria]]
+metric = "fallen"
+equals = false
+"""
+MISSED = """
+name = "missed"
+scenarios = ["{scenario}"]
+[[fault]]
+name = "seat_silent"
+[[fault.inject]]
+kind = "zenoh.wrench_dropout"
+at = 1.0
+expect = {{ state = "STOPPING", cause = "WRENCH_SILENT", within = 0.15 }}
+"""
+WHY = "expected the supervisor to enter STOPPING/WRENCH_SILENT within 0.15 s of zenoh.wrench_dropout"
+
+
+def test_smoke_campaign_expands_to_a_baseline_and_one_case_per_fault_set():
+    campaign = load_campaign(SMOKE)
+    cases = expand(campaign)
+    assert [c.id for c in cases] == [
+        f"bench_smoke-{f}-seed0" for f in ["none", *(s.name for s in campaign.fault)]
+    ]
+    baseline, faulty = cases[0].build(), cases[1].build()
+    assert baseline.criteria and not baseline.faults and baseline.duration == 2.5
+    assert faulty.faults and not faulty.criteria, "a faulty case is judged by what its faults expect"
+
+
+def test_expansion_crosses_scenarios_riders_fault_sets_and_seeds():
+    campaign = msgspec.convert(
+        {
+            "name": "x",
+            "scenarios": ["configs/scenarios/balance.toml", "configs/scenarios/bench_smoke.toml"],
+            "riders": ["configs/riders/s04_abi_50kg_164.toml", "configs/riders/s07_abi_73kg_176.toml"],
+            "fault": [
+                {
+                    "name": "a",
+                    "inject": [{"kind": "sensor.off", "channel": "imu.roll", "expect": {"fall": False}}],
+                }
+            ],
+            "seeds": [1, 2, 3],
+        },
+        Campaign,
+    )
+    cases = expand(campaign)
+    assert len(cases) == 2 * 2 * 2 * 3
+    assert len({c.id for c in cases}) == len(cases)
+    built = cases[-1].build()
+    assert built.rider.endswith("s07_abi_73kg_176.toml") and built.seed == 3
+    assert built.faults[0].kind == "sensor.off"
+
+
+def test_a_fault_set_that_expects_nothing_is_refused():
+    with pytest.raises(msgspec.ValidationError, match="no fault says what it expects"):
+        msgspec.convert(
+            {
+                "name": "x",
+                "scenarios": ["a.toml"],
+                "fault": [{"name": "f", "inject": [{"kind": "sensor.off", "channel": "imu.roll"}]}],
+            },
+            Campaign,
+        )
+
+
+def test_report_is_worst_first_and_junit_carries_failures_and_errors():
+    ok = CaseResult(
+        "a-none-seed0",
+        "a.toml",
+        True,
+        1.0,
+        [{"criterion": "fallen", "value": 0.0, "limit": "== False", "units": "", "passed": True, "note": ""}],
+        peak_tilt_deg=2.0,
+    )
+    tilted = CaseResult("a-push-seed0", "a.toml", True, 1.0, peak_tilt_deg=9.0)
+    failed = CaseResult(
+        "a-x-seed0",
+        "a.toml",
+        False,
+        2.0,
+        [
+            {
+                "criterion": "fault 0 x: ESTOP",
+                "value": float("nan"),
+                "limit": "<= 0.1 s",
+                "units": "s",
+                "passed": False,
+                "note": "expected ESTOP",
+            }
+        ],
+    )
+    broken = CaseResult("a-y-seed0", "a.toml", False, 0.5, error="ControllerUnavailable: no controller")
+    text = report("c", [ok, tilted, failed, broken])
+    order = [line.split("|")[2].strip() for line in text.splitlines()[4:]]
+    assert order == ["a-y-seed0", "a-x-seed0", "a-push-seed0", "a-none-seed0"]
+    assert "2/4 passed" in text and "expected ESTOP" in text
+    suite = ET.fromstring(junit_xml("c", [ok, tilted, failed, broken]))
+    assert (suite.get("tests"), suite.get("failures"), suite.get("errors")) == ("4", "1", "1")
+    cases = {c.get("name"): c for c in suite.iter("testcase")}
+    assert "expected ESTOP" in cases["a-x-seed0"].find("failure").text
+    assert cases["a-y-seed0"].find("error").get("message").startswith("ControllerUnavailable")
+    assert cases["a-none-seed0"].find("properties/property").get("name") == "fallen"
+
+
+@pytest.fixture
+def missed_campaign(tmp_path):
+    scenario = tmp_path / "blind.toml"
+    scenario.write_text(BLIND)
+    folder = tmp_path / "campaigns"
+    folder.mkdir()
+    path = folder / "missed.toml"
+    path.write_text(MISSED.format(scenario=scenario))
+    return path
+
+
+def test_cli_runs_a_campaign_on_workers_and_fails_on_a_missed_reaction(missed_campaign, tmp_path):
+    """A supervisor blind to a silent seat: the case fails, the report and JUnit say what was missed."""
+    out = tmp_path / "out"
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "hil.cli",
+            "campaign",
+            str(missed_campaign),
+            "--workers",
+            "2",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=ROOT,
+    )
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    assert "[2/2]" in proc.stdout and WHY in proc.stdout
+    text = (out / "report.md").read_text()
+    assert text.splitlines()[4].startswith("| FAIL | blind-seat_silent-seed0")
+    assert "| PASS | blind-none-seed0" in text
+    suite = ET.parse(out / "junit.xml").getroot()
+    assert (suite.get("tests"), suite.get("failures"), suite.get("errors")) == ("2", "1", "0")
+    assert (out / "blind-none-seed0" / "summary.json").exists()
+
+
+# pytest in a subprocess: in-process runs would drop and re-import native (PyO3) modules, which fails.
+def test_pytest_plugin_collects_cases_and_a_missed_reaction_fails_the_item(missed_campaign, pytester):
+    result = pytester.runpytest_subprocess(
+        str(missed_campaign), "-p", "no:cacheprovider", "-m", "hil", f"--junitxml={pytester.path / 'j.xml'}"
+    )
+    result.assert_outcomes(passed=1, failed=1)
+    result.stdout.fnmatch_lines(["*blind-seat_silent-seed0 failed:*", f"*{WHY}*"])
+    suite = ET.parse(pytester.path / "j.xml").getroot().find("testsuite")
+    failure = next(c for c in suite.iter("testcase") if c.find("failure") is not None)
+    assert failure.get("name") == "blind-seat_silent-seed0"
+    assert any(p.get("name").startswith("fault 0 zenoh.wrench_dropout") for p in failure.iter("property"))
+
+
+def test_plugin_fixtures_run_a_scenario_with_faults_and_assert_on_events(pytester):
+    pytester.makepyfile(
+        f"""
+        import pytest
+        from hil.testing import assert_no_reaction, assert_passed, assert_supervisor, assert_metric
+
+        @pytest.mark.hil
+        def test_imu_loss(hil_rig, hil_scenario):
+            scenario = hil_scenario(
+                r"{ROOT / "configs/scenarios/bench_smoke.toml"}",
+                duration=1.5,
+                criteria=[],
+                faults=[{{"kind": "can.drop", "message": "IMU_RATE", "at": 1.0,
+                          "expect": {{"state": "ESTOP", "within": 0.05}}}}],
+            )
+            result = hil_rig.run(scenario)
+            assert_passed(result)
+            assert_no_reaction(result, after=1.2)  # latched: nothing after the e-stop
+            event = assert_supervisor(result, state="ESTOP", after=1.0, within=0.05)
+            assert 1.0 < event.t < 1.05
+            assert_metric(result, "max_tilt_deg", plane="both", after=1.2, max=3.0)
+            with pytest.raises(AssertionError, match="expected the supervisor to enter STOPPING/TILT"):
+                assert_supervisor(result, state="STOPPING", cause="TILT")
+        """
+    )
+    result = pytester.runpytest_subprocess("-p", "no:cacheprovider", "-m", "hil")
+    result.assert_outcomes(passed=1)
