@@ -92,7 +92,8 @@ def main() -> None:
             f"{walls[workers] / len(cases):.1f} s per case, {passed}/{len(cases)} passed"
         )
     print(
-        f"speed-up with {args.workers} workers: x{walls[1] / walls[args.workers]:.2f} (cpus: {os.cpu_count()})"
+        f"speed-up with {args.workers} workers: x{walls[1] / walls[args.workers]:.2f} "
+        f"(cpus: {os.cpu_count()})"
     )
 
 
