@@ -1,7 +1,7 @@
 """What faults cost, and what parallel workers buy a campaign.
 
-1. Tick cost: the rig's tick with no controller (sensors sampled, frames sent, seat published, no wait)
-   with no faults, then with one active fault of each family that touches every tick (a sensor, a CAN
+1. Tick cost (best of three interleaved rounds): the rig's tick with no controller (sensors sampled,
+   frames sent, seat published, no wait) with no faults, then with one active fault of each family that touches every tick (a sensor, a CAN
    frame, a zenoh topic fault) and with all three; µs per tick and the ratio to the fault-free tick
    measured in the same run.
 2. Campaign: `configs/campaigns/smoke.toml` (or --campaign FILE) run on 1 and on N worker processes; wall
@@ -70,11 +70,14 @@ def main() -> None:
     logging.basicConfig(level=logging.ERROR)
 
     session = open_session(LOOPBACK, "hub", free_loopback_endpoint())
+    costs = dict.fromkeys(FAULTS, float("inf"))
     try:
-        costs = {name: tick_cost(session, faults, args.ticks) for name, faults in FAULTS.items()}
+        for _ in range(3):  # interleaved rounds, best of three: this machine is shared and noisy
+            for name, faults in FAULTS.items():
+                costs[name] = min(costs[name], tick_cost(session, faults, args.ticks))
     finally:
         session.close()
-    print(f"rig tick without a controller ({args.ticks} ticks), µs per tick:")
+    print(f"rig tick without a controller ({args.ticks} ticks, best of 3 rounds), µs per tick:")
     for name, us in costs.items():
         print(f"  {name:10s} {us:8.1f} µs   x{us / costs['none']:.2f} of the fault-free tick")
 

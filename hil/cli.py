@@ -266,6 +266,11 @@ def _serve(args: argparse.Namespace) -> int:
 
 
 def _rig(args: argparse.Namespace) -> int:
+    return _ask_service(args, args.action, args.arg or "", f"pure-hil rig {args.action}")
+
+
+def _ask_service(args: argparse.Namespace, name: str, payload: str, who: str) -> int:
+    """One query to a running `pure-hil serve` (pure/rig/NAME); prints its JSON reply; 0 if it says ok."""
     import json
 
     from drivers.keys import Keys
@@ -273,11 +278,11 @@ def _rig(args: argparse.Namespace) -> int:
 
     session = open_session(args.zenoh or LOOPBACK, "member", args.hub)
     try:
-        replies = list(session.get(Keys().rig(args.action), payload=args.arg or "", timeout=10.0))
+        replies = list(session.get(Keys().rig(name), payload=payload, timeout=10.0))
     finally:
         session.close()
     if not replies or replies[0].ok is None:
-        print(f"pure-hil rig {args.action}: no answer (is `pure-hil serve` running?)", file=sys.stderr)
+        print(f"{who}: no answer (is `pure-hil serve` running?)", file=sys.stderr)
         return 1
     body = replies[0].ok.payload.to_string()
     print(body)
@@ -288,8 +293,6 @@ def _fault(args: argparse.Namespace) -> int:
     """The fault catalog, or live injection into a running `pure-hil serve` over its zenoh API."""
     import json
 
-    from drivers.keys import Keys
-    from drivers.zenoh_link import LOOPBACK, open_session
     from hil.faults import describe_catalog, parse_fault
 
     if args.action == "list":
@@ -319,17 +322,7 @@ def _fault(args: argparse.Namespace) -> int:
         key, payload = "fault/inject", json.dumps(fault)
     else:
         key, payload = "fault/clear", "" if args.kind is None else args.kind
-    session = open_session(args.zenoh or LOOPBACK, "member", args.hub)
-    try:
-        replies = list(session.get(Keys().rig(key), payload=payload, timeout=10.0))
-    finally:
-        session.close()
-    if not replies or replies[0].ok is None:
-        print(f"pure-hil fault {args.action}: no answer (is `pure-hil serve` running?)", file=sys.stderr)
-        return 1
-    body = replies[0].ok.payload.to_string()
-    print(body)
-    return 0 if json.loads(body).get("ok") else 1
+    return _ask_service(args, key, payload, f"pure-hil fault {args.action}")
 
 
 def _supervisor(args: argparse.Namespace) -> int:
