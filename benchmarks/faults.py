@@ -1,9 +1,9 @@
 """What faults cost, and what parallel workers buy a campaign.
 
 1. Tick cost (best of three interleaved rounds): the rig's tick with no controller (sensors sampled,
-   frames sent, seat published, no wait) with no faults, then with one active fault of each family that touches every tick (a sensor, a CAN
-   frame, a zenoh topic fault) and with all three; µs per tick and the ratio to the fault-free tick
-   measured in the same run.
+   frames sent, seat published, no wait) with no faults, then with one active fault of each family that
+   touches every tick (a sensor, a CAN frame, a zenoh topic fault) and with all three; µs per tick and
+   the ratio to the fault-free tick measured in the same run.
 2. Campaign: `configs/campaigns/smoke.toml` (or --campaign FILE) run on 1 and on N worker processes; wall
    time per case and the speed-up (cases are independent lockstep runs; workers are spawned processes).
 
