@@ -162,10 +162,7 @@ class Rig:
         plant.step()
         k = plant.tick
         faults.update(plant.t)
-        feedback, imu, tes = plant.sample_drives(), plant.sample_imu(), plant.sample_tes()
-        silent: set[str] = set()
-        if faults.sensing:
-            feedback, imu, tes, silent = faults.sensors(plant, feedback, imu, tes)
+        feedback, imu, tes, silent = self._sample()
         # zenoh first: its delivery to the controller overlaps with sending the CAN frames.
         self._publish_sc_request(k)
         self._publish_operator()
@@ -188,6 +185,15 @@ class Rig:
         self.stats.ticks += 1
 
     # ------------------------------------------------------------------------------------------ outputs
+    def _sample(self):
+        """The sensors' outputs of this tick as the (maybe faulty) sensors report them, and the frames
+        that stay silent."""
+        plant = self.plant
+        feedback, imu, tes = plant.sample_drives(), plant.sample_imu(), plant.sample_tes()
+        if self.faults.sensing:
+            return self.faults.sensors(plant, feedback, imu, tes)
+        return feedback, imu, tes, set()
+
     def _send_sensors(self, k: int, feedback, imu, silent: set[str]) -> None:
         plant, send = self.plant, self.can.send
         for name, fb, motor in zip(FEEDBACK, feedback, plant.drives.motors, strict=True):

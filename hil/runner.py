@@ -326,6 +326,7 @@ def format_table(result: RunResult) -> str:
     widths = [max(len(r[i]) for r in [head, *rows]) for i in range(4)]
     lines = ["  ".join(h.ljust(w) for h, w in zip(head, widths, strict=True))]
     lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in rows]
+    lines += [f"  {v.criterion}: {v.note}" for v in result.verdicts if not v.passed and v.note]
     tr = result.trace
     lines.append(
         f"{result.scenario.name}: {tr.t[-1] if len(tr.t) else 0:.2f} s simulated "
