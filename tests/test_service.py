@@ -142,3 +142,50 @@ def test_live_fault_injection_lands_in_the_event_log_and_the_recording(service, 
     rrd = tmp_path / last["out"].split("/")[-1] / "recording.rrd"
     rows = sum(c.num_rows for c in RrdReader(str(rrd)).stream() if c.entity_path == "/events/faults")
     assert rows == 4, "every fault event in the rerun recording"
+
+
+def test_fault_cli_lists_injects_and_clears_through_the_service(tmp_path, capsys):
+    from hil.cli import main
+    from hil.faults import CATALOG
+
+    assert main(["fault", "list"]) == 0
+    listing = capsys.readouterr().out
+    assert all(kind in listing for kind in CATALOG)
+    assert main(["fault", "inject", "sensor.bias", "--param", "channel=imu.pitch"]) == 2
+    assert "Object missing required field `offset`" in capsys.readouterr().err
+    assert main(["fault", "inject", "sensor.bias", "--param", "offset"]) == 2
+    assert "expected NAME=VALUE" in capsys.readouterr().err
+
+    endpoint = hub_endpoint()
+    hub = open_session(role="hub", hub_endpoint=endpoint)
+    svc = RigService(hub, out_root=tmp_path, hub_endpoint=endpoint)
+    try:
+        args = ["--hub", endpoint]
+        assert main(["fault", "clear", *args]) == 1, "no run to clear faults in"
+        assert "no run in progress" in capsys.readouterr().out
+        client = open_session(role="member", hub_endpoint=endpoint)
+        assert ask(client, "start", SHORT)["ok"]
+        client.close()
+        cmd = [
+            "fault",
+            "inject",
+            "can.drop",
+            "--param",
+            "message=IMU_RATE",
+            "--param",
+            "rate=0.2",
+            "--at",
+            "0.5",
+        ]
+        assert main([*cmd, "--duration", "1", *args]) == 0
+        reply = json.loads(capsys.readouterr().out)
+        assert reply["ok"] and reply["fault"] == "can.drop rate=0.2 message=IMU_RATE"
+        assert main(["fault", "clear", *args]) == 0
+        assert json.loads(capsys.readouterr().out) == {"ok": True, "cleared": "all"}
+        svc._stop.set()
+        assert svc.wait_idle(30)
+    finally:
+        svc.close()
+        hub.close()
+    events = [(e["kind"], e["action"]) for e in svc.last["fault_events"]]
+    assert events[0] == ("can.drop", "inject") and events[-1][1] in ("clear", "end")
