@@ -606,7 +606,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except ValueError as exc:
         from drivers.zenoh_link import ZenohConfigError
+        from hil.faults import FaultError
 
+        if isinstance(exc, FaultError):
+            print(f"pure-hil: fault error: {exc}", file=sys.stderr)
+            return 2
         if not isinstance(exc, ZenohConfigError):
             raise
         print(f"pure-hil: zenoh config error: {exc}", file=sys.stderr)

@@ -38,3 +38,13 @@ def test_spawn_controller_needs_a_shared_bus(capsys):
 
     assert main(["run", "configs/scenarios/balance.toml", "--spawn-controller"]) == 2
     assert "needs a bus shared with another process" in capsys.readouterr().err
+
+
+def test_a_fault_that_cannot_act_on_the_rig_exits_2_naming_it(tmp_path, capsys):
+    scenario = tmp_path / "bad_fault.toml"
+    scenario.write_text(
+        'name = "bad_fault"\nduration = 0.5\n[[faults]]\nkind = "can.drop"\nmessage = "IMU_RATES"\nat = 0.1\n'
+    )
+    assert main(["run", str(scenario), "--quiet", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "fault error: fault 0 (can.drop message=IMU_RATES): can.drop: no message 'IMU_RATES'" in err

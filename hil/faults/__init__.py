@@ -13,7 +13,7 @@ from typing import Union
 import msgspec
 
 from hil.faults import actuators, frames, processes, sensors, topics
-from hil.faults.base import Expect, FaultEvent, FaultSpec, FaultState
+from hil.faults.base import Expect, FaultError, FaultEvent, FaultSpec, FaultState
 from hil.faults.runtime import FaultSet
 
 FAMILIES = {
@@ -63,4 +63,14 @@ def describe_catalog() -> str:
     return "\n".join(lines)
 
 
-__all__ = ["CATALOG", "Expect", "Fault", "FaultEvent", "FaultSet", "FaultSpec", "FaultState", "parse_fault"]
+__all__ = [
+    "CATALOG",
+    "Expect",
+    "Fault",
+    "FaultError",
+    "FaultEvent",
+    "FaultSet",
+    "FaultSpec",
+    "FaultState",
+    "parse_fault",
+]

@@ -57,6 +57,10 @@ class Expect(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tr
         return bool(self.state or self.cause)
 
 
+class FaultError(ValueError):
+    """A fault that cannot act on this rig (an unknown message, a process that is not in this process)."""
+
+
 class FaultSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True, tag_field="kind"):
     """Common to every fault: active from `at` (s) for `duration` (s; none: to the end of the run)."""
 

@@ -19,7 +19,7 @@ import msgspec
 import numpy as np
 
 from drivers.schemas import TesWrench
-from hil.faults.base import FaultEvent, FaultSpec, FaultState
+from hil.faults.base import FaultError, FaultEvent, FaultSpec, FaultState
 from hil.faults.frames import RX_MESSAGES, Babble, BusOff, CanFault
 from hil.faults.processes import ProcessFault
 from hil.faults.sensors import Readings, SensorFault
@@ -55,8 +55,11 @@ class FaultSet:
     def attach(self, rig: Rig) -> None:
         """Check every fault against the rig it will act on (unknown messages, missing processes)."""
         self.rig = rig
-        for spec in self.specs:
-            spec.validate(rig)
+        for n, spec in enumerate(self.specs):
+            try:
+                spec.validate(rig)
+            except ValueError as exc:
+                raise FaultError(f"fault {n} ({spec.describe()}): {exc}") from None
 
     def _add(self, spec: FaultSpec) -> int:
         n = len(self.specs)
