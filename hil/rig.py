@@ -110,8 +110,6 @@ class Rig:
         self.bitrate = bitrate
         self._held: deque[tuple[int, int, float, bool]] = deque()
         """Commands a loop-delay fault holds back: (due tick, drive, torque, enable)."""
-        self._fence = True
-        """The seat sample of this tick went out intact (the supervisor may wait for it in lockstep)."""
         self.stats = TickStats()
         self.telemetry = link.subscribe(self.keys.controller_telemetry, ControllerTelemetry, capacity=1 << 16)
         keys = self.keys
@@ -166,7 +164,7 @@ class Rig:
         # zenoh first: its delivery to the controller overlaps with sending the CAN frames.
         self._publish_sc_request(k)
         self._publish_operator()
-        self._publish_tes(k, tes)
+        fence = self._publish_tes(k, tes)
         if faults:
             self._publish_fault_traffic(k)
         self._send_sensors(k, feedback, imu, silent)
@@ -179,7 +177,7 @@ class Rig:
         self._collect_commands(k, deadline, lockstep, faults.command_delay())
         self._deliver_held(k)
         if self.supervisor is not None:
-            self.supervisor.update(plant.t, fence=k if lockstep and self._fence else None)
+            self.supervisor.update(plant.t, fence=k if lockstep and fence else None)
         self._drain_nowait()
         self._update_permission()
         self.stats.ticks += 1
@@ -226,7 +224,9 @@ class Rig:
             self.zenoh_inputs.append((k, key, data))
 
     def _put(self, k: int, key: str, payload: Payload) -> None:
-        data = encode(payload)
+        self._put_bytes(k, key, encode(payload))
+
+    def _put_bytes(self, k: int, key: str, data: bytes) -> None:
         self.link.publisher(key).put(data)
         self._record(k, key, data)
 
@@ -234,24 +234,20 @@ class Rig:
         self._seq[key] += 1
         return self._seq[key]
 
-    def _publish_tes(self, k: int, s) -> None:
+    def _publish_tes(self, k: int, s) -> bool:
+        """Publish the seat sample of tick k (as seat faults alter it); True if it went out intact, so
+        the supervisor may wait for it in lockstep."""
         key = self.keys.tes_wrench
         payload = TesWrench(seq=k, stamp=self.plant.t, force=s.force, moment=s.moment, cop=s.cop)
-        if not self.faults.topical:
-            self._put(k, key, payload)
-            self._fence = True
-            return
         data = encode(payload)
-        sent = self.faults.wrench(payload, data)
+        sent = self.faults.wrench(payload, data) if self.faults.topical else [data]
         for d in sent:
-            self.link.publisher(key).put(d)
-            self._record(k, key, d)
-        self._fence = any(_seq_at_least(d, k) for d in sent)
+            self._put_bytes(k, key, d)
+        return sent == [data] or any(_seq_at_least(d, k) for d in sent)
 
     def _publish_fault_traffic(self, k: int) -> None:
         for key, data in self.faults.extra_puts():
-            self.link.publisher(key).put(data)
-            self._record(k, key, data)
+            self._put_bytes(k, key, data)
 
     def _publish_sc_request(self, k: int) -> None:
         current = None

@@ -157,6 +157,11 @@ class TesModel:
     def sample(self, wrench) -> TesSample:
         """wrench: true [Fx, Fy, Fz, Mx, My, Mz] of the rider on the seat at P, body axes."""
         cells = self.to_cells @ np.array(wrench) + self.p.cell_noise * np.array(self.noise.draw())
+        return self.from_cells(cells)
+
+    def from_cells(self, cells) -> TesSample:
+        """What the seat reports for these cell readings (N): wrench through its calibration, and COP."""
+        cells = np.asarray(cells, float)
         fx, fy, fz, mx, my, mz = (self._neg_calibration @ cells).tolist()
         cop_xy = cop(fx, fy, fz, mx, my, self.seat_height)
         return TesSample((fx, fy, fz), (mx, my, mz), cop_xy, tuple(cells.tolist()))  # type: ignore[arg-type]

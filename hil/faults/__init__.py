@@ -24,9 +24,7 @@ FAMILIES = {
     "processes": processes.FAULTS,
 }
 CATALOG: dict[str, type[FaultSpec]] = {
-    msgspec.inspect.type_info(cls).tag: cls  # type: ignore[attr-defined]
-    for family in FAMILIES.values()
-    for cls in family
+    cls.__struct_config__.tag: cls for family in FAMILIES.values() for cls in family
 }
 """kind -> fault class."""
 
@@ -51,7 +49,7 @@ def describe_catalog() -> str:
     for family, classes in FAMILIES.items():
         lines.append(f"{family}:")
         for cls in classes:
-            tag = msgspec.inspect.type_info(cls).tag  # type: ignore[attr-defined]
+            tag = cls.__struct_config__.tag
             params = []
             for f in msgspec.structs.fields(cls):
                 if f.name in ("at", "duration", "expect"):

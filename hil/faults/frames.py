@@ -210,9 +210,6 @@ class Babble(FaultSpec, frozen=True, kw_only=True, tag="can.babble"):
         for _ in range(self.per_tick):
             rig.can.transmit("BABBLE", msg)
 
-    def starves(self, rig: Rig, msg: can.Message) -> bool:
-        return msg.arbitration_id > self.can_id and self.saturates(rig)
-
 
 class BusOff(FaultSpec, frozen=True, kw_only=True, tag="can.bus_off"):
     """The rig's node (the drives and the IMU) goes bus-off: it neither sends nor receives until it

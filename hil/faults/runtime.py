@@ -108,6 +108,7 @@ class FaultSet:
             self._take_requests(t)
         rig = self.rig
         active = []
+        changed = False
         for n, (spec, state) in enumerate(zip(self.specs, self.states, strict=True)):
             on = n not in self._cleared and spec.window(t) and state.remaining != 0
             if on and not state.active:
@@ -116,14 +117,17 @@ class FaultSet:
                     state.remaining = spec.count
                 spec.start(rig, state)
                 self._log(t, n, "start", spec.describe())
+                changed = True
             elif not on and state.active:
                 state.active, state.ended = False, t
                 spec.stop(rig, state)
                 self._log(t, n, "end", "")
+                changed = True
             if state.active:
                 active.append(n)
-        self._active = active
-        self._index()
+        if changed:
+            self._active = active
+            self._index()
         for n in self._babblers:
             self.specs[n].babble(rig)  # type: ignore[attr-defined]
 
@@ -136,6 +140,9 @@ class FaultSet:
         self._babblers = [n for n in active if isinstance(specs[n], Babble)]
         self._bus_off = any(isinstance(specs[n], BusOff) for n in active)
         rig = self.rig
+        saturating = [specs[n].can_id for n in self._babblers if specs[n].saturates(rig)]  # type: ignore[attr-defined]
+        self._starve_above = min(saturating) if saturating else None
+        """Frames with a higher id lose every arbitration to a babbler that fills the bus."""
         if rig is not None:
             hooked = bool(self._frames or self._babblers or self._bus_off)
             rig.can.tx_hook = self.tx if hooked else None
@@ -165,7 +172,7 @@ class FaultSet:
         for n in self._sensors:
             self.specs[n].apply(readings, plant.t, self.states[n])  # type: ignore[attr-defined]
         return (
-            readings.feedback(plant.robot.encoder.word_bits),
+            readings.feedback(plant.robot.encoder),
             readings.imu(),
             readings.tes(plant, tes),
             readings.silent,
@@ -189,10 +196,7 @@ class FaultSet:
                 yield spec, state
 
     def _starved(self, msg: can.Message) -> bool:
-        return self._bus_off or any(
-            self.specs[n].starves(self.rig, msg)  # type: ignore[attr-defined]
-            for n in self._babblers
-        )
+        return self._bus_off or (self._starve_above is not None and msg.arbitration_id > self._starve_above)
 
     def tx(self, name: str, msg: can.Message) -> list[can.Message]:
         if self._starved(msg):

@@ -21,10 +21,9 @@ from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar, Literal
 
-import numpy as np
-
 from hil.faults.base import FaultSpec, FaultState, Positive, Probability
-from plant.sensors import DriveFeedback, ImuSample, TesSample, cop
+from plant.params import Encoder
+from plant.sensors import DriveFeedback, ImuSample, TesSample, counts_from_angle
 
 if TYPE_CHECKING:
     from plant.ballbot import Plant
@@ -60,7 +59,6 @@ class Readings:
 
     values: list[float]
     silent: set[str]
-    counts_per_rad: float
 
     @classmethod
     def of(cls, plant: Plant, fb, imu: ImuSample, tes: TesSample) -> Readings:
@@ -74,17 +72,11 @@ class Readings:
             *imu.accel,
             *tes.cells,
         ]
-        return cls(values, set(), per_rad)
+        return cls(values, set())
 
-    def __getitem__(self, channel: str) -> float:
-        return self.values[_INDEX[channel]]
-
-    def feedback(self, word_bits: int) -> tuple[DriveFeedback, ...]:
-        v, half = self.values, 1 << (word_bits - 1)
-        return tuple(
-            DriveFeedback((round(v[i] * self.counts_per_rad) + half) % (2 * half) - half, v[3 + i], v[6 + i])
-            for i in range(3)
-        )
+    def feedback(self, encoder: Encoder) -> tuple[DriveFeedback, ...]:
+        v = self.values
+        return tuple(DriveFeedback(counts_from_angle(v[i], encoder), v[3 + i], v[6 + i]) for i in range(3))
 
     def imu(self) -> ImuSample:
         v = self.values
@@ -93,11 +85,7 @@ class Readings:
     def tes(self, plant: Plant, original: TesSample) -> TesSample:
         """The seat's output from the (possibly faulty) cells, through the seat's own calibration."""
         cells = self.values[18:24]
-        if tuple(cells) == original.cells:
-            return original
-        model = plant.tes_model
-        fx, fy, fz, mx, my, mz = (model._neg_calibration @ np.array(cells)).tolist()
-        return TesSample((fx, fy, fz), (mx, my, mz), cop(fx, fy, fz, mx, my, model.seat_height), tuple(cells))  # type: ignore[arg-type]
+        return original if tuple(cells) == original.cells else plant.tes_model.from_cells(cells)
 
 
 class SensorFault(FaultSpec, frozen=True, kw_only=True):
