@@ -83,6 +83,10 @@ PLANE_METRICS = {
 }
 
 
+CHECK_TOLERANCE = 1e-9
+"""Bounds are met within float rounding (far below any quantity a criterion measures)."""
+
+
 class Criterion(_Record):
     """A measurement and its validator: `min <= value <= max`, or `value == equals`."""
 
@@ -109,7 +113,9 @@ class Criterion(_Record):
     def check(self, value: float) -> bool:
         if self.equals is not None:
             return value == self.equals
-        return (self.min is None or value >= self.min) and (self.max is None or value <= self.max)
+        # Times are differences of tick times: 1.5025 - 1.5 is 0.0025000000000004, and one tick must pass.
+        tol = CHECK_TOLERANCE
+        return (self.min is None or value >= self.min - tol) and (self.max is None or value <= self.max + tol)
 
     @property
     def label(self) -> str:

@@ -182,3 +182,13 @@ def test_replay_reproduces_the_controllers_commands(tmp_path):
     (tmp_path / "summary.json").write_text(json.dumps(summary))
     other = replay(tmp_path, hub_endpoint=hub_endpoint(), limit=400)
     assert other.mismatches and other.mismatches[0].startswith("tick ")
+
+
+def test_criterion_bounds_hold_within_float_rounding_only():
+    from hil.scenario import Criterion
+
+    one_tick = Criterion(metric="safety_reaction", cause="OPERATOR_ESTOP", after=1.5, max=0.0025)
+    assert one_tick.check(1.5025 - 1.5), "0.0025000000000004: one tick, as the bound says"
+    assert not one_tick.check(0.0025 + 1e-6)
+    assert not Criterion(metric="max_speed", min=0.5).check(0.5 - 1e-6)
+    assert not one_tick.check(float("nan"))
