@@ -1,4 +1,9 @@
-"""Motor drives: torque command -> current-loop lag -> torque limit, with enable and a command watchdog.
+"""Motor drives: torque command -> current-loop lag -> torque limit, with enable and a command watchdog;
+and the main contactor in their power feed.
+
+Two ways to remove torque, as two-channel stops are built (IEC 60204-1, ISO 13849): each drive's own
+power stage (disabled by its enable, its watchdog or the loss of the supervisor's permission: safe torque
+off), and the main contactor that cuts the DC bus of all three whatever their own state.
 
 Time comes in as an argument (the plant has no clock). Torques are at the motor shaft, in Nm; the gear
 ratio and direction live in the omniwheel map.
@@ -35,6 +40,8 @@ class MotorDrive:
     stuck_enabled: bool = False
     """A failed power stage that cannot be switched off: disable, loss of permission and the watchdog are
     ignored, the last setpoint is held."""
+    bus_powered: bool = True
+    """The DC bus is live (the main contactor is closed): without it the power stage makes no torque."""
 
     def set_command(self, torque: float, enable: bool, now: float) -> None:
         """A command frame arrived: store the setpoint and feed the watchdog (ignored without permission:
@@ -54,8 +61,8 @@ class MotorDrive:
             self.state = DriveState.ENABLED
         elif self.state is DriveState.ENABLED and now - self.last_command_time > self.params.watchdog_timeout:
             self.state = DriveState.WATCHDOG
-        if self.state is not DriveState.ENABLED:
-            # Power stage off: no torque, at once.
+        if self.state is not DriveState.ENABLED or not self.bus_powered:
+            # Power stage off or no DC bus: no torque, at once.
             self.torque = 0.0
             return 0.0
         limit = self.params.torque_limit
@@ -76,10 +83,19 @@ class MotorDrive:
 
 
 class DriveArray:
-    """The three drives of the robot."""
+    """The three drives of the robot and the main contactor in their power feed."""
 
     def __init__(self, params: Drive):
         self.motors = tuple(MotorDrive(params) for _ in range(3))
+        self.contactor_closed = True
+        self.contactor_welded = False
+        """A failed contactor whose contacts stay closed whatever it is told."""
+
+    def set_contactor(self, closed: bool) -> None:
+        """Close or open the main contactor: open, no drive makes torque whatever its own state."""
+        self.contactor_closed = closed or self.contactor_welded
+        for m in self.motors:
+            m.bus_powered = self.contactor_closed
 
     def set_commands(self, torques: tuple[float, float, float], enable: bool, now: float) -> None:
         for m, t in zip(self.motors, torques, strict=True):
@@ -95,8 +111,8 @@ class DriveArray:
 
     @property
     def powered(self) -> bool:
-        """Any drive's power stage is on."""
-        return any(m.state is DriveState.ENABLED for m in self.motors)
+        """Any drive can make torque: its power stage is on and the DC bus is live."""
+        return self.contactor_closed and any(m.state is DriveState.ENABLED for m in self.motors)
 
     @property
     def torques(self) -> tuple[float, float, float]:

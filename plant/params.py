@@ -78,6 +78,9 @@ class Drive(_Record):
     """The drive disables itself when no command arrives for this long, s."""
     permission_timeout: Positive = 0.05
     """The drive turns off when the supervisor's SUPERVISOR_ESTOP frame (100 Hz) is silent this long, s."""
+    contactor_timeout: Positive = 0.1
+    """The main contactor opens when SUPERVISOR_ESTOP is silent this long, s: the second channel, slower
+    than the drives' own permission so that the first acts first."""
     torque_noise: NonNegative = 0.005
     """1σ of the measured-torque feedback, Nm."""
     velocity_noise: NonNegative = 0.05
@@ -177,6 +180,9 @@ class RiderParams(_Record):
     """Largest twisting moment the rider can put on the seat, Nm."""
     max_lean_rate_deg: Positive = 40.0
     """Fastest change of the intended lean, deg/s."""
+    max_lean_accel_deg: Positive = 400.0
+    """Fastest change of the intended lean's rate, deg/s² [EST]: a trunk cannot change its angular velocity
+    at once (40 deg/s is reached in 0.1 s), so the hip torque and the seat's load change smoothly."""
     trunk_stiffness: Positive = 800.0
     """Proportional gain of the rider's lean control, Nm/rad."""
     trunk_damping: Positive = 120.0

@@ -4,7 +4,9 @@ A profile is a sequence of segments (ramp, hold, step, sine, adversarial) played
 segment the final value holds. Lean values are degrees of torso lean relative to the chassis (positive:
 forward in the pitch plane, toward −y in the roll plane); twist values are the twisting moment on the
 seat in Nm (positive: about +z). The rider cannot exceed their capability (RiderParams): lean targets are
-clipped to ±max_lean and change no faster than max_lean_rate; hip torque saturates at max_hip_torque.
+clipped to ±max_lean, the lean they intend changes no faster than max_lean_rate and its rate no faster
+than max_lean_accel (a trunk has inertia and muscles take time: the hip torque never steps); hip torque
+saturates at max_hip_torque.
 """
 
 from __future__ import annotations
@@ -115,34 +117,51 @@ class Profile:
         return side
 
 
+SLIP_TIME = 0.03
+"""s: time constant of a sudden weight shift (a slip on the seat): fast, but a body's mass cannot jump."""
+
+
 class TorsoController:
-    """One plane of the rider: rate-limited lean command and the bounded PD that produces hip torque."""
+    """One plane of the rider: a rate- and acceleration-limited lean command and the bounded PD that
+    produces hip torque."""
 
     def __init__(self, rider: RiderParams, hat_mass: float, hat_com: float, profile: Profile):
         self.profile = profile
         self.max_lean = math.radians(rider.max_lean_deg)
         self.max_rate = math.radians(rider.max_lean_rate_deg)
+        self.max_accel = math.radians(rider.max_lean_accel_deg)
         self.kp, self.kd = rider.trunk_stiffness, rider.trunk_damping
         self.max_torque = rider.max_hip_torque
         self.gravity = 9.80665 * hat_mass * hat_com
         self.lean_cmd = 0.0
         self.lean_rate_cmd = 0.0
         self.shift = 0.0
-        """A sudden shift of the rider's weight (rad of lean), outside the rate limit (a fault)."""
+        """A sudden shift of the rider's weight (rad of lean), outside the rate limit (a fault). The body's
+        mass still takes time to move: the shift comes in with the time constant SLIP_TIME."""
+        self._shifted = 0.0
 
     def update(self, t: float, dt: float, speed: float) -> None:
         """Move the lean command toward the profile's target (once per tick)."""
+        self._shifted += (self.shift - self._shifted) * (1.0 - math.exp(-dt / SLIP_TIME))
         target = math.radians(self.profile.target(t, speed, math.degrees(self.max_lean)))
-        target = min(max(target, -self.max_lean), self.max_lean)
-        step = min(max(target - self.lean_cmd, -self.max_rate * dt), self.max_rate * dt)
-        self.lean_cmd += step
-        self.lean_rate_cmd = step / dt
+        error = min(max(target, -self.max_lean), self.max_lean) - self.lean_cmd
+        dv = self.max_accel * dt
+        if abs(error) <= abs(self.lean_rate_cmd) * dt and abs(self.lean_rate_cmd) <= dv:
+            self.lean_cmd += error  # arrived: at rest on the target
+            self.lean_rate_cmd = 0.0
+            return
+        # The fastest rate from which the rider can still stop at the target braking tick by tick (the
+        # discrete form of √(2 a |error|)), approached no faster than the acceleration limit allows.
+        stop = dv * (math.sqrt(0.25 + 2.0 * abs(error) / (dv * dt)) - 0.5)
+        wanted = math.copysign(min(self.max_rate, stop), error)
+        self.lean_rate_cmd += min(max(wanted - self.lean_rate_cmd, -dv), dv)
+        self.lean_cmd += self.lean_rate_cmd * dt
 
     def hip_torque(self, torso_angle: float, lean: float, lean_rate: float) -> float:
         """Hip torque on the torso: gravity compensation of the rider's own torso + PD, saturated."""
         u = (
             -self.gravity * math.sin(torso_angle)
-            + self.kp * (self.lean_cmd + self.shift - lean)
+            + self.kp * (self.lean_cmd + self._shifted - lean)
             + self.kd * (self.lean_rate_cmd - lean_rate)
         )
         return min(max(u, -self.max_torque), self.max_torque)
