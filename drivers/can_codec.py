@@ -104,6 +104,11 @@ class MessageCodec:
     def has(self, name: str) -> bool:
         return name in self._by_name
 
+    def values(self, signal: str) -> dict[int, str]:
+        """The signal's value table in the DBC (VAL_): raw value -> name; empty if it has none."""
+        choices = self.message.get_signal_by_name(signal).choices or {}
+        return {int(raw): str(name) for raw, name in choices.items()}
+
 
 class Catalog:
     """All messages of a DBC, by name and by frame id."""
