@@ -1,31 +1,36 @@
 """The controller on the wire: CAN frames in, SYNC-triggered computation, torque commands and heartbeat out;
 seat wrench, SC commands and operator commands from zenoh.
 
-Lockstep: before computing tick k the node waits (bounded) for the seat sample of tick k, which the rig
-publishes before SYNC(k); zenoh delivers one session's samples in order, so any SC command the rig side
-published earlier has arrived too. That makes a lockstep run deterministic. In real time it never waits.
+Lockstep: before computing tick k the node waits (bounded) for the rig's fence of tick k (pure/rig/tick k
+and every payload it counts on the keys the node reads: drivers/zenoh_link.py `Fence`), which the rig puts
+after every zenoh input of tick k and before SYNC(k). The seat sample and any SC command of that tick have
+then arrived (or never will: a fault withheld them). That makes a lockstep run deterministic. In real time
+it never waits.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
-import time
 
 from controller.core import Controller, Fault, Output, ScInput, State, Wrench
 from drivers.can_bus import CanNode, Received
 from drivers.keys import Keys
 from drivers.schemas import ControllerCommand, ControllerTelemetry, ScCommand, TesWrench
-from drivers.zenoh_link import ZenohLink
+from drivers.zenoh_link import Fence, ZenohLink
 
 log = logging.getLogger(__name__)
 
 TICK_MODULO = 1 << 16
 DRIVE_COMMANDS = ("DRIVE1_COMMAND", "DRIVE2_COMMAND", "DRIVE3_COMMAND")
 FEEDBACK = {"DRIVE1_FEEDBACK": 0, "DRIVE2_FEEDBACK": 1, "DRIVE3_FEEDBACK": 2}
+SEAT_FLAGGED = frozenset({"WRENCH_IMPLAUSIBLE"})
+"""SUPERVISOR_ESTOP.Reason values that say the seat's wrench is not a rider's: the controller stops using it
+(as if the seat were silent) until the supervisor is back in NORMAL, instead of balancing on a phantom lean
+through the controlled stop."""
 LATE_RUN = 3
-SILENT_TES_WAIT = 0.005
-"""s the lockstep controller waits for the seat once it has been late LATE_RUN ticks in a row."""
+SHORT_WAIT = 0.005
+"""s the lockstep controller waits for the rig's fence once it has been late LATE_RUN ticks in a row."""
 
 
 class ControllerNode:
@@ -41,14 +46,21 @@ class ControllerNode:
         self.controller, self.can, self.link = controller, can, link
         self.keys = keys = keys or link.keys
         self.lockstep, self.tes_wait = lockstep, tes_wait
-        self.tes = link.subscribe(keys.tes_wrench, TesWrench, capacity=64)
+        # The seat's subscription last: the rig starts once it sees it, and a fence needs the others in place.
         self.sc = link.subscribe(keys.sc_command, ScCommand, capacity=16)
         self.operator = link.subscribe(keys.controller_command, ControllerCommand, capacity=16)
+        fence_reads = [self.sc, self.operator]
+        self.fence = Fence(link, fence_reads) if lockstep else None
+        self.tes = link.subscribe(keys.tes_wrench, TesWrench, capacity=64)
+        fence_reads.append(self.tes)
         self.estop = False
+        self.seat_flagged = False
+        reasons = can.catalog["SUPERVISOR_ESTOP"].values("Reason")
+        self._seat_flags = frozenset(code for code, name in reasons.items() if name in SEAT_FLAGGED)
         self.tick: int | None = None
-        self.tes_late = 0
-        self._tes_late_run = 0
-        """Lockstep ticks computed without the seat sample of that tick (the wait timed out)."""
+        self.late = 0
+        """Lockstep ticks computed before the rig's fence of that tick arrived (the wait timed out)."""
+        self._late_run = 0
         self.last_output: Output | None = None
         self._wrench: TesWrench | None = None
         self._sc: ScCommand | None = None
@@ -70,6 +82,10 @@ class ControllerNode:
             est.imu_rate(s["RateX"], s["RateY"], s["RateZ"], t)
         elif rx.name == "SUPERVISOR_ESTOP":
             self.estop = bool(s["Estop"])
+            if int(s["Reason"]) in self._seat_flags:
+                self.seat_flagged = True
+            elif int(s["State"]) == 0:  # NORMAL again (a reset)
+                self.seat_flagged = False
 
     def _time(self) -> float:
         return 0.0 if self.tick is None else self.tick * self.controller.dt
@@ -82,7 +98,7 @@ class ControllerNode:
         t = self._time()
         self._update_zenoh(self.tick)
         wrench, age = None, float("inf")
-        if self._wrench is not None:
+        if self._wrench is not None and not self.seat_flagged:
             wrench = Wrench(self._wrench.force, self._wrench.moment)
             age = max(t - self._wrench.stamp, 0.0)
         sc = None if self._sc is None else ScInput(self._sc.mode, self._sc.speed_cap, self._sc.stamp)
@@ -119,22 +135,12 @@ class ControllerNode:
         for cmd in self.operator.drain():
             if cmd.action == "enable":
                 self.controller.request_enable()
-        if self.lockstep:
-            # Once the seat has been silent for a few ticks (dropped out, stale), wait only briefly: a long
-            # wait per tick would stall the whole lockstep run.
-            wait = self.tes_wait if self._tes_late_run < LATE_RUN else SILENT_TES_WAIT
-            deadline = time.monotonic() + wait
-            late = False
-            while self._wrench is None or self._wrench.seq < tick:
-                self._take_wrench()
-                if self._wrench is not None and self._wrench.seq >= tick:
-                    break
-                remaining = deadline - time.monotonic()
-                if remaining <= 0 or not self.tes.wait(remaining):
-                    late = True
-                    break
-            self.tes_late += late
-            self._tes_late_run = self._tes_late_run + 1 if late else 0
+        if self.fence is not None:
+            # A rig that stopped putting its fence (none on this bus) must not stall every tick.
+            wait = self.tes_wait if self._late_run < LATE_RUN else SHORT_WAIT
+            late = not self.fence.wait(tick, wait)
+            self.late += late
+            self._late_run = self._late_run + 1 if late else 0
         self._take_wrench()
         latest_sc = self.sc.latest()
         if latest_sc is not None:

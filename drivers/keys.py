@@ -57,6 +57,11 @@ class Keys:
         return f"{self.prefix}/rig/telemetry"
 
     @property
+    def rig_tick(self) -> str:
+        """RigTick: lockstep only, the rig has put every zenoh input of a tick (the nodes' fence)."""
+        return f"{self.prefix}/rig/tick"
+
+    @property
     def rig_status(self) -> str:
         """Queryable: the rig service's status."""
         return f"{self.prefix}/rig/status"

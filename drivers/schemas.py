@@ -113,6 +113,15 @@ class ControllerTelemetry(Payload, frozen=True, kw_only=True):
     """Ball torque (x, y, z body axes) before the motor map, Nm."""
 
 
+class RigTick(Payload, frozen=True, kw_only=True):
+    """Lockstep only (pure/rig/tick): the rig has put every zenoh input of tick `seq`. zenoh keeps one key's
+    puts in order but not puts on different keys, so the fence counts: `puts` is how many payloads the rig's
+    process has put on each key so far (seat wrench, SC requests and commands, operator commands, garbage
+    included). A node that has received that many on each key it reads has exactly the tick's inputs."""
+
+    puts: dict[Annotated[str, msgspec.Meta(max_length=200)], Annotated[int, msgspec.Meta(ge=0)]]
+
+
 class RigTelemetry(Payload, frozen=True, kw_only=True):
     """A periodic summary of the plant's truth (for operators and dashboards, never for control)."""
 

@@ -28,7 +28,7 @@ from typing import Generic, Literal, TypeVar
 import zenoh
 
 from drivers.keys import Keys
-from drivers.schemas import Payload, PayloadError, decode, encode
+from drivers.schemas import Payload, PayloadError, RigTick, decode, encode
 
 log = logging.getLogger(__name__)
 
@@ -167,10 +167,20 @@ class Subscription(Generic[P]):
     full); the consumer decodes them on its own thread with `drain()` (all new) or `latest()`, and can
     block in `wait()` until something arrives."""
 
-    def __init__(self, session: zenoh.Session, key: str, payload_type: type[P], capacity: int = 256):
+    def __init__(
+        self,
+        session: zenoh.Session,
+        key: str,
+        payload_type: type[P],
+        capacity: int = 256,
+        arrived: threading.Condition | None = None,
+    ):
         self.key, self.type = key, payload_type
         self._buffer: deque[bytes] = deque(maxlen=capacity)
-        self._arrived = threading.Condition()
+        self._arrived = arrived or threading.Condition(threading.RLock())
+        """Notified on every sample (shared by a link's subscriptions, so one wait can watch them all)."""
+        self.received = 0
+        """Samples that arrived, decodable or not (a lockstep fence counts them)."""
         self._sub = session.declare_subscriber(key, self._on_sample)
         self.accepted = 0
         self.rejected: Counter[str] = Counter()
@@ -181,6 +191,7 @@ class Subscription(Generic[P]):
         data = sample.payload.to_bytes()
         with self._arrived:
             self._buffer.append(data)
+            self.received += 1
             self._arrived.notify_all()
 
     def wait(self, timeout: float) -> bool:
@@ -219,13 +230,20 @@ class Subscription(Generic[P]):
 
 
 class ZenohLink:
-    """A node's zenoh side: publishers declared once per key, typed subscriptions."""
+    """A node's zenoh side: publishers declared once per key, typed subscriptions, and the lockstep fence
+    (every put is counted per key; `put_fence` tells the other nodes how many there were)."""
 
-    def __init__(self, session: zenoh.Session, keys: Keys | None = None):
+    def __init__(self, session: zenoh.Session, keys: Keys | None = None, lossless: bool = False):
+        """lossless: publishers block instead of dropping when zenoh's queue is full (lockstep: an input
+        lost under load would make the run depend on the machine's load)."""
         self.session = session
         self.keys = keys or Keys()
+        self._congestion = zenoh.CongestionControl.BLOCK if lossless else zenoh.CongestionControl.DROP
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._subscriptions: list[Subscription] = []
+        self.arrived = threading.Condition(threading.RLock())
+        self.puts: Counter[str] = Counter()
+        """Payloads put on each key by this link."""
 
     def declare_publishers(self, keys: Iterable[str]) -> None:
         for key in keys:
@@ -234,16 +252,32 @@ class ZenohLink:
     def publisher(self, key: str) -> zenoh.Publisher:
         pub = self._publishers.get(key)
         if pub is None:
-            pub = self._publishers[key] = self.session.declare_publisher(key)
+            pub = self._publishers[key] = self.session.declare_publisher(
+                key, congestion_control=self._congestion
+            )
         return pub
 
     def put(self, key: str, payload: Payload) -> None:
-        self.publisher(key).put(encode(payload))
+        self.put_bytes(key, encode(payload))
+
+    def put_bytes(self, key: str, data: bytes) -> None:
+        self.publisher(key).put(data)
+        self.puts[key] += 1
+
+    def put_fence(self, tick: int, stamp: float) -> None:
+        """Lockstep: every zenoh input of `tick` is out (pure/rig/tick, with this link's put counts)."""
+        self.publisher(self.keys.rig_tick).put(encode(RigTick(seq=tick, stamp=stamp, puts=dict(self.puts))))
 
     def subscribe(self, key: str, payload_type: type[P], capacity: int = 256) -> Subscription[P]:
-        sub = Subscription(self.session, key, payload_type, capacity)
+        sub = Subscription(self.session, key, payload_type, capacity, self.arrived)
         self._subscriptions.append(sub)
         return sub
+
+    def wait_for(self, ready, timeout: float) -> bool:
+        """Block until `ready()` is true (re-checked on every sample to any subscription of this link) or
+        the timeout passes; returns ready()."""
+        with self.arrived:
+            return self.arrived.wait_for(ready, timeout)
 
     def close(self) -> None:
         for sub in self._subscriptions:
@@ -252,3 +286,37 @@ class ZenohLink:
             pub.undeclare()
         self._subscriptions.clear()
         self._publishers.clear()
+
+
+class Fence:
+    """A lockstep node's wait for the rig's tick: pure/rig/tick k has arrived, and so has every payload it
+    counts on the keys this node reads (zenoh may deliver a fence before an earlier put on another key).
+    The counts start together only if the node's subscriptions exist before the rig's first put: declare
+    them before the seat wrench's, whose subscriber the rig waits for. A wait that times out with a count
+    still short takes the shortfall as lost for good, so a lost sample costs one tick, not every tick."""
+
+    def __init__(self, link: ZenohLink, reads: list[Subscription]):
+        self.link, self.reads = link, reads
+        self.ticks = link.subscribe(link.keys.rig_tick, RigTick, capacity=64)
+        self.tick = -1
+        self._puts: dict[str, int] = {}
+        self.lost: Counter[str] = Counter()
+        """Per key, samples the fence counted that never arrived."""
+
+    def _short(self, s: Subscription) -> int:
+        return self._puts.get(s.key, 0) - self.lost[s.key] - s.received
+
+    def _ready(self, k: int) -> bool:
+        for fence in self.ticks.drain():
+            if fence.seq > self.tick:
+                self.tick, self._puts = fence.seq, fence.puts
+        return self.tick >= k and all(self._short(s) <= 0 for s in self.reads)
+
+    def wait(self, k: int, timeout: float) -> bool:
+        """Wait until tick k's inputs are all here (True) or the timeout passes (False)."""
+        if self.link.wait_for(lambda: self._ready(k), timeout):
+            return True
+        if self.tick >= k:
+            for s in self.reads:
+                self.lost[s.key] += max(self._short(s), 0)
+        return False

@@ -2,8 +2,9 @@
 
 The run's CAN log holds every frame; zenoh_inputs.msgpack holds what the rig told the controller over
 zenoh (seat wrench, SC commands) tick by tick. Replay starts the controller under test afresh (lockstep),
-plays the rig's frames through python-can's MessageSync, puts each tick's zenoh inputs before that tick's
-SYNC, and compares the controller's drive commands and heartbeat with the recorded ones, byte for byte.
+plays the rig's frames through python-can's MessageSync, puts each tick's zenoh inputs and the lockstep
+fence before that tick's SYNC, and compares the controller's drive commands and heartbeat with the
+recorded ones, byte for byte.
 A deterministic controller reproduces them exactly; any difference is reported with its tick.
 """
 
@@ -79,7 +80,7 @@ def replay(
     bus_config = BusConfig(channel=private_channel("replay"))
     bus = open_bus(bus_config)
     session = open_session(role="hub", hub_endpoint=hub_endpoint)
-    link = ZenohLink(session)
+    link = ZenohLink(session, lossless=True)  # a lockstep replay must not lose an input
     dut = None
     result = ReplayResult()
     try:
@@ -103,7 +104,8 @@ def replay(
             time.sleep(0.01)
         for i, tick in enumerate(ticks):
             for key, data in inputs.get(first_tick + i, ()):
-                link.publisher(key).put(data)
+                link.put_bytes(key, data)
+            link.put_fence(first_tick + i, 0.0)
             for msg in tick.rig_frames:
                 bus.send(can.Message(arbitration_id=msg.arbitration_id, is_extended_id=False, data=msg.data))
             actual = []

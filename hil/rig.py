@@ -4,12 +4,16 @@ One tick k:
   1. the plant advances one tick under the torques the drives hold;
   2. sensors sample the truth;
   3. faults start or end, and alter the samples, frames and puts of the tick (hil/faults);
-  4. the rig publishes the SC request of the schedule, any operator action due and the seat wrench,
+  4. the rig publishes the SC request of the schedule, any operator action due and the seat wrench (in
+     lockstep then pure/rig/tick k with its put counts: the fence, drivers/zenoh_link.py `Fence`),
      sends drive feedback and IMU frames, then SYNC(k);
-  5. it waits for the three drive commands tagged k (bounded by a wall-clock guard: a miss is counted,
-     never a hang) and hands them to the drives;
+  5. it waits for the three drive commands tagged k and hands them to the drives; in lockstep the tick
+     is over when the controller's heartbeat follows its commands (a command lost on the way is counted
+     missing, not waited for), and a controller that stayed silent for a whole wall-clock guard is not
+     waited for again until it is heard from;
   6. the supervisor (in-process) updates from the same traffic; its SUPERVISOR_ESTOP frame is the drives'
-     permission to run: they turn off when it asserts e-stop or goes silent;
+     permission to run (they turn off when it asserts e-stop or goes silent) and commands the main
+     contactor in their power feed (it opens on Contactor = 0 or a longer silence);
   7. the recorder keeps the tick.
 """
 
@@ -26,10 +30,8 @@ from drivers.schemas import (
     ControllerTelemetry,
     EstopCommand,
     Payload,
-    PayloadError,
     ScRequest,
     TesWrench,
-    decode,
     encode,
 )
 from drivers.zenoh_link import ZenohLink
@@ -44,9 +46,6 @@ FEEDBACK = ("DRIVE1_FEEDBACK", "DRIVE2_FEEDBACK", "DRIVE3_FEEDBACK")
 TORQUE = ("DRIVE1_TORQUE", "DRIVE2_TORQUE", "DRIVE3_TORQUE")
 TORQUE_EVERY = 4  # DRIVEn_TORQUE at 100 Hz on a 400 Hz tick (the DBC's GenMsgCycleTime)
 SC_REPEAT_EVERY = 40  # ticks between repeats of an unchanged SC request (keeps it fresh for the supervisor)
-SILENT_GUARD = 0.005
-"""s to wait per tick once the controller, having answered before, has been silent MAX_SILENT_TICKS in a
-row (it may be dead: the run goes on so the supervisor and the drives can be seen to react)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -74,14 +73,18 @@ class TickStats:
     """Commands tagged with the current tick that did not arrive within the guard."""
     late_commands: int = 0
     """Commands tagged with an older tick (arrived after their tick was given up)."""
+    guards_expired: int = 0
+    """Lockstep ticks that waited out the whole wall-clock guard for the controller (a run under a fault
+    must not wait tick after tick)."""
     controller_states: Counter[int] = field(default_factory=Counter)
     refused_commands: int = 0
     """Enabling commands the drives ignored because the supervisor had not given them permission."""
     permission_lost: int = 0
     """Times the drives lost their permission (e-stop asserted or the supervisor's frame went silent)."""
-
-
-MAX_SILENT_TICKS = 3
+    permission_lost_at: list[float] = field(default_factory=list)
+    """When, in simulated time."""
+    contactor_opened: int = 0
+    """Times the main contactor opened (commanded open, or the supervisor's frame went silent)."""
 
 
 class Rig:
@@ -114,25 +117,29 @@ class Rig:
         self.telemetry = link.subscribe(self.keys.controller_telemetry, ControllerTelemetry, capacity=1 << 16)
         keys = self.keys
         link.declare_publishers(
-            [keys.tes_wrench, keys.sc_request, keys.safety_estop, keys.controller_command]
+            [keys.tes_wrench, keys.sc_request, keys.safety_estop, keys.controller_command, keys.rig_tick]
         )
         self._seq: Counter[str] = Counter()
         self._sc_last: ScStep | None = None
         self._sc_sent_tick = -SC_REPEAT_EVERY
         self._operator_next = 0
-        self._silent_ticks = 0
+        self._silent = False
+        """The controller let a whole guard pass without a word: it is not waited for until it speaks."""
         self._answered = False
         """The controller has answered a tick: only then does silence count (a fresh process may take
         several guards to warm up, especially on an emulated CPU)."""
-        self.permission_timeout = plant.robot.drive.permission_timeout
+        drive = plant.robot.drive
+        self.permission_timeout, self.contactor_timeout = drive.permission_timeout, drive.contactor_timeout
         self._permission_seen = -math.inf
         self._estop_asserted = False
+        self._contactor_commanded = False
         self.safety_state = -1
         """SUPERVISOR_ESTOP.State of the last trusted frame (-1: none yet)."""
         self.safety_states = None
         """With an external supervisor: its pure/safety/state announcements (a Subscription)."""
         self._permitted = False
-        plant.drives.set_permission(False)  # until the supervisor's first frame
+        plant.drives.set_permission(False)  # both paths open until the supervisor's first frame
+        plant.drives.set_contactor(False)
         self.zenoh_inputs: list[tuple[int, str, bytes]] = []
         """Every (tick, key, payload) the controller was sent on zenoh, in the order it could see them
         (what `pure-hil replay` replays)."""
@@ -164,20 +171,22 @@ class Rig:
         # zenoh first: its delivery to the controller overlaps with sending the CAN frames.
         self._publish_sc_request(k)
         self._publish_operator()
-        fence = self._publish_tes(k, tes)
+        self._publish_tes(k, tes)
         if faults:
             self._publish_fault_traffic(k)
+        if lockstep:
+            self.link.put_fence(k, plant.t)
         self._send_sensors(k, feedback, imu, silent)
         faults.flush(plant.t)
         self.can.send("SYNC", {"Tick": k % TICK_MODULO})
         if deadline is None:
             deadline = time.monotonic() + self.command_guard
-        if self._silent_ticks >= MAX_SILENT_TICKS:
-            deadline = min(deadline, time.monotonic() + SILENT_GUARD)
+        if self._silent:
+            deadline = time.monotonic()  # a silent controller: take what is queued, wait for nothing
         self._collect_commands(k, deadline, lockstep, faults.command_delay())
         self._deliver_held(k)
         if self.supervisor is not None:
-            self.supervisor.update(plant.t, fence=k if lockstep and fence else None)
+            self.supervisor.update(plant.t, fence=k if lockstep else None)
         self._drain_nowait()
         self._update_permission()
         self.stats.ticks += 1
@@ -204,6 +213,7 @@ class Rig:
                     "Velocity": fb.velocity,
                     "Enabled": int(motor.state is DriveState.ENABLED),
                     "WatchdogTripped": int(motor.state is DriveState.WATCHDOG),
+                    "BusPowered": int(motor.bus_powered),
                 },
             )
         if k % TORQUE_EVERY == 0:
@@ -227,23 +237,20 @@ class Rig:
         self._put_bytes(k, key, encode(payload))
 
     def _put_bytes(self, k: int, key: str, data: bytes) -> None:
-        self.link.publisher(key).put(data)
+        self.link.put_bytes(key, data)
         self._record(k, key, data)
 
     def _next_seq(self, key: str) -> int:
         self._seq[key] += 1
         return self._seq[key]
 
-    def _publish_tes(self, k: int, s) -> bool:
-        """Publish the seat sample of tick k (as seat faults alter it); True if it went out intact, so
-        the supervisor may wait for it in lockstep."""
+    def _publish_tes(self, k: int, s) -> None:
+        """Publish the seat sample of tick k (as seat faults alter it)."""
         key = self.keys.tes_wrench
         payload = TesWrench(seq=k, stamp=self.plant.t, force=s.force, moment=s.moment, cop=s.cop)
         data = encode(payload)
-        sent = self.faults.wrench(payload, data) if self.faults.topical else [data]
-        for d in sent:
+        for d in self.faults.wrench(payload, data) if self.faults.topical else [data]:
             self._put_bytes(k, key, d)
-        return sent == [data] or any(_seq_at_least(d, k) for d in sent)
 
     def _publish_fault_traffic(self, k: int) -> None:
         for key, data in self.faults.extra_puts():
@@ -297,42 +304,62 @@ class Rig:
         elif rx.name == "SUPERVISOR_ESTOP" and rx.ok:
             self._permission_seen = self.plant.t
             self._estop_asserted = bool(rx.signals["Estop"])
+            self._contactor_commanded = bool(rx.signals["Contactor"])
             self.safety_state = int(rx.signals["State"])
 
     def _update_permission(self) -> None:
-        """The drives run only on a fresh SUPERVISOR_ESTOP frame that does not assert e-stop."""
-        fresh = self.plant.t - self._permission_seen <= self.permission_timeout + 1e-9
-        permitted = fresh and not self._estop_asserted
+        """The drives run only on a fresh SUPERVISOR_ESTOP frame that does not assert e-stop; the main
+        contactor stays closed only on a fresh-enough one that says so (its own, longer timeout)."""
+        drives, age = self.plant.drives, self.plant.t - self._permission_seen
+        permitted = age <= self.permission_timeout + 1e-9 and not self._estop_asserted
         if permitted != self._permitted:
             if not permitted:
                 self.stats.permission_lost += 1
-            self.plant.drives.set_permission(permitted)
+                self.stats.permission_lost_at.append(self.plant.t)
+            drives.set_permission(permitted)
             self._permitted = permitted
+        closed = age <= self.contactor_timeout + 1e-9 and self._contactor_commanded
+        if closed != drives.contactor_closed:
+            drives.set_contactor(closed)
+            self.stats.contactor_opened += not drives.contactor_closed
 
     # ------------------------------------------------------------------------------------------- inputs
-    def _collect_commands(self, k: int, deadline: float, wait_heartbeat: bool, delay: int = 0) -> None:
+    def _collect_commands(self, k: int, deadline: float, lockstep: bool, delay: int = 0) -> None:
+        """Hand the controller's commands for tick k to the drives, waiting until `deadline` at most.
+
+        Lockstep: the tick is over when the heartbeat follows a command of this tick (the contract:
+        commands, then the heartbeat), so a command lost on the way is counted missing at once instead of
+        waited for. A controller that has answered before and then let a whole guard pass without a word
+        is dead or hung: it is not waited for again until it is heard from (a run under such a fault
+        takes about the wall time of its fault-free twin)."""
         tag = k % TICK_MODULO
         pending = set(COMMANDS)
-        heartbeat_due = wait_heartbeat
+        heard = spoke = False
+        """heard: a command tagged k arrived (the next heartbeat closes the tick); spoke: any frame of the
+        controller arrived."""
         drives = self.plant.drives.motors
-        while pending or heartbeat_due:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                self._missed(pending)
-                return
-            rx = self.can.recv(timeout=remaining)
+        waiting = not self._silent
+        while pending or lockstep:
+            rx = self.can.recv(timeout=max(deadline - time.monotonic(), 0.0))
             if rx is None:
+                if time.monotonic() >= deadline:
+                    self.stats.guards_expired += lockstep and waiting
+                    break
                 continue
             if rx.name not in COMMANDS:
-                if rx.name == "CONTROLLER_HEARTBEAT":
-                    heartbeat_due = heartbeat_due and bool(pending)  # the heartbeat follows the commands
                 self._other_frame(rx)
+                if rx.name == "CONTROLLER_HEARTBEAT":
+                    spoke = True
+                    if heard and lockstep:
+                        break
                 continue
+            spoke = True
             if not rx.ok:
                 continue
             if int(rx.signals["Tick"]) != tag:
                 self.stats.late_commands += 1  # stale: never applied
                 continue
+            heard = True
             index, torque, enable = COMMANDS[rx.name], rx.signals["Torque"], bool(rx.signals["Enable"])
             if delay or self._held:
                 # A late loop: a command never overtakes an earlier one.
@@ -341,8 +368,12 @@ class Rig:
             else:
                 self._command(drives[index], torque, enable)
             pending.discard(rx.name)
-        self._silent_ticks = 0
-        self._answered = True
+        self.stats.missing_commands += len(pending)
+        self._answered = self._answered or heard
+        if spoke:
+            self._silent = False
+        elif lockstep and self._answered:
+            self._silent = True
 
     def _command(self, drive, torque: float, enable: bool) -> None:
         if not drive.permitted and enable:
@@ -354,18 +385,3 @@ class Rig:
         while self._held and self._held[0][0] <= k:
             _, index, torque, enable = self._held.popleft()
             self._command(drives[index], torque, enable)
-
-    def _missed(self, pending: set[str]) -> None:
-        self.stats.missing_commands += len(pending)
-        if len(pending) < len(COMMANDS):
-            self._answered = True
-        silent = self._answered and len(pending) == len(COMMANDS)
-        self._silent_ticks = self._silent_ticks + 1 if silent else 0
-
-
-def _seq_at_least(data: bytes, k: int) -> bool:
-    """A seat payload that decodes and is at least as new as tick k (the supervisor's fence waits for it)."""
-    try:
-        return decode(data, TesWrench).seq >= k
-    except PayloadError:
-        return False

@@ -114,6 +114,10 @@ class Trace:
     fence_misses: int = 0
     identity_rejected: dict[str, int] = field(default_factory=dict)
     """SC requests and resets the embedded supervisor ignored for want of an operator's identity."""
+    diagnostics: dict[str, float] = field(default_factory=dict)
+    """The embedded supervisor's checks: each one's largest |residual| / bound over the run."""
+    sc_arbitration: dict = field(default_factory=dict)
+    """The embedded supervisor's SC sources: accepted and refused requests per source, conflicts."""
     faults: list[FaultSpec] = field(default_factory=list)
     """Every fault of the run, scheduled and injected live, by number."""
     fault_events: list[FaultEvent] = field(default_factory=list)
@@ -129,7 +133,7 @@ def run(spec: RunSpec) -> Trace:
     bus = open_bus(bus_config)
     recorder = BusRecorder(bus_config, spec.can_log) if spec.can_log is not None else None
     session = spec.session or open_session(spec.zenoh_config, "hub", spec.hub_endpoint)
-    link = ZenohLink(session, Keys())
+    link = ZenohLink(session, Keys(), lossless=spec.clock == "lockstep")
     dut = None
     supervisor = None
     try:
@@ -268,6 +272,8 @@ def _loop(rig: Rig, plant: Plant, spec: RunSpec, dut) -> Trace:
         safety_events=_announced_events(rig) if supervisor is None else list(supervisor.events),
         fence_misses=0 if supervisor is None else supervisor.fence_misses,
         identity_rejected={} if supervisor is None else dict(supervisor.monitors.rejected_identity),
+        diagnostics={} if supervisor is None else supervisor.monitors.margins(),
+        sc_arbitration={} if supervisor is None else supervisor.monitors.sc.summary(),
         faults=list(rig.faults.specs),
         fault_events=list(rig.faults.events),
         fault_windows=[rig.faults.window(n, plant.t) for n in range(len(rig.faults.specs))],
