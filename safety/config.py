@@ -29,6 +29,18 @@ class Ball(_Lenient):
     radius: Positive = 0.1145
 
 
+class Body(_Lenient):
+    imu_height: Positive = 0.2
+    """m above the ball centre: the IMU's own acceleration includes the chassis' rotation about the ball."""
+    seat_height: NonNegative = 0.03
+    """m of the seat surface above P (the seat's COP is computed on it)."""
+
+
+class Encoder(_Lenient):
+    counts_per_rev: Annotated[int, msgspec.Meta(gt=0)] = 8192
+    word_bits: Annotated[int, msgspec.Meta(ge=8, le=64)] = 32
+
+
 class Drivetrain(_Lenient):
     wheel_radius: Positive = 0.0625
     zenith_deg: Positive = 45.0
@@ -39,14 +51,18 @@ class Drivetrain(_Lenient):
 
 class DriveLimits(_Lenient):
     torque_limit: Positive = 3.75
+    watchdog_timeout: Positive = 0.02
+    """The drives' own command watchdog, s (for the root-cause rule: it trips before the heartbeat's)."""
 
 
 class RobotGeometry(_Lenient):
     """Decoded from the robot TOML the plant and the controller read (configs/robot/pure.toml)."""
 
     ball: Ball = Ball()
+    body: Body = Body()
     drivetrain: Drivetrain = Drivetrain()
     drive: DriveLimits = DriveLimits()
+    encoder: Encoder = Encoder()
 
 
 # --------------------------------------------------------------------------------------------- rules
@@ -83,12 +99,23 @@ class SpeedRules(_Strict):
 class StopRules(_Strict):
     standstill_speed: Positive = 0.05
     """m/s at or below which the robot is at standstill."""
+    standstill_tilt_deg: Positive = 3.0
+    """deg: a controlled stop turns the drives off only with the chassis this close to upright: the rider's
+    feet and the stand catch a robot at rest within 5 deg; tilted further (a rider still leaning) it would
+    tip, so it keeps balancing at standstill until the chassis comes upright."""
     standstill_time: Positive = 0.3
-    """s at standstill before a controlled stop turns the drives off."""
-    motion_after_standstill: Positive = 0.2
-    """m/s: once at standstill, motion above this turns the drives off at once."""
+    """s at standstill (and upright) before a controlled stop turns the drives off."""
+    motion_after_standstill: Positive = 0.8
+    """m/s: once at standstill, motion above this (for escalation_time) turns the drives off at once. A rider
+    who swings their lean while the robot stands makes a healthy controller roll to rebalance: up to
+    0.6 m/s for a 47 deg swing (speed_limiting's rider sitting back after an e-stop)."""
+    escalation_time: Positive = 0.5
+    """s a stop must fail (the speed above its entry + rise_margin, or moving again after standstill) before
+    the drives go off at once: a ballbot tips when power is cut in motion, and a rider shifting their
+    weight makes it move briefly to rebalance."""
     timeout: Positive = 6.0
-    """s: a controlled stop that has not reached standstill by then turns the drives off."""
+    """s: a controlled stop that has not reached standstill by then turns the drives off (once it has,
+    motion is motion_after_standstill's)."""
 
 
 class MotionRules(_Strict):
@@ -128,6 +155,78 @@ class Integrity(_Strict):
     """This many in the window: the bus cannot be trusted, controlled stop."""
 
 
+class DriveRules(_Strict):
+    confirm: Positive = 0.02
+    """s for the drives' feedback to confirm a change: off after the e-stop (else the main contactor
+    opens: DRIVE_NOT_DISABLED), on once permitted and told to enable (else DRIVE_FAULT), the DC bus gone
+    after the contactor opened (else CONTACTOR_FAULT). 8 feedback frames at 400 Hz."""
+    torque_tolerance: Positive = 0.15
+    """Nm: the measured torque (DRIVEn_TORQUE) may differ from the command it follows by this much ..."""
+    torque_relative: Fraction = 0.1
+    """... plus this fraction of the command."""
+    torque_samples: Annotated[int, msgspec.Meta(ge=1)] = 3
+    """Consecutive DRIVEn_TORQUE samples (100 Hz) beyond the tolerance: ACTUATOR_MISMATCH."""
+
+
+class SensorRules(_Strict):
+    """Cross-checks between independent measurements (docs/safety.md "Diagnostics")."""
+
+    window: Positive = 0.025
+    """s over which the rate cross-checks average (10 frames at 400 Hz)."""
+    relative: Fraction = 0.05
+    """Each rate tolerance grows by this fraction of the measured magnitude (scale errors of a healthy
+    sensor, slip)."""
+    yaw_tolerance: Positive = 0.15
+    """rad/s: the yaw rate the three encoders determine vs the gyro's RateZ."""
+    encoder_tolerance: Positive = 0.5
+    """rad/s at the motor: a drive's position (counts) differentiated vs the velocity it reports."""
+    attitude_tolerance: Positive = 0.01
+    """rad: the attitude's change vs the body rates integrated over `attitude_memory` (a leaky sum), plus
+    what the small-angle kinematics leave out (bounded by the rates and the tilt)."""
+    attitude_memory: Positive = 0.5
+    """s: time constant of the attitude-vs-rates sum."""
+    trend_window: Positive = 0.25
+    """s: the speed's change is compared with the accelerometer's over this window."""
+    trend_tolerance: Positive = 0.1
+    """m/s: the encoders' speed change vs the integrated horizontal acceleration over `trend_window`."""
+    stuck_samples: Annotated[int, msgspec.Meta(ge=2)] = 20
+    """A channel that repeats the same raw value this many frames in a row while other evidence says it
+    moved is stuck."""
+
+
+class SeatRules(_Strict):
+    """Plausibility of the seat wrench (a rider's weight, posture and how fast they can change)."""
+
+    tare_time: Positive = 0.5
+    """s of seated load averaged as the rider's weight on the seat, from the first seated sample."""
+    weight_band: Positive = 0.25
+    """The seat load may exceed the tare by this fraction (plus the chassis' vertical acceleration's share)
+    and fall below it by this fraction (down to rider_min_load: a rider getting off is RIDER_ABSENT's)."""
+    radius: Positive = 0.3
+    """m: the centre of pressure stays within this distance of the seat's centre."""
+    cop_tolerance: Positive = 0.01
+    """m: the reported COP vs the one the reported force and moment give."""
+    force_rate: Positive = 6000.0
+    """N/s: the largest change of any force component a rider and the chassis make (over rate_window)."""
+    moment_rate: Positive = 4000.0
+    """Nm/s: likewise for the moments."""
+    rate_window: Positive = 0.025
+    """s over which the rates of change are measured (the cells' noise averages out)."""
+    stuck_samples: Annotated[int, msgspec.Meta(ge=2)] = 20
+    """Samples in a row with every value unchanged while the chassis moves: frozen."""
+
+
+class ScRules(_Strict):
+    """Several SC agents: the most restrictive request of those heard wins (docs/safety.md)."""
+
+    rate: Positive = 50.0
+    """Requests per second accepted from one source (a token bucket); beyond, refused and counted."""
+    burst: Annotated[int, msgspec.Meta(ge=1)] = 10
+    """Requests one source may send at once before the rate applies."""
+    max_sources: Annotated[int, msgspec.Meta(ge=1)] = 8
+    """Sources tracked at once; a request from one more is refused and counted."""
+
+
 class Output(_Strict):
     estop_frame_period: Positive = 0.01
     """s between SUPERVISOR_ESTOP frames (the DBC's 100 Hz); also sent at once on every transition."""
@@ -153,4 +252,8 @@ class SupervisorConfig(_Strict):
     motion: MotionRules = MotionRules()
     watchdogs: Watchdogs = Watchdogs()
     integrity: Integrity = Integrity()
+    drives: DriveRules = DriveRules()
+    sensors: SensorRules = SensorRules()
+    seat: SeatRules = SeatRules()
+    sc: ScRules = ScRules()
     output: Output = Output()

@@ -6,12 +6,24 @@
        └────────────────────┴──immediate cause (any state but ESTOP)──────────┘
 
 Stop category by cause (IEC 60204-1 §9.2.2): a *controlled* cause (operator, speed, rider absent, bus
-integrity) brakes to standstill through the controller (SC idle) and then removes power, as long as the
-controller is healthy and balancing; an *immediate* cause (the controller or its inputs are the fault,
-balance lost, a stop that does not stop) removes power at once: a ballbot falls when power is cut, but a
-controller that cannot be trusted is worse. ESTOP latches; only an operator reset at standstill with every
-monitor healthy leaves it, and a reset permits motion, it never causes it (the controller stays disabled
-until its own enable).
+integrity, a diagnostic finding) brakes to standstill through the controller (SC idle) and then removes
+power, as long as the controller is healthy and balancing; an *immediate* cause (the controller or its
+inputs are the fault, balance lost, a stop that does not stop) removes power at once: a ballbot falls when
+power is cut, but a controller that cannot be trusted is worse. ESTOP latches; only an operator reset at
+standstill with every monitor healthy leaves it, and a reset permits motion, it never causes it (the
+controller stays disabled until its own enable).
+
+Power is removed on two paths (IEC 60204-1, ISO 13849): the drives' permission (SUPERVISOR_ESTOP), and
+the main contactor in their power feed. In ESTOP the drives must confirm that they are off (their feedback
+reports Enabled = 0) within `drives.confirm`; if one does not (a power stage stuck on, a drive that cannot
+be heard) the contactor opens (DRIVE_NOT_DISABLED), and it does not close again until a valid reset. An
+open contactor that a drive still reports powered after `drives.confirm` is CONTACTOR_FAULT.
+
+Root cause: causes are checked from source to consequence (the order of `_immediate` and `_controlled`),
+so when several hold in one update the most upstream one names the transition; a stop already under way
+keeps its cause unless an immediate cause escalates it. A drive's command watchdog trips before the
+controller's heartbeat watchdog when the controller dies (20 ms < 50 ms): a tripped watchdog while the
+heartbeat has been silent at least that long is HEARTBEAT_LOST, not DRIVE_FAULT.
 """
 
 from __future__ import annotations
@@ -58,6 +70,22 @@ class Cause(IntEnum):
     MOTION_AFTER_STANDSTILL = 18
     STOP_INEFFECTIVE = 19
     RESET = 20
+    SENSOR_STUCK = 21
+    """A sensor channel holds one value while other evidence says it must move."""
+    SENSOR_DISAGREE = 22
+    """Two independent measurements of one quantity disagree (encoders vs gyro yaw, position vs velocity,
+    attitude vs integrated rates, speed trend vs accelerometer)."""
+    WRENCH_IMPLAUSIBLE = 23
+    """The seat's wrench is not what a seated rider can produce (weight band, COP, rate of change, frozen)."""
+    DRIVE_FAULT = 24
+    """A drive reports its command watchdog tripped or a fault, or stays disabled while permitted and told
+    to enable."""
+    ACTUATOR_MISMATCH = 25
+    """A drive's measured torque does not follow its command."""
+    DRIVE_NOT_DISABLED = 26
+    """In ESTOP a drive did not confirm it is off: the main contactor opened."""
+    CONTACTOR_FAULT = 27
+    """The main contactor was told to open and a drive still reports its DC bus live."""
 
 
 CONTROLLED = frozenset(
@@ -69,6 +97,11 @@ CONTROLLED = frozenset(
         Cause.RIDER_ABSENT,
         Cause.E2E_ERRORS,
         Cause.WRENCH_SILENT,
+        Cause.SENSOR_STUCK,
+        Cause.SENSOR_DISAGREE,
+        Cause.WRENCH_IMPLAUSIBLE,
+        Cause.DRIVE_FAULT,
+        Cause.ACTUATOR_MISMATCH,
     }
 )
 """Causes that brake to standstill before power is removed (if the controller is healthy)."""
@@ -84,9 +117,19 @@ IMMEDIATE = frozenset(
         Cause.STOP_TIMEOUT,
         Cause.MOTION_AFTER_STANDSTILL,
         Cause.STOP_INEFFECTIVE,
+        Cause.DRIVE_NOT_DISABLED,
+        Cause.CONTACTOR_FAULT,
     }
 )
 """Causes that remove power at once."""
+FINDINGS = (
+    Cause.SENSOR_STUCK,
+    Cause.SENSOR_DISAGREE,
+    Cause.WRENCH_IMPLAUSIBLE,
+    Cause.ACTUATOR_MISMATCH,
+)
+"""Causes the diagnostics report (safety/diagnostics.py), in their root-cause order: a frozen channel
+makes its cross-checks disagree, a drive fault makes its torque mismatch."""
 
 STREAMS = ("drives", "imu", "heartbeat", "wrench", "sc")
 BALANCING, FAULT = 3, 4
@@ -100,6 +143,29 @@ class Request:
     mode: str
     cap: float
     source: str
+
+
+@dataclass(frozen=True, slots=True)
+class Finding:
+    """A diagnostic that fails now: its cause and what it saw."""
+
+    cause: Cause
+    detail: str
+
+
+@dataclass(frozen=True, slots=True)
+class DriveReport:
+    """One drive as its feedback and its commands show it."""
+
+    enabled: bool | None
+    """DRIVEn_FEEDBACK.Enabled of the last trusted frame (None: no fresh one)."""
+    watchdog: bool = False
+    """WatchdogTripped: the drive turned itself off because its commands stopped."""
+    fault: bool = False
+    bus_powered: bool | None = None
+    """BusPowered: its DC bus is live (the main contactor is closed)."""
+    commanded_for: float = 0.0
+    """s the controller has asked it to enable without a break (DRIVEn_COMMAND.Enable = 1)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -127,6 +193,10 @@ class Observation:
     operator: str | None = None
     """An operator command since the previous observation: 'estop' or 'reset'."""
     operator_source: str = ""
+    findings: tuple[Finding, ...] = ()
+    """Diagnostics failing now (FINDINGS causes)."""
+    drives: tuple[DriveReport, ...] = ()
+    """The three drives (empty: not known to this observer; a stop can then not be confirmed)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -162,15 +232,30 @@ class Decision:
     """The cap in force, m/s."""
     command: Forward
     since: float
+    contactor_closed: bool = True
+    """The main contactor may stay closed (SUPERVISOR_ESTOP.Contactor)."""
 
 
 class Supervisor:
-    def __init__(self, config: SupervisorConfig | None = None, torque_limit: float = 3.75):
+    def __init__(
+        self,
+        config: SupervisorConfig | None = None,
+        torque_limit: float = 3.75,
+        drive_watchdog: float = 0.02,
+    ):
         self.config = c = config or SupervisorConfig()
         self.tilt_limit = math.radians(c.motion.tilt_limit_deg)
+        self._standstill_tilt = math.radians(c.stop.standstill_tilt_deg)
         self.torque_limit = torque_limit
+        self.drive_watchdog = drive_watchdog
+        """The drives' own command watchdog (robot file), s: for the root-cause rule."""
         self.state, self.cause, self.since = State.NORMAL, Cause.NONE, 0.0
         self.started: float | None = None
+        self.permitted_since = 0.0
+        """When the drives last got their permission (start-up or a reset)."""
+        self.contactor_closed = True
+        self._contactor_opened = -math.inf
+        self._contactor_fault = False
         self.events: list[Event] = []
         self.reset_by: list[tuple[float, str]] = []
         self._clear_timers()
@@ -186,30 +271,34 @@ class Supervisor:
         self._entry_speed = 0.0
         self._under_since: float | None = None
         self._still_since: float | None = None
+        self._failing_since: float | None = None
         self._reached_standstill = False
 
     # ----------------------------------------------------------------------------------------- decide
     def update(self, obs: Observation) -> Decision:
         if self.started is None:
-            self.started = self.since = obs.t
+            self.started = self.since = self.permitted_since = obs.t
         if obs.ages.get("sc", math.inf) != math.inf:
             self._sc_seen = True
-        immediate = self._immediate_cause(obs)
-        controlled = self._controlled_cause(obs)
+        immediate = self._immediate(obs)
+        controlled = self._controlled(obs)
         if self.state is State.ESTOP:
             if obs.operator == "reset":
                 self._try_reset(obs)
+            else:
+                self._second_path(obs)
         elif immediate is not None:
-            self._enter(State.ESTOP, immediate, obs)
+            self._enter(State.ESTOP, immediate[0], obs, immediate[1])
         elif self.state is State.STOPPING:
             self._stopping(obs)
         elif controlled is not None:
-            self._stop(controlled, obs)
+            self._stop(controlled[0], controlled[1], obs)
         else:
             self._limit(obs)
         return self._decision(obs)
 
-    def _immediate_cause(self, obs: Observation) -> Cause | None:
+    def _immediate(self, obs: Observation) -> tuple[Cause, str] | None:
+        """The first immediate cause that holds, from source to consequence, and what it saw."""
         c, w = self.config, self.config.watchdogs
         armed = obs.t - self.started >= w.startup_grace
         ages = obs.ages
@@ -219,54 +308,84 @@ class Supervisor:
             return age > timeout and (armed or age != math.inf)
 
         if silent("heartbeat", w.heartbeat):
-            return Cause.HEARTBEAT_LOST
+            return Cause.HEARTBEAT_LOST, ""
+        tripped = next((i for i, d in enumerate(obs.drives, 1) if d.watchdog), None)
+        heartbeat_age = ages.get("heartbeat", math.inf)
+        if tripped and self.state is not State.ESTOP and heartbeat_age >= self.drive_watchdog - 1e-9:
+            return Cause.HEARTBEAT_LOST, (
+                f"drive {tripped}'s command watchdog tripped and the heartbeat is "
+                f"{heartbeat_age * 1e3:.1f} ms old: the controller is silent"
+            )
         if obs.controller_state == FAULT:
-            return Cause.CONTROLLER_FAULT
+            return Cause.CONTROLLER_FAULT, ""
         if silent("drives", w.drives):
-            return Cause.DRIVES_SILENT
+            return Cause.DRIVES_SILENT, ""
         if silent("imu", w.imu):
-            return Cause.IMU_SILENT
+            return Cause.IMU_SILENT, ""
         if obs.tilt is not None and obs.tilt > self.tilt_limit:
-            return Cause.TILT
+            return Cause.TILT, ""
         if obs.torque_peak > c.motion.torque_range * self.torque_limit:
-            return Cause.TORQUE_RANGE
+            return Cause.TORQUE_RANGE, f"{obs.torque_peak:.3f} Nm commanded"
         if obs.torque_peak >= c.motion.saturation_fraction * self.torque_limit:
             if self._saturated_since is None:
                 self._saturated_since = obs.t
             if obs.t - self._saturated_since >= c.motion.saturation_time:
-                return Cause.TORQUE_SATURATED
+                return Cause.TORQUE_SATURATED, ""
         else:
             self._saturated_since = None
         return None
 
-    def _controlled_cause(self, obs: Observation) -> Cause | None:
+    def _controlled(self, obs: Observation) -> tuple[Cause, str] | None:
+        """The first controlled cause that holds, from source to consequence, and what it saw."""
         c, w = self.config, self.config.watchdogs
         if obs.operator == "estop":
-            return Cause.OPERATOR_ESTOP
+            return Cause.OPERATOR_ESTOP, f"by {obs.operator_source or '?'}"
         if obs.button:
-            return Cause.BUTTON_ESTOP
-        if obs.speed is not None and obs.speed > c.speed.hard_limit:
-            return Cause.HARD_SPEED
+            return Cause.BUTTON_ESTOP, ""
         if obs.e2e_errors >= c.integrity.e2e_max_errors:
-            return Cause.E2E_ERRORS
+            return Cause.E2E_ERRORS, f"{obs.e2e_errors} in {c.integrity.e2e_window:g} s"
         wrench_age = obs.ages.get("wrench", math.inf)
         armed = obs.t - self.started >= w.startup_grace
         if w.require_wrench and wrench_age > w.wrench and (armed or wrench_age != math.inf):
-            return Cause.WRENCH_SILENT
+            return Cause.WRENCH_SILENT, ""
+        if obs.findings:
+            first = min(obs.findings, key=lambda f: FINDINGS.index(f.cause))
+            return first.cause, first.detail
+        drive = self._drive_fault(obs)
+        if drive:
+            return Cause.DRIVE_FAULT, drive
+        if obs.speed is not None and obs.speed > c.speed.hard_limit:
+            return Cause.HARD_SPEED, ""
         moving = obs.speed is not None and obs.speed > c.stop.standstill_speed
         if obs.seat_load is not None and obs.seat_load < c.motion.rider_min_load and moving:
             if self._absent_since is None:
                 self._absent_since = obs.t
             if obs.t - self._absent_since >= c.motion.rider_absent_time:
-                return Cause.RIDER_ABSENT
+                return Cause.RIDER_ABSENT, ""
         else:
             self._absent_since = None
         return None
 
-    def _stop(self, cause: Cause, obs: Observation) -> None:
+    def _drive_fault(self, obs: Observation) -> str:
+        """Why a permitted drive is not doing its job ('' if each is): it reports its watchdog tripped
+        (its commands are lost) or a fault, or stays off although permitted and told to enable."""
+        if self.state is State.ESTOP:
+            return ""
+        confirm = self.config.drives.confirm
+        permitted_for = obs.t - self.permitted_since
+        for i, d in enumerate(obs.drives, 1):
+            if d.watchdog:
+                return f"drive {i}: command watchdog tripped (its commands are lost)"
+            if d.fault:
+                return f"drive {i} reports a fault"
+            if d.enabled is False and min(d.commanded_for, permitted_for) >= confirm - 1e-9:
+                return f"drive {i} is off although permitted and told to enable"
+        return ""
+
+    def _stop(self, cause: Cause, detail: str, obs: Observation) -> None:
         """A controlled stop if the controller is balancing and can brake; else power off now."""
         healthy = obs.controller_state == BALANCING and obs.speed is not None
-        self._enter(State.STOPPING if healthy else State.ESTOP, cause, obs)
+        self._enter(State.STOPPING if healthy else State.ESTOP, cause, obs, detail)
 
     def _limit(self, obs: Observation) -> None:
         s = self.config.speed
@@ -275,7 +394,7 @@ class Supervisor:
         if self.state is State.LIMITING and self.cause is Cause.OVER_CAP:
             over_too_long = self._under_since is None and obs.t - self.since > s.limit_timeout
             if speed is not None and (speed > self._entry_speed + s.rise_margin or over_too_long):
-                self._stop(Cause.OVERPOWERED, obs)
+                self._stop(Cause.OVERPOWERED, "", obs)
                 return
             if speed is not None and speed <= allowed + s.margin:
                 if self._under_since is None:
@@ -318,20 +437,66 @@ class Supervisor:
         st, speed = self.config.stop, obs.speed
         if speed is None:
             return  # a speed stream is silent: the immediate causes have already acted
-        if speed > self._entry_speed + self.config.speed.rise_margin:
-            self._enter(State.ESTOP, Cause.STOP_INEFFECTIVE, obs)
-        elif self._reached_standstill and speed > st.motion_after_standstill:
-            self._enter(State.ESTOP, Cause.MOTION_AFTER_STANDSTILL, obs)
-        elif speed <= st.standstill_speed:
+        rising = speed > self._entry_speed + self.config.speed.rise_margin
+        moving_again = self._reached_standstill and speed > st.motion_after_standstill
+        if rising or moving_again:
+            # The stop fails; only when it keeps failing is cutting power (a tip) the lesser hazard.
+            self._still_since = None
+            if self._failing_since is None:
+                self._failing_since = obs.t
+            if obs.t - self._failing_since >= st.escalation_time - 1e-9:
+                cause = Cause.STOP_INEFFECTIVE if rising else Cause.MOTION_AFTER_STANDSTILL
+                self._enter(State.ESTOP, cause, obs)
+            return
+        self._failing_since = None
+        if speed <= st.standstill_speed:
             self._reached_standstill = True
+            if obs.tilt is None or obs.tilt > self._standstill_tilt:
+                self._still_since = None  # stopped but tilted: cutting power now would tip it
+                return
             if self._still_since is None:
                 self._still_since = obs.t
             if obs.t - self._still_since >= st.standstill_time:
                 self._enter(State.ESTOP, self.cause, obs, detail="standstill reached: drives off")
         else:
             self._still_since = None
-            if obs.t - self.since > st.timeout:
+            if not self._reached_standstill and obs.t - self.since > st.timeout:
                 self._enter(State.ESTOP, Cause.STOP_TIMEOUT, obs)
+
+    def _second_path(self, obs: Observation) -> None:
+        """In ESTOP: open the main contactor when a drive does not confirm it is off within the bound, and
+        check that the contactor really cut their power (external device monitoring)."""
+        confirm = self.config.drives.confirm
+        if self.contactor_closed:
+            if obs.t - self.since < confirm - 1e-9:
+                return
+            if not obs.drives:
+                unconfirmed = "no drive feedback"
+            else:
+                on = [str(i) for i, d in enumerate(obs.drives, 1) if d.enabled is not False]
+                unconfirmed = f"drive {', '.join(on)} not confirmed off" if on else ""
+            if unconfirmed:
+                self.contactor_closed, self._contactor_opened = False, obs.t
+                self._enter(
+                    State.ESTOP,
+                    Cause.DRIVE_NOT_DISABLED,
+                    obs,
+                    f"{unconfirmed} {(obs.t - self.since) * 1e3:.1f} ms after the e-stop: "
+                    "main contactor opened",
+                    keep_since=True,
+                )
+        elif not self._contactor_fault and obs.t - self._contactor_opened >= confirm - 1e-9:
+            live = [str(i) for i, d in enumerate(obs.drives, 1) if d.bus_powered]
+            if live:
+                self._contactor_fault = True
+                self._enter(
+                    State.ESTOP,
+                    Cause.CONTACTOR_FAULT,
+                    obs,
+                    f"drive {', '.join(live)} still reports its DC bus live "
+                    f"{(obs.t - self._contactor_opened) * 1e3:.1f} ms after the contactor was told to open",
+                    keep_since=True,
+                )
 
     def _try_reset(self, obs: Observation) -> None:
         why = self.reset_refusal(obs)
@@ -340,6 +505,7 @@ class Supervisor:
             return
         self.reset_by.append((obs.t, obs.operator_source))
         self._saturated_since = self._absent_since = self._over_since = None
+        self.contactor_closed, self.permitted_since = True, obs.t
         self._enter(State.NORMAL, Cause.RESET, obs, detail=f"reset by {obs.operator_source or '?'}")
 
     def reset_refusal(self, obs: Observation) -> str:
@@ -361,12 +527,28 @@ class Supervisor:
             return "controller reports a fault"
         if obs.e2e_errors >= c.integrity.e2e_max_errors:
             return "E2E errors above the limit"
+        if self._contactor_fault:
+            return "the main contactor did not open when told to (welded?)"
+        on = [str(i) for i, d in enumerate(obs.drives, 1) if d.enabled]
+        if on:
+            return (
+                f"drive {', '.join(on)} still enabled without permission: its power stage does not turn off"
+            )
+        if obs.findings:
+            return f"{obs.findings[0].cause.name}: {obs.findings[0].detail}"
         return ""
 
     # ---------------------------------------------------------------------------------------- outputs
-    def _enter(self, state: State, cause: Cause, obs: Observation, detail: str = "") -> None:
+    def _enter(
+        self, state: State, cause: Cause, obs: Observation, detail: str = "", keep_since: bool = False
+    ) -> None:
+        """Enter `state` with `cause`; keep_since: a new cause within the same state (the second path)."""
         previous, previous_cause = self.state, self.cause
-        self.state, self.cause, self.since = state, cause, obs.t
+        self.state, self.cause = state, cause
+        if keep_since:
+            self._log(obs, "transition", previous, previous_cause, detail)
+            return
+        self.since = obs.t
         self._clear_timers()
         self._entry_speed = obs.speed or 0.0
         if state is State.NORMAL:
@@ -423,6 +605,7 @@ class Supervisor:
             cap,
             self.forward(obs.request, cap),
             self.since,
+            self.contactor_closed,
         )
 
     def forward(self, request: Request | None, cap: float) -> Forward:

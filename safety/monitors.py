@@ -3,7 +3,13 @@ passes them in with the time).
 
 Speed is estimated independently of the controller: motor velocities -> ball-to-body rates through the
 omniwheel map (this package's own, from the robot file), plus the chassis rate from the IMU, times the
-ball radius. Untrusted frames (E2E) update nothing and count as integrity errors.
+ball radius. Once a sensor check has failed the estimate turns conservative: the largest of the estimate
+from all three drives and the three that each leave one drive out (its place taken by the gyro's yaw
+rate), so a single wrong encoder cannot hide a runaway from the stop's own checks.
+
+Untrusted frames (E2E) update nothing and count as integrity errors. The diagnostics (safety/diagnostics.py)
+are fed frame by frame where one frame carries both sides of a check (a drive's position and velocity, a
+torque sample after its command) and at each observation where the sides come in different frames.
 """
 
 from __future__ import annotations
@@ -14,47 +20,147 @@ from collections import Counter, deque
 import numpy as np
 
 from drivers.can_bus import Received
-from drivers.e2e import E2EStatus
+from drivers.e2e import COUNTER, COUNTER_MODULO, CRC, E2EStatus
 from drivers.schemas import EstopCommand, ScRequest, TesWrench
+from safety.arbiter import ScArbiter
 from safety.config import RobotGeometry, SupervisorConfig
-from safety.machine import STREAMS, Observation, Request
+from safety.diagnostics import (
+    AttitudeCheck,
+    EncoderCheck,
+    Replay,
+    SeatCheck,
+    Stuck,
+    TorqueCheck,
+    TrendCheck,
+    YawCheck,
+    motor_jacobian,
+    world_acceleration,
+)
+from safety.machine import STREAMS, Cause, DriveReport, Finding, Observation, Request
 
 DRIVE_FEEDBACK = {"DRIVE1_FEEDBACK": 0, "DRIVE2_FEEDBACK": 1, "DRIVE3_FEEDBACK": 2}
-DRIVE_COMMANDS = ("DRIVE1_COMMAND", "DRIVE2_COMMAND", "DRIVE3_COMMAND")
+DRIVE_COMMANDS = {"DRIVE1_COMMAND": 0, "DRIVE2_COMMAND": 1, "DRIVE3_COMMAND": 2}
+DRIVE_TORQUE = {"DRIVE1_TORQUE": 0, "DRIVE2_TORQUE": 1, "DRIVE3_TORQUE": 2}
+IMU_CHANNELS = {
+    "IMU_ATTITUDE": ("Roll", "Pitch", "Yaw"),
+    "IMU_RATE": ("RateX", "RateY", "RateZ"),
+    "IMU_ACCEL": ("AccX", "AccY", "AccZ"),
+}
+REPLAY_CHECKED = (*DRIVE_FEEDBACK, *DRIVE_TORQUE, *IMU_CHANNELS)
+"""Sensor streams checked for a replay from one counter period back."""
+ATTITUDE_LSB = 1e-4
+"""rad: IMU_ATTITUDE's resolution (the DBC); "it moved" means several of these."""
+MOVED = 3 * ATTITUDE_LSB
+G0 = 9.80665
 
 
-def motor_jacobian(robot: RobotGeometry) -> np.ndarray:
-    """Motor-shaft rates = G @ [φ̇_x − θ̇_x, φ̇_y − θ̇_y, −ψ̇] (each wheel's contact direction on the ball)."""
-    d = robot.drivetrain
-    rho = robot.ball.radius / d.wheel_radius
-    zenith = math.radians(d.zenith_deg)
-    rows = []
-    for i, sign in enumerate(d.motor_sign):
-        azimuth = math.radians(d.azimuth0_deg) + 2.0 * math.pi * i / 3.0
-        direction = (
-            -math.cos(zenith) * math.cos(azimuth),
-            -math.cos(zenith) * math.sin(azimuth),
-            math.sin(zenith),
+class Drive:
+    """What the supervisor knows of one drive."""
+
+    def __init__(self, index: int, config: SupervisorConfig, robot: RobotGeometry, period: float):
+        sensors, rules = config.sensors, config.drives
+        self.index, self.period = index, period
+        self.rad_per_count = 2.0 * math.pi / robot.encoder.counts_per_rev
+        self.encoder = EncoderCheck(index, sensors, period, self.rad_per_count, 1 << robot.encoder.word_bits)
+        self.torque = TorqueCheck(
+            index,
+            rules.torque_tolerance,
+            rules.torque_relative,
+            rules.torque_samples,
+            robot.drive.torque_limit,
         )
-        rows.append([sign * d.gear_ratio * rho * x for x in direction])
-    return np.array(rows)
+        self.stuck = Stuck(sensors.stuck_samples, 3 * self.rad_per_count)
+        self.velocity = 0.0
+        self.counts: int | None = None
+        self.seen = -math.inf
+        self.enabled = self.watchdog = self.fault = False
+        self.bus_powered = False
+        self.command: tuple[float, bool] | None = None
+        """(torque, enable) of the last command on the bus."""
+        self.enable_since: float | None = None
+        self.findings: dict[str, Finding | None] = {}
+
+    def feedback(self, s, t: float, lost: int) -> None:
+        counts = int(s["Position"])
+        if t - self.seen > 8 * self.period + 1e-9:
+            self.encoder.reset()  # a gap the window must not span
+        moved = 0.0 if self.counts is None else abs(counts - self.counts) * self.rad_per_count
+        self.velocity, self.counts, self.seen = float(s["Velocity"]), counts, t
+        self.enabled, self.watchdog = bool(s["Enabled"]), bool(s["WatchdogTripped"])
+        self.fault, self.bus_powered = bool(s["Fault"]), bool(s["BusPowered"])
+        self.findings["encoder"] = self.encoder.frame(counts, self.velocity, 1 + lost)
+        frozen = self.stuck.sample(s["Velocity"], moved)
+        self.findings["stuck"] = (
+            Finding(
+                Cause.SENSOR_STUCK,
+                f"drive {self.index} velocity frozen at {self.velocity:.2f} rad/s while its position moved",
+            )
+            if frozen
+            else None
+        )
+
+    def commanded(self, s, t: float) -> None:
+        enable = bool(s["Enable"])
+        self.command = (float(s["Torque"]), enable)
+        if not enable:
+            self.enable_since = None
+        elif self.enable_since is None:
+            self.enable_since = t
+
+    def measured(self, torque: float) -> None:
+        producing = self.enabled and self.bus_powered and self.command is not None and self.command[1]
+        commanded = None if self.command is None else self.command[0]
+        self.findings["torque"] = self.torque.sample(torque, commanded, producing)
+
+    def report(self, t: float, timeout: float) -> DriveReport:
+        fresh = t - self.seen <= timeout
+        return DriveReport(
+            enabled=self.enabled if fresh else None,
+            watchdog=fresh and self.watchdog,
+            fault=fresh and self.fault,
+            bus_powered=self.bus_powered if fresh else None,
+            commanded_for=0.0 if self.enable_since is None else t - self.enable_since,
+        )
 
 
 class Monitors:
-    def __init__(self, config: SupervisorConfig, robot: RobotGeometry):
+    def __init__(self, config: SupervisorConfig, robot: RobotGeometry, tick_hz: float = 400.0):
         self.config = config
+        self.period = period = 1.0 / tick_hz
         self.radius = robot.ball.radius
-        self.to_relative = np.linalg.inv(motor_jacobian(robot))
+        self.imu_height = robot.body.imu_height
+        jacobian = motor_jacobian(robot)
+        self.to_relative = np.linalg.inv(jacobian)
+        self._leave_one_out = _leave_one_out(jacobian)
         self.last: dict[str, float] = dict.fromkeys(STREAMS, -math.inf)
-        self.drive_seen = [-math.inf] * 3
-        self.motor_velocity = [0.0, 0.0, 0.0]
-        self.attitude = (0.0, 0.0)
-        self.rate = (0.0, 0.0)
+        self.drives = [Drive(i, config, robot, period) for i in (1, 2, 3)]
+        sensors = config.sensors
+        self.yaw = YawCheck(sensors, self.to_relative, period)
+        self.attitude_checks = (AttitudeCheck("roll", sensors), AttitudeCheck("pitch", sensors))
+        self.trend = (TrendCheck("forward", sensors, period), TrendCheck("left", sensors, period))
+        self.seat = SeatCheck(
+            config.seat, config.motion.rider_min_load, robot.body.seat_height, period, MOVED
+        )
+        self.imu = {name: [0.0, 0.0, 0.0] for name in IMU_CHANNELS}
+        self._imu_seen = dict.fromkeys(IMU_CHANNELS, -math.inf)
+        self._imu_stuck = {
+            name: [Stuck(sensors.stuck_samples, MOVED) for _ in names] for name, names in IMU_CHANNELS.items()
+        }
+        self._imu_findings: dict[str, Finding | None] = {}
+        self._attitude_at_rate = (0.0, 0.0)
+        self._imu_motion = 0.0
+        """rad the chassis turned (|rates| × dt) since the last seat sample: evidence for the seat's."""
+        self._seat_finding: Finding | None = None
+        self._replay = {name: Replay(COUNTER_MODULO) for name in REPLAY_CHECKED}
+        self._replay_findings: dict[str, Finding | None] = {}
+        self._checks_at: float | None = None
+        self._check_findings: list[Finding] = []
+        self.degraded = False
+        """A sensor check failed: the speed estimate is the conservative one until a reset."""
         self.controller_state: int | None = None
         self.torque_peak = 0.0
         self.seat_load: float | None = None
         self.button = False
-        self.request: Request | None = None
         self.operator: str | None = None
         self.operator_source = ""
         self._wrench_id: tuple[int, float] | None = None
@@ -64,7 +170,7 @@ class Monitors:
         self.operators = frozenset(config.identity.operators)
         self.rejected_identity: Counter[str] = Counter()
         """SC requests and resets ignored because their source is not a configured operator."""
-        self._imu_parts = [-math.inf, -math.inf]
+        self.sc = ScArbiter(config.sc)
 
     # ------------------------------------------------------------------------------------------ inputs
     def frame(self, rx: Received, t: float) -> None:
@@ -74,28 +180,69 @@ class Monitors:
         if not rx.ok:
             return
         s, name = rx.signals, rx.name
+        lost = 0 if e2e is None else e2e.lost
+        if name in self._replay:
+            replayed = self._replay[name].frame(tuple(v for k, v in s.items() if k not in (COUNTER, CRC)))
+            self._replay_findings[name] = (
+                Finding(
+                    Cause.SENSOR_STUCK,
+                    f"{name} repeats its frames of {COUNTER_MODULO} frames ago: "
+                    "replayed (E2E's counter aliases)",
+                )
+                if replayed
+                else None
+            )
         if name in DRIVE_FEEDBACK:
-            i = DRIVE_FEEDBACK[name]
-            self.motor_velocity[i] = float(s["Velocity"])
-            self.drive_seen[i] = t
-            self.last["drives"] = min(self.drive_seen)
+            self.drives[DRIVE_FEEDBACK[name]].feedback(s, t, lost)
+            self.last["drives"] = min(d.seen for d in self.drives)
         elif name in DRIVE_COMMANDS:
             self.torque_peak = max(self.torque_peak, abs(float(s["Torque"])))
-        elif name == "IMU_ATTITUDE" and s["Valid"]:
-            self.attitude = (float(s["Roll"]), float(s["Pitch"]))
-            self._imu(0, t)
-        elif name == "IMU_RATE" and s["Valid"]:
-            self.rate = (float(s["RateX"]), float(s["RateY"]))
-            self._imu(1, t)
+            self.drives[DRIVE_COMMANDS[name]].commanded(s, t)
+        elif name in DRIVE_TORQUE:
+            self.drives[DRIVE_TORQUE[name]].measured(float(s["Torque"]))
+        elif name in IMU_CHANNELS and s["Valid"]:
+            self._imu_frame(name, s, t)
         elif name == "CONTROLLER_HEARTBEAT":
             self.controller_state = int(s["State"])
             self.last["heartbeat"] = t
         elif name == "OPERATOR_ESTOP":
             self.button = bool(s["Request"])
 
-    def _imu(self, part: int, t: float) -> None:
-        self._imu_parts[part] = t
-        self.last["imu"] = min(self._imu_parts)
+    def _imu_frame(self, name: str, s, t: float) -> None:
+        values, signals = self.imu[name], IMU_CHANNELS[name]
+        for i, signal in enumerate(signals):
+            values[i] = float(s[signal])
+        self._imu_seen[name] = t
+        self.last["imu"] = min(self._imu_seen["IMU_ATTITUDE"], self._imu_seen["IMU_RATE"])
+        rates, attitude = self.imu["IMU_RATE"], self.imu["IMU_ATTITUDE"]
+        # What says each channel must have moved since its previous frame (evidence for the stuck check).
+        if name == "IMU_ATTITUDE":  # the body rates
+            evidence = [abs(r) * self.period for r in rates]
+        elif name == "IMU_RATE":  # the attitude they drive; the yaw rate the encoders determine
+            encoder_yaw = self.yaw.encoders([d.velocity for d in self.drives])
+            evidence = [
+                abs(attitude[0] - self._attitude_at_rate[0]),
+                abs(attitude[1] - self._attitude_at_rate[1]),
+                abs(encoder_yaw) * self.period,
+            ]
+            self._attitude_at_rate = (attitude[0], attitude[1])
+        else:  # the specific force turns with the chassis
+            turned = (abs(rates[0]) + abs(rates[1]) + abs(rates[2])) * self.period
+            evidence = [turned] * 3
+            self._imu_motion += turned
+        stuck = [
+            i
+            for i, (checker, moved) in enumerate(zip(self._imu_stuck[name], evidence, strict=True))
+            if checker.sample(s[signals[i]], moved)
+        ]
+        self._imu_findings[name] = (
+            Finding(
+                Cause.SENSOR_STUCK,
+                f"{name}.{signals[stuck[0]]} frozen at {values[stuck[0]]:.4f} while other evidence moved",
+            )
+            if stuck
+            else None
+        )
 
     def wrench(self, w: TesWrench, t: float) -> None:
         self.seat_load = -w.force[2]
@@ -103,6 +250,16 @@ class Monitors:
         if (w.seq, w.stamp) != self._wrench_id:
             self._wrench_id = (w.seq, w.stamp)
             self.last["wrench"] = t
+            attitude = self.imu["IMU_ATTITUDE"]
+            vertical = world_acceleration(self.imu["IMU_ACCEL"], attitude[0], attitude[1])[2]
+            self._seat_finding = self.seat.sample(
+                w.force,
+                w.moment,
+                w.cop,
+                vertical if self._imu_seen["IMU_ACCEL"] > -math.inf else G0,
+                self._imu_motion,
+            )
+            self._imu_motion = 0.0
         else:
             self.stale_wrench += 1
 
@@ -113,10 +270,8 @@ class Monitors:
         return False
 
     def sc_request(self, r: ScRequest, t: float) -> None:
-        if not self._trusted(r.source, "sc_request"):
-            return
-        self.request = Request(r.mode, r.speed_cap, r.source)
-        self.last["sc"] = t
+        if self._trusted(r.source, "sc_request"):
+            self.sc.offer(Request(r.mode, r.speed_cap, r.source), t)
 
     def operator_command(self, cmd: EstopCommand) -> None:
         if cmd.action == "reset" and not self._trusted(cmd.source, "reset"):
@@ -125,39 +280,133 @@ class Monitors:
         if cmd.action == "estop" or self.operator != "estop":
             self.operator, self.operator_source = cmd.action, cmd.source
 
+    def reset(self) -> None:
+        """A reset was accepted: the sensors were found healthy again."""
+        self.degraded = False
+
     # ----------------------------------------------------------------------------------------- observe
+    def _fresh(self, t: float) -> bool:
+        w = self.config.watchdogs
+        return t - self.last["drives"] <= w.drives and all(
+            t - seen <= w.imu for seen in self._imu_seen.values()
+        )
+
+    def _relative(self) -> np.ndarray:
+        return self.to_relative @ np.asarray([d.velocity for d in self.drives])
+
     def speed(self) -> float | None:
         if not (math.isfinite(self.last["drives"]) and math.isfinite(self.last["imu"])):
             return None
-        rel = self.to_relative @ np.asarray(self.motor_velocity)
-        pitch = float(rel[1]) + self.rate[1]
-        roll = float(rel[0]) + self.rate[0]
-        return self.radius * math.hypot(pitch, roll)
+        rate = self.imu["IMU_RATE"]
+        rel = self._relative()
+        nominal = self.radius * math.hypot(float(rel[1]) + rate[1], float(rel[0]) + rate[0])
+        if not self.degraded:
+            return nominal
+        velocities = [d.velocity for d in self.drives]
+        estimates = [nominal]
+        for solve, others in self._leave_one_out:
+            known = [velocities[j] for j in others]
+            x, y = solve(known, -rate[2])
+            estimates.append(self.radius * math.hypot(y + rate[1], x + rate[0]))
+        return max(estimates)
 
     def tilt(self) -> float | None:
-        if not math.isfinite(self._imu_parts[0]):
+        if not math.isfinite(self._imu_seen["IMU_ATTITUDE"]):
             return None
-        return max(abs(self.attitude[0]), abs(self.attitude[1]))
+        attitude = self.imu["IMU_ATTITUDE"]
+        return max(abs(attitude[0]), abs(attitude[1]))
+
+    def _cross_checks(self, t: float) -> list[Finding]:
+        """The checks whose two sides come in different frames, once per observation."""
+        dt = None if self._checks_at is None else t - self._checks_at
+        self._checks_at = t
+        if not self._fresh(t):
+            for check in (*self.attitude_checks, *self.trend):
+                check.reset()
+            return []
+        if not dt:
+            return []
+        roll, pitch, _ = self.imu["IMU_ATTITUDE"]
+        rate = self.imu["IMU_RATE"]
+        velocities = [d.velocity for d in self.drives]
+        found = [self.yaw.update(velocities, rate[2], dt)]
+        coupling = (abs(rate[0]) + abs(rate[1]) + abs(rate[2])) * math.tan(max(abs(roll), abs(pitch)))
+        found.append(self.attitude_checks[0].update(roll, rate[0], coupling, dt))
+        found.append(self.attitude_checks[1].update(pitch, rate[1], coupling, dt))
+        rel = self._relative()
+        forward = self.radius * (float(rel[1]) + rate[1])
+        left = -self.radius * (float(rel[0]) + rate[0])
+        h = self.imu_height
+        ax, ay, _ = world_acceleration(self.imu["IMU_ACCEL"], roll, pitch)
+        found.append(self.trend[0].update(forward + h * math.cos(pitch) * rate[1], ax, dt))
+        found.append(self.trend[1].update(left - h * math.cos(roll) * rate[0], ay, dt))
+        return [f for f in found if f is not None]
+
+    def findings(self, t: float) -> tuple[Finding, ...]:
+        found = self._cross_checks(t)
+        for drive in self.drives:
+            found += [f for f in drive.findings.values() if f is not None]
+        found += [f for f in self._imu_findings.values() if f is not None]
+        found += [f for f in self._replay_findings.values() if f is not None]
+        if self._seat_finding is not None:
+            found.append(self._seat_finding)
+        if any(f.cause in (Cause.SENSOR_STUCK, Cause.SENSOR_DISAGREE) for f in found):
+            self.degraded = True
+        return tuple(found)
+
+    def margins(self) -> dict[str, float]:
+        """Each check's largest |residual| / bound so far (1: where it would fire)."""
+        checks = [self.yaw, *self.attitude_checks, *self.trend, self.seat]
+        for d in self.drives:
+            checks += [d.encoder, d.torque]
+        out = {c.name: round(c.peak, 4) for c in checks}
+        out.update({f"seat {part}": round(v, 4) for part, v in self.seat.peaks.items()})
+        return out
 
     def observe(self, t: float) -> Observation:
         """A snapshot at time t; the per-update parts (torque peak, operator command) start afresh."""
         window = t - self.config.integrity.e2e_window
         while self._errors and self._errors[0][0] < window:
             self._errors.popleft()
+        ages = {k: t - v for k, v in self.last.items()}
+        ages["sc"] = self.sc.age(t)
+        findings = self.findings(t)
+        timeout = self.config.watchdogs.drives
         obs = Observation(
             t=t,
             speed=self.speed(),
             tilt=self.tilt(),
-            ages={k: t - v for k, v in self.last.items()},
+            ages=ages,
             controller_state=self.controller_state,
             torque_peak=self.torque_peak,
             e2e_errors=sum(n for _, n in self._errors),
             seat_load=self.seat_load,
             button=self.button,
-            request=self.request,
+            request=self.sc.request,
             operator=self.operator,
             operator_source=self.operator_source,
+            findings=findings,
+            drives=tuple(d.report(t, timeout) for d in self.drives),
         )
         self.torque_peak = 0.0
         self.operator, self.operator_source = None, ""
         return obs
+
+
+def _leave_one_out(jacobian: np.ndarray):
+    """For each drive, a solver for the ball-to-body rates (x, y) from the other two drives' velocities and
+    the yaw rate: what the speed is if that drive's encoder is the wrong one."""
+    solvers = []
+    for i in range(3):
+        others = [j for j in range(3) if j != i]
+        inverse = np.linalg.inv(jacobian[np.ix_(others, [0, 1])])
+        column = jacobian[others, 2]
+
+        def solve(known, yaw_rate, inverse=inverse, column=column):
+            # r2 = −ψ̇: each remaining motor's rate minus its yaw part, through the 2×2 inverse.
+            rhs = np.asarray(known) - column * (-yaw_rate)
+            x, y = inverse @ rhs
+            return float(x), float(y)
+
+        solvers.append((solve, others))
+    return solvers

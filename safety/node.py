@@ -1,13 +1,13 @@
 """The supervisor on the wire: a thin adapter around the state machine.
 
-In: every CAN frame (drive feedback, IMU, torque commands, heartbeat, the wired e-stop), and on zenoh the
-SC requests, operator e-stop/reset and the seat wrench. Out: SUPERVISOR_ESTOP (the drives' permission to
-run, every 10 ms and at once on a transition), pure/sc/command (the only SC input the controller reads),
-pure/safety/state, and the event log.
+In: every CAN frame (drive feedback, IMU, torque commands and measured torques, heartbeat, the wired
+e-stop), and on zenoh the SC requests, operator e-stop/reset and the seat wrench. Out: SUPERVISOR_ESTOP
+(the drives' permission to run and the main contactor's command, every 10 ms and at once on a transition),
+pure/sc/command (the only SC input the controller reads), pure/safety/state, and the event log.
 
 In the rig it updates once per tick after the controller has answered (`update(t, fence=k)`: in lockstep it
-first waits for the seat sample of tick k, so the SC requests the rig put before it have arrived too);
-standalone it runs on its own timer (`run`).
+first waits for the rig's fence of tick k, so every zenoh input of tick k has arrived, whatever a fault did
+to them); standalone it runs on its own timer (`run`).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from collections.abc import Callable
 
 from drivers.can_bus import CanNode, Received
 from drivers.schemas import EstopCommand, SafetyState, ScCommand, ScRequest, TesWrench, encode
-from drivers.zenoh_link import ZenohLink
+from drivers.zenoh_link import Fence, ZenohLink
 from safety.config import RobotGeometry, SupervisorConfig
 from safety.machine import Decision, Event, Forward, Observation, State, Supervisor
 from safety.monitors import Monitors
@@ -44,21 +44,21 @@ class SupervisorNode:
         self.config = config = config or SupervisorConfig()
         robot = robot or RobotGeometry()
         self.can, self.link, self.keys = can, link, link.keys
-        self.machine = Supervisor(config, robot.drive.torque_limit)
-        self.monitors = Monitors(config, robot)
+        self.machine = Supervisor(config, robot.drive.torque_limit, robot.drive.watchdog_timeout)
+        self.monitors = Monitors(config, robot, tick_hz)
         self.tick_hz, self.fence_wait, self.on_put = tick_hz, fence_wait, on_put
         keys = self.keys
-        self.requests = link.subscribe(keys.sc_request, ScRequest, capacity=64)
+        self.requests = link.subscribe(keys.sc_request, ScRequest, capacity=256)
         self.operator = link.subscribe(keys.safety_estop, EstopCommand, capacity=64)
         self.wrench = link.subscribe(keys.tes_wrench, TesWrench, capacity=64)
+        self.fence = Fence(link, [self.requests, self.operator, self.wrench])
         link.declare_publishers([keys.sc_command, keys.safety_state])
         self.decision: Decision | None = None
         self.observation: Observation | None = None
         """What the last update saw (the rig records its speed estimate next to the truth)."""
         self.tick: int | None = None
         self.fence_misses = 0
-        """Lockstep updates that went ahead without the seat sample of their tick."""
-        self._wrench_seq = -1
+        """Lockstep updates that went ahead without every zenoh input of their tick (the guard ran out)."""
         self._events_seen = 0
         self._sc_seq = self._state_seq = 0
         self._frame_sent = self._sc_sent = self._state_sent = -math.inf
@@ -81,17 +81,10 @@ class SupervisorNode:
             self.frame(rx, t)
 
     def _drain_zenoh(self, t: float, fence: int | None) -> None:
-        deadline = time.monotonic() + self.fence_wait
-        while True:
-            for w in self.wrench.drain():
-                self.monitors.wrench(w, t)
-                self._wrench_seq = w.seq
-            if fence is None or self._wrench_seq >= fence:
-                break
-            if time.monotonic() >= deadline:
-                self.fence_misses += 1
-                break
-            self.wrench.wait(max(deadline - time.monotonic(), 0.0))
+        if fence is not None and not self.fence.wait(fence, self.fence_wait):
+            self.fence_misses += 1
+        for w in self.wrench.drain():
+            self.monitors.wrench(w, t)
         for r in self.requests.drain():
             self.monitors.sc_request(r, t)
         for cmd in self.operator.drain():
@@ -107,6 +100,8 @@ class SupervisorNode:
         decision = self.machine.update(self.observation)
         new = self.machine.events[self._events_seen :]
         changed = any(e.kind == "transition" for e in new)
+        if any(e.kind == "transition" and e.cause == "RESET" for e in new):
+            self.monitors.reset()
         refused = next((e.detail for e in reversed(new) if e.kind == "reset_refused"), "")
         for event in new:
             log.warning(
@@ -128,7 +123,12 @@ class SupervisorNode:
         if changed or t - self._frame_sent >= out.estop_frame_period - 1e-9:
             self.can.send(
                 "SUPERVISOR_ESTOP",
-                {"Estop": int(d.state is State.ESTOP), "State": int(d.state), "Reason": int(d.cause)},
+                {
+                    "Estop": int(d.state is State.ESTOP),
+                    "Contactor": int(d.contactor_closed),
+                    "State": int(d.state),
+                    "Reason": int(d.cause),
+                },
             )
             self._frame_sent = t
         stamp = self._stamp(t)
@@ -168,7 +168,7 @@ class SupervisorNode:
 
     def _put(self, key: str, payload) -> None:
         data = encode(payload)
-        self.link.publisher(key).put(data)
+        self.link.put_bytes(key, data)
         if self.on_put is not None:
             self.on_put(key, data)
 

@@ -1,0 +1,364 @@
+"""Diverse evidence: each check compares two independent measurements of one physical quantity, or a value
+with what physics allows, and says when they disagree (pure: values in, a finding out; no I/O, no clock).
+
+What PURE's sensors make redundant (docs/safety.md "Diagnostics"):
+- the three encoders determine (vx, vy, yaw rate) exactly; the gyro's RateZ is a second yaw rate;
+- each drive reports its position and its velocity: the position's derivative must match the velocity;
+- the attitude must follow the integrated body rates;
+- the horizontal specific force (accelerometer, rotated by the attitude) integrates to the change of the
+  IMU point's velocity: the encoders' speed plus the chassis' rotation about the ball;
+- the measured torque follows the command through the drive's current loop;
+- a seat carries a seated rider: weight within a band of the tared weight, COP on the seat, COP consistent
+  with force and moment, no faster change than a body and the chassis make;
+- a noisy sensor never repeats its raw value many frames in a row while other evidence says it moved.
+
+Every check keeps `peak`: the largest |residual| / bound it has seen, so a run shows how close it came to a
+false trip (summary.json → safety.diagnostics).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+
+from safety.config import RobotGeometry, SeatRules, SensorRules
+from safety.machine import Cause, Finding
+
+
+class Window:
+    """The running sum of the last `n` values."""
+
+    def __init__(self, n: int):
+        self.values: deque[float] = deque(maxlen=n)
+        self.total = 0.0
+
+    def add(self, x: float) -> None:
+        if len(self.values) == self.values.maxlen:
+            self.total -= self.values[0]
+        self.values.append(x)
+        self.total += x
+
+    @property
+    def full(self) -> bool:
+        return len(self.values) == self.values.maxlen
+
+    def clear(self) -> None:
+        self.values.clear()
+        self.total = 0.0
+
+
+class Check:
+    """A residual against its bound: `judge` records the peak ratio and returns a finding when over."""
+
+    cause = Cause.SENSOR_DISAGREE
+
+    def __init__(self, name: str):
+        self.name = name
+        self.peak = 0.0
+
+    def judge(self, residual: float, bound: float, detail: str) -> Finding | None:
+        ratio = abs(residual) / bound
+        self.peak = max(self.peak, ratio)
+        return Finding(self.cause, f"{self.name}: {detail}") if ratio > 1.0 else None
+
+
+class Stuck:
+    """Counts how many frames in a row a channel repeated its raw value, and how far the other evidence
+    says it should have moved over that run."""
+
+    def __init__(self, samples: int, need: float):
+        self.samples, self.need = samples, need
+        self.last: object = None
+        self.run = 0
+        self.evidence = 0.0
+
+    def sample(self, raw: object, evidence: float) -> bool:
+        """One frame's raw value and how far the other evidence moved since the previous frame; True if
+        the channel is stuck: the same value `samples` times in a row while the evidence moved `need`."""
+        if raw == self.last:
+            self.run += 1
+            self.evidence += evidence
+        else:
+            self.last, self.run, self.evidence = raw, 1, 0.0
+        return self.run >= self.samples and self.evidence >= self.need
+
+    def clear(self) -> None:
+        self.last, self.run, self.evidence = None, 0, 0.0
+
+
+class Replay:
+    """A stream whose last `period` frames each repeat, signal for signal, the frame `period` before it,
+    while they differ among themselves: frames replayed from exactly one alive-counter period back. The
+    4-bit counter aliases and the CRC is the original's, so E2E sees nothing; a live sensor's noise never
+    repeats a whole cycle. A constant stream is not a replay (that is the stuck check's, with evidence)."""
+
+    def __init__(self, period: int):
+        self.history: deque[tuple] = deque(maxlen=period)
+        self.matches = 0
+
+    def frame(self, data: tuple) -> bool:
+        """One trusted frame's data signals (without counter and CRC); True while replayed."""
+        full = len(self.history) == self.history.maxlen
+        self.matches = self.matches + 1 if full and data == self.history[0] else 0
+        self.history.append(data)
+        return self.matches >= self.history.maxlen and len(set(self.history)) > 1
+
+
+class EncoderCheck(Check):
+    """One drive: its position differentiated vs the velocity it reports, over a window of frames."""
+
+    def __init__(self, index: int, rules: SensorRules, period: float, rad_per_count: float, wrap: int):
+        super().__init__(f"drive {index} position vs velocity")
+        self.rules, self.period, self.rad_per_count, self.wrap = rules, period, rad_per_count, wrap
+        n = max(round(rules.window / period), 2)
+        self.moved, self.integral, self.time, self.magnitude = Window(n), Window(n), Window(n), Window(n)
+        self.previous: tuple[int, float] | None = None
+
+    def frame(self, counts: int, velocity: float, periods: int) -> Finding | None:
+        """A trusted feedback frame; `periods`: sample periods since the previous one (1 + frames lost)."""
+        previous, self.previous = self.previous, (counts, velocity)
+        if previous is None:
+            return None
+        half = self.wrap // 2
+        moved = ((counts - previous[0] + half) % self.wrap - half) * self.rad_per_count
+        dt = periods * self.period
+        self.moved.add(moved)
+        self.integral.add(0.5 * (velocity + previous[1]) * dt)
+        self.time.add(dt)
+        self.magnitude.add(abs(velocity) * dt)
+        if not self.time.full:
+            return None
+        span = self.time.total
+        derived, reported = self.moved.total / span, self.integral.total / span
+        bound = self.rules.encoder_tolerance + self.rules.relative * self.magnitude.total / span
+        return self.judge(
+            derived - reported,
+            bound,
+            f"{derived:.2f} rad/s from the position, {reported:.2f} rad/s reported",
+        )
+
+    def reset(self) -> None:
+        """A gap the window must not span (a frame it could not trust)."""
+        self.previous = None
+        for w in (self.moved, self.integral, self.time, self.magnitude):
+            w.clear()
+
+
+class YawCheck(Check):
+    """The yaw rate the three encoders determine vs the gyro's RateZ."""
+
+    def __init__(self, rules: SensorRules, to_relative: np.ndarray, period: float):
+        super().__init__("yaw rate, encoders vs gyro")
+        self.rules = rules
+        self.row = tuple(float(-x) for x in to_relative[2])  # ψ̇ = −(G⁻¹ m)[2]
+        n = max(round(rules.window / period), 2)
+        self.difference, self.magnitude, self.time = Window(n), Window(n), Window(n)
+
+    def encoders(self, motor_velocity: list[float]) -> float:
+        r = self.row
+        return r[0] * motor_velocity[0] + r[1] * motor_velocity[1] + r[2] * motor_velocity[2]
+
+    def update(self, motor_velocity: list[float], gyro: float, dt: float) -> Finding | None:
+        encoders = self.encoders(motor_velocity)
+        self.difference.add((encoders - gyro) * dt)
+        self.magnitude.add(max(abs(encoders), abs(gyro)) * dt)
+        self.time.add(dt)
+        if not self.time.full:
+            return None
+        span = self.time.total
+        bound = self.rules.yaw_tolerance + self.rules.relative * self.magnitude.total / span
+        return self.judge(
+            self.difference.total / span,
+            bound,
+            f"{encoders:.3f} rad/s from the encoders, {gyro:.3f} rad/s from the gyro",
+        )
+
+
+class AttitudeCheck(Check):
+    """One plane: the attitude's change vs the body rate integrated (a leaky sum, so slow drifts add up
+    too), with room for what the small-angle kinematics neglect (rate × tilt cross terms)."""
+
+    def __init__(self, plane: str, rules: SensorRules):
+        super().__init__(f"{plane} attitude vs integrated rate")
+        self.rules = rules
+        self.error = self.allowance = 0.0
+        self.previous: tuple[float, float] | None = None
+
+    def update(self, angle: float, rate: float, coupling: float, dt: float) -> Finding | None:
+        """`coupling`: the largest neglected kinematic term now, rad/s (|rates| × tan(tilt))."""
+        previous, self.previous = self.previous, (angle, rate)
+        if previous is None:
+            return None
+        keep = math.exp(-dt / self.rules.attitude_memory)
+        self.error = keep * self.error + (angle - previous[0]) - 0.5 * (rate + previous[1]) * dt
+        self.allowance = keep * self.allowance + coupling * dt
+        return self.judge(
+            self.error,
+            self.rules.attitude_tolerance + self.allowance,
+            f"attitude ran {self.error * 1e3:+.1f} mrad off the integrated rate",
+        )
+
+    def reset(self) -> None:
+        self.previous, self.error, self.allowance = None, 0.0, 0.0
+
+
+class TrendCheck(Check):
+    """One plane: the change of the IMU point's horizontal velocity (the encoders' ground speed plus the
+    chassis turning about the ball, h cos θ θ̇) vs the horizontal specific force integrated."""
+
+    def __init__(self, plane: str, rules: SensorRules, period: float):
+        super().__init__(f"{plane} speed trend vs accelerometer")
+        self.rules = rules
+        self.history: deque[tuple[float, float]] = deque(maxlen=max(round(rules.trend_window / period), 2))
+        self.integral = 0.0
+        self.previous_accel: float | None = None
+
+    def update(self, velocity: float, accel: float, dt: float) -> Finding | None:
+        """`velocity`: the IMU point's horizontal velocity from the encoders, m/s; `accel`: the horizontal
+        specific force, m/s²."""
+        if self.previous_accel is not None:
+            self.integral += 0.5 * (accel + self.previous_accel) * dt
+        self.previous_accel = accel
+        self.history.append((velocity, self.integral))
+        if len(self.history) < self.history.maxlen:
+            return None
+        v0, i0 = self.history[0]
+        changed, integrated = velocity - v0, self.integral - i0
+        return self.judge(
+            changed - integrated,
+            self.rules.trend_tolerance,
+            f"speed changed {changed:+.3f} m/s, the accelerometer says {integrated:+.3f} m/s",
+        )
+
+    def reset(self) -> None:
+        self.history.clear()
+        self.previous_accel = None
+
+
+class TorqueCheck(Check):
+    """One drive: its measured torque vs the command it follows (the last one before the sample)."""
+
+    cause = Cause.ACTUATOR_MISMATCH
+
+    def __init__(self, index: int, tolerance: float, relative: float, samples: int, limit: float):
+        super().__init__(f"drive {index} torque")
+        self.tolerance, self.relative, self.samples, self.limit = tolerance, relative, samples, limit
+        self.over = 0
+
+    def sample(self, measured: float, commanded: float | None, producing: bool) -> Finding | None:
+        """`commanded`: the torque the drive was last told (None: not yet); `producing`: it reports itself
+        enabled on a live bus, and that command asked it to enable (else it must make none)."""
+        if commanded is None:
+            return None
+        expected = min(max(commanded, -self.limit), self.limit) if producing else 0.0
+        bound = self.tolerance + self.relative * abs(expected)
+        self.peak = max(self.peak, abs(measured - expected) / bound)
+        self.over = self.over + 1 if abs(measured - expected) > bound else 0
+        if self.over < self.samples:
+            return None
+        return Finding(
+            self.cause,
+            f"{self.name}: measured {measured:+.3f} Nm, expected {expected:+.3f} Nm "
+            f"for {self.over} samples in a row",
+        )
+
+
+class SeatCheck(Check):
+    """The seat wrench as a seated rider can make it."""
+
+    cause = Cause.WRENCH_IMPLAUSIBLE
+
+    def __init__(self, rules: SeatRules, min_load: float, seat_height: float, period: float, moved: float):
+        super().__init__("seat")
+        self.rules, self.min_load, self.seat_height = rules, min_load, seat_height
+        self.tare: float | None = None
+        self._tare_sum, self._tare_n = 0.0, 0
+        self._tare_samples = max(round(rules.tare_time / period), 1)
+        n = max(round(rules.rate_window / period), 1)
+        self.history: deque[tuple[float, ...]] = deque(maxlen=n + 1)
+        self.span = n * period
+        self.stuck = Stuck(rules.stuck_samples, moved)
+        self.peaks = {"weight": 0.0, "cop": 0.0, "consistency": 0.0, "force rate": 0.0, "moment rate": 0.0}
+
+    def sample(
+        self, force, moment, cop, vertical_accel: float, moved: float, g: float = 9.80665
+    ) -> Finding | None:
+        """One payload; `vertical_accel`: the IMU's vertical specific force (m/s², ~g at rest); `moved`:
+        how much other evidence (the IMU) changed since the previous sample (for the frozen check)."""
+        values = (*force, *moment)
+        self.history.append(values)
+        if self.stuck.sample(values, moved):
+            return Finding(self.cause, f"seat: every value frozen for {self.stuck.run} samples")
+        load = -force[2]
+        if self.tare is None:
+            if load >= self.min_load:
+                self._tare_sum += load
+                self._tare_n += 1
+                if self._tare_n >= self._tare_samples:
+                    self.tare = self._tare_sum / self._tare_n
+            return None
+        r = self.rules
+        # Weight: within the band of the tare, scaled by the chassis' vertical acceleration; below the
+        # smallest seated load it is a rider getting off (RIDER_ABSENT), not this check's.
+        expected = self.tare * vertical_accel / g
+        if load >= self.min_load:
+            over = self._ratio("weight", abs(load - expected), r.weight_band * self.tare)
+            if over:
+                return Finding(
+                    self.cause,
+                    f"seat: load {load:.0f} N, a rider tared at {self.tare:.0f} N gives {expected:.0f} N",
+                )
+            distance = math.hypot(*cop)
+            if self._ratio("cop", distance, r.radius):
+                return Finding(self.cause, f"seat: centre of pressure {distance:.3f} m off the centre")
+            fx, fy, fz = force
+            mx, my, _ = moment
+            h = self.seat_height
+            derived = ((h * fx - my) / fz, (mx + h * fy) / fz)
+            gap = math.hypot(derived[0] - cop[0], derived[1] - cop[1])
+            if self._ratio("consistency", gap, r.cop_tolerance):
+                return Finding(
+                    self.cause, f"seat: reported COP {gap * 1e3:.0f} mm from the force and moment's"
+                )
+        if len(self.history) == self.history.maxlen:
+            old = self.history[0]
+            dforce = max(abs(values[i] - old[i]) for i in range(3)) / self.span
+            dmoment = max(abs(values[i] - old[i]) for i in range(3, 6)) / self.span
+            if self._ratio("force rate", dforce, r.force_rate):
+                return Finding(self.cause, f"seat: force changing at {dforce:.0f} N/s")
+            if self._ratio("moment rate", dmoment, r.moment_rate):
+                return Finding(self.cause, f"seat: moment changing at {dmoment:.0f} Nm/s")
+        return None
+
+    def _ratio(self, part: str, value: float, bound: float) -> bool:
+        ratio = value / bound
+        self.peaks[part] = max(self.peaks[part], ratio)
+        self.peak = max(self.peak, ratio)
+        return ratio > 1.0
+
+
+def motor_jacobian(robot: RobotGeometry) -> np.ndarray:
+    """Motor-shaft rates = G @ [φ̇_x − θ̇_x, φ̇_y − θ̇_y, −ψ̇] (each wheel's contact direction on the ball)."""
+    d = robot.drivetrain
+    rho = robot.ball.radius / d.wheel_radius
+    zenith = math.radians(d.zenith_deg)
+    rows = []
+    for i, sign in enumerate(d.motor_sign):
+        azimuth = math.radians(d.azimuth0_deg) + 2.0 * math.pi * i / 3.0
+        direction = (
+            -math.cos(zenith) * math.cos(azimuth),
+            -math.cos(zenith) * math.sin(azimuth),
+            math.sin(zenith),
+        )
+        rows.append([sign * d.gear_ratio * rho * x for x in direction])
+    return np.array(rows)
+
+
+def world_acceleration(accel, roll: float, pitch: float) -> tuple[float, float, float]:
+    """The body specific force in the heading frame: world = Ry(pitch) Rx(roll) body."""
+    bx, by, bz = accel
+    sr, cr, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
+    u1, u2 = cr * by - sr * bz, sr * by + cr * bz
+    return cp * bx + sp * u2, u1, -sp * bx + cp * u2
