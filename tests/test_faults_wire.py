@@ -54,7 +54,7 @@ def imu_fault(kind, **params):
 
 
 def test_every_fault_of_the_catalog_has_a_family_and_a_doc():
-    assert len(CATALOG) == sum(len(f) for f in FAMILIES.values()) == 35
+    assert len(CATALOG) == sum(len(f) for f in FAMILIES.values()) == 36
     for kind, cls in CATALOG.items():
         assert kind.split(".")[0] in ("sensor", "can", "zenoh", "plant", "process")
         assert cls.__doc__ and len(cls.__doc__.split()) >= 5, kind
@@ -234,6 +234,18 @@ def test_can_masquerade_under_another_id_fails_its_crc(pair):
     assert set(faulty.statuses("IMU_RATE")) == {"OK"}
 
 
+def test_can_replay_from_one_counter_period_back_passes_e2e(pair):
+    # A replayed loop of exactly 16 frames: the alive counter comes round, the CRC is the original's, so
+    # every frame is OK to E2E while its data is 16 frames (40 ms) stale and repeats (the supervisor's
+    # freshness check is in tests/test_safety_diagnostics.py and the coverage campaign).
+    faulty, healthy = pair(can_fault("can.replay", frames=16), ticks=TICKS + 40)
+    assert set(faulty.statuses("IMU_RATE")) == {"OK"}
+    f = [m.data for k, m, _ in faulty.frames if m.arbitration_id == 650 and k >= START]
+    h = [m.data for k, m, _ in healthy.frames if m.arbitration_id == 650 and k >= START]
+    assert f[:16] == h[:16], "recorded while passed on"
+    assert f[16:] == [f[i % 16] for i in range(16, len(f))] and f[16:] != h[16:], "then looped"
+
+
 def test_can_babble_floods_and_starves_lower_priority_frames_when_it_saturates(pair):
     faulty, _ = pair({"kind": "can.babble", "at": AT, "duration": 0.025, "per_tick": 30})  # 10 ticks
     babble = [k for k, m, _ in faulty.frames if m.arbitration_id == 0x001]
@@ -335,7 +347,9 @@ def test_sc_conflict_adds_a_second_source_at_its_period(pair):
 
 # ----------------------------------------------------------------------------------------- actuators
 def enable_all(bench, torque=0.5):
+    """What the supervisor's frame does for the drives: permission, and the main contactor closed."""
     bench.plant.drives.set_permission(True)
+    bench.plant.drives.set_contactor(True)
     bench.plant.drives.set_commands((torque,) * 3, True, bench.plant.t)
 
 
@@ -365,6 +379,12 @@ def test_drive_stuck_enabled_ignores_the_supervisors_permission(session):
         bench.plant.step()
         states = [m.state.name for m in bench.plant.drives.motors]
         assert states == ["DISABLED", "DISABLED", "ENABLED"] and bench.plant.drives.torques[2] != 0.0
+        assert bench.plant.drives.powered
+        # The second path: the main contactor cuts the DC bus of all three, the stuck one included.
+        bench.plant.drives.set_contactor(False)
+        bench.plant.step()
+        assert bench.plant.drives.torques == (0.0, 0.0, 0.0) and not bench.plant.drives.powered
+        assert bench.plant.drives.motors[2].state.name == "ENABLED", "it still thinks itself on"
     finally:
         bench.close()
 

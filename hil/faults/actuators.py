@@ -20,11 +20,17 @@ class PlantFault(FaultSpec, frozen=True, kw_only=True):
     family: ClassVar[str] = "actuators"
 
 
-class DriveTorque(PlantFault, tag="plant.drive_torque"):
+class DriveFault(PlantFault, frozen=True, kw_only=True):
+    """A fault of one drive: the supervisor must see it within 50 ms."""
+
+    motor: Motor
+    detect_within: ClassVar[float] = 0.05
+
+
+class DriveTorque(DriveFault, tag="plant.drive_torque"):
     """Drive `motor` produces `scale` times the torque it is commanded (0: torque lost, the drive still
     reports itself enabled)."""
 
-    motor: Motor
     scale: NonNegative = 0.0
 
     def start(self, rig: Rig, state: FaultState) -> None:
@@ -34,11 +40,11 @@ class DriveTorque(PlantFault, tag="plant.drive_torque"):
         rig.plant.drives.motors[self.motor - 1].gain = 1.0
 
 
-class DriveStuckEnabled(PlantFault, tag="plant.drive_stuck_enabled"):
+class DriveStuckEnabled(DriveFault, tag="plant.drive_stuck_enabled"):
     """Drive `motor`'s power stage cannot be switched off: it ignores disable, its watchdog and the
-    supervisor's e-stop, and holds its last setpoint."""
+    supervisor's e-stop, and holds its last setpoint (latent until the drives are told to turn off)."""
 
-    motor: Motor
+    latent: ClassVar[bool] = True
 
     def start(self, rig, state):
         rig.plant.drives.motors[self.motor - 1].stuck_enabled = True
@@ -55,6 +61,7 @@ class Push(PlantFault, tag="plant.push"):
     force: tuple[float, float] = (0.0, 0.0)
     height: float = 0.0
     twist: float = 0.0
+    disturbance: ClassVar[bool] = True
 
     def start(self, rig, state):
         forward, left = self.force
@@ -71,11 +78,13 @@ class Push(PlantFault, tag="plant.push"):
 
 
 class MassShift(PlantFault, tag="plant.mass_shift"):
-    """The rider's weight shifts at once by a torso lean of `pitch_deg` (forward) and `roll_deg`, on top of
-    whatever the rider does (a slip on the seat, a reach for something); lasts the fault's duration."""
+    """The rider's weight shifts suddenly by a torso lean of `pitch_deg` (forward) and `roll_deg`, on top of
+    whatever the rider does (a slip on the seat, a reach for something; in 30 ms, as fast as a body's mass
+    moves); lasts the fault's duration."""
 
     pitch_deg: float = 0.0
     roll_deg: float = 0.0
+    disturbance: ClassVar[bool] = True
 
     def validate(self, rig):
         if rig.plant.torso is None:

@@ -8,6 +8,7 @@ event log and the random streams, and calls a hook only while the fault is activ
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal
 
@@ -70,6 +71,22 @@ class FaultSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only
 
     family: ClassVar[str] = ""
     summary: ClassVar[str] = ""
+    detect_within: ClassVar[float] = 0.25
+    """s the supervisor has to see this fault on its own evidence (docs/safety.md, the coverage campaign)."""
+    latent: ClassVar[bool] = False
+    """The fault shows only on a demand (the drives told to turn off): its detection time counts from the
+    supervisor's first e-stop after the fault started, not from the fault's start."""
+    disturbance: ClassVar[bool] = False
+    """Not a fault of the robot but something the world or the rider does to it (a push, a weight shift):
+    it must be ridden through without a hazard, whatever it changes."""
+
+    def __post_init__(self) -> None:
+        # msgspec accepts NaN and infinities for plain floats: a fault parameter must be a number.
+        for name in self.__struct_fields__:
+            value = getattr(self, name)
+            for x in value if isinstance(value, tuple) else (value,):
+                if isinstance(x, float) and not math.isfinite(x):
+                    raise ValueError(f"{self.kind}: {name} = {value!r} is not a finite number")
 
     @property
     def kind(self) -> str:

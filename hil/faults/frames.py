@@ -190,6 +190,23 @@ class Masquerade(CanFault, tag="can.masquerade"):
         return [msg, _copy(msg, arbitration_id=rig.can.catalog[self.as_message].frame_id)]
 
 
+class Replay(CanFault, tag="can.replay"):
+    """A node records `frames` of this message's frames, then replays the recording in a loop instead of
+    fresh ones, each frame as it was (counter and CRC intact). At 16 frames the 4-bit alive counter comes
+    round exactly: E2E sees a healthy stream of stale data (a replay attack, or a stuck buffer)."""
+
+    frames: Annotated[int, msgspec.Meta(ge=2, le=1024)] = 16
+    both_ways: ClassVar[bool] = False
+
+    def tx(self, msg, rig, state):
+        recorded: list = state.memory.setdefault("recorded", [])
+        if len(recorded) < self.frames:
+            recorded.append(msg)
+            return [msg]
+        n = state.memory["replayed"] = state.memory.get("replayed", -1) + 1
+        return [recorded[n % self.frames]]
+
+
 class Babble(FaultSpec, frozen=True, kw_only=True, tag="can.babble"):
     """A babbling node floods `per_tick` frames of id `can_id` (high priority: low id) every tick. When the
     flood fills the tick's bus time (at the bus bitrate), frames with higher ids lose every arbitration:
@@ -222,4 +239,4 @@ class BusOff(FaultSpec, frozen=True, kw_only=True, tag="can.bus_off"):
             raise ValueError("can.bus_off needs a duration (the recovery time)")
 
 
-FAULTS = (Drop, Delay, Repeat, Reorder, Corrupt, WrongCounter, WrongDlc, Masquerade, Babble, BusOff)
+FAULTS = (Drop, Delay, Repeat, Reorder, Corrupt, WrongCounter, WrongDlc, Masquerade, Replay, Babble, BusOff)

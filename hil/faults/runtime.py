@@ -156,7 +156,10 @@ class FaultSet:
         log.warning("fault %d %s at t=%.3f: %s", n, action, t, detail or spec.kind)
 
     def finish(self, t: float) -> None:
-        """End of the run: every fault still active ends (held frames are sent, processes resume)."""
+        """End of the run: requests already acknowledged are logged, every fault still active ends (held
+        frames are sent, processes resume)."""
+        if self._requests:
+            self._take_requests(t)
         for n in self._active:
             state = self.states[n]
             state.active, state.ended = False, t

@@ -60,6 +60,7 @@ class Malformed(TopicFault, tag="zenoh.malformed"):
     payload: str = "c1ffee"
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         try:
             bytes.fromhex(self.payload)
         except ValueError:
