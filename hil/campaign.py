@@ -1,10 +1,14 @@
-"""Campaigns: scenarios x riders x fault sets x seeds, each combination a lockstep run with a verdict.
+"""Campaigns: scenarios x riders x controllers x fault sets x seeds, each combination a lockstep run with a
+verdict.
 
 A campaign file (`configs/campaigns/*.toml`, docs/campaigns.md) names the scenarios, the riders (none: each
-scenario's own), the fault sets (each a name and a list of faults with their expected reactions; a
-fault-free baseline unless `baseline = false`) and the seeds. `pure-hil campaign FILE --workers N` runs the
-cases in parallel processes and writes a report (worst cases first) and JUnit XML; the pytest plugin
-collects the same cases as test items (hil/pytest_plugin.py).
+scenario's own), the controllers (none: each scenario's own), the fault sets (each a name, a list of faults
+with their expected reactions and operator actions; a fault-free baseline unless `baseline = false`) and the
+seeds. With a `[coverage]` table it is a diagnostic coverage campaign (hil/coverage.py): each faulty case is
+classed against its fault-free twin (DETECTED, BENIGN, MISSED, LATE), fault sets need no expectations, and
+every fault-free case, including the `[[fault_free]]` runs, counts a false trip if the supervisor acts.
+`pure-hil campaign FILE --workers N` runs the cases in parallel processes and writes a report (worst cases
+first) and JUnit XML; the pytest plugin collects the same cases as test items (hil/pytest_plugin.py).
 """
 
 from __future__ import annotations
@@ -13,33 +17,44 @@ import logging
 import time
 import traceback
 import xml.etree.ElementTree as ET
+from collections import Counter
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from multiprocessing import get_context
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import msgspec
 import numpy as np
 
 from drivers.config import load_toml
+from hil.coverage import Bounds, Classification, Outcome, classify, false_trip, outcome
 from hil.faults import Fault
-from hil.scenario import Scenario, resolve
+from hil.scenario import OperatorEntry, Scenario, resolve
+
+Controller = Literal["hacs", "ihacs", "external"]
 
 
 class FaultSetEntry(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    """A named set of faults injected together in one run (`inject`), each with its `expect`."""
+    """A named set of faults injected together in one run (`inject`), each with its `expect`, and the
+    operator actions that go with them (`operator`, e.g. an e-stop that reveals a drive stuck on)."""
 
     name: Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9_.-]+$")]
     inject: list[Fault] = []
+    operator: list[OperatorEntry] = []
     keep_criteria: bool = False
     """Judge the case by the scenario's own criteria too. By default a faulty case is judged by what its
     faults expect (the scenario's criteria describe the healthy run: an e-stop would fail them)."""
 
-    def __post_init__(self) -> None:
-        if not self.keep_criteria and self.inject and not any(f.expect for f in self.inject):
-            raise ValueError(f"fault set {self.name!r}: no fault says what it expects (add `expect`)")
+
+class FaultFree(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """More fault-free runs of a coverage campaign, judged for false trips only."""
+
+    scenarios: Annotated[list[str], msgspec.Meta(min_length=1)]
+    riders: list[str] = []
+    controllers: list[Controller] = []
+    duration: Annotated[float, msgspec.Meta(gt=0)] | None = None
 
 
 class Campaign(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -48,17 +63,40 @@ class Campaign(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
     scenarios: Annotated[list[str], msgspec.Meta(min_length=1)]
     riders: list[str] = []
     """Rider files; none: each scenario's own rider."""
+    controllers: list[Controller] = []
+    """Controllers; none: each scenario's own."""
     fault: list[FaultSetEntry] = []
     baseline: bool = True
     """Also run every combination without faults (named `none`)."""
     seeds: Annotated[list[int], msgspec.Meta(min_length=1)] = msgspec.field(default_factory=lambda: [0])
     duration: Annotated[float, msgspec.Meta(gt=0)] | None = None
     """Overrides every scenario's duration (s)."""
+    coverage: Bounds | None = None
+    """A diagnostic coverage campaign: faulty cases classed against their fault-free twins."""
+    fault_free: list[FaultFree] = []
+    pytest_select: list[str] = []
+    """What the pytest plugin collects: the cases whose id contains one of these (and their twins); empty:
+    every case. A long campaign's representative subset for CI (`pytest --hil-full` runs them all)."""
+
+    def __post_init__(self) -> None:
+        if self.coverage is not None and not self.baseline:
+            raise ValueError("a coverage campaign needs its fault-free baseline (the twins)")
+        if self.fault_free and self.coverage is None:
+            raise ValueError("[[fault_free]] runs belong to a coverage campaign (add [coverage])")
+        for s in self.fault:
+            if (
+                self.coverage is None
+                and not s.keep_criteria
+                and s.inject
+                and not any(f.expect for f in s.inject)
+            ):
+                raise ValueError(f"fault set {s.name!r}: no fault says what it expects (add `expect`)")
 
 
 @dataclass(frozen=True, slots=True)
 class Case:
-    """One run of a campaign: a scenario file, a rider (None: the scenario's), a fault set, a seed."""
+    """One run of a campaign: a scenario file, a rider and a controller (None: the scenario's), a fault set,
+    a seed."""
 
     campaign: str
     scenario: str
@@ -67,11 +105,26 @@ class Case:
     seed: int
     scenario_text: bytes
     """The scenario to run, fully resolved (JSON): a worker process needs nothing else."""
+    controller: str | None = None
+    role: Literal["plain", "faulty", "twin", "fault_free"] = "plain"
+    """Coverage campaigns: a faulty case, the fault-free twin of faulty cases, or a false-trip run."""
+    bounds: Bounds | None = None
+    twin_faults: str = "none"
+    """The fault set of this case's twin: `none`, or for a set with operator actions its own twin (the
+    same actions, no faults)."""
 
     @property
     def id(self) -> str:
-        parts = [Path(self.scenario).stem, *([Path(self.rider).stem] if self.rider else []), self.faults]
+        parts = [Path(self.scenario).stem, *([Path(self.rider).stem] if self.rider else [])]
+        parts += [*([self.controller] if self.controller else []), self.faults]
         return "-".join(parts) + f"-seed{self.seed}"
+
+    @property
+    def twin_id(self) -> str:
+        """The id of this case's fault-free twin (same scenario, rider, controller, seed and operator)."""
+        return Case(
+            self.campaign, self.scenario, self.rider, self.twin_faults, self.seed, b"", self.controller
+        ).id
 
     def build(self) -> Scenario:
         return msgspec.json.decode(self.scenario_text, type=Scenario)
@@ -81,9 +134,16 @@ def load_campaign(path: Path | str) -> Campaign:
     return load_toml(path, Campaign)
 
 
-def expand(campaign: Campaign) -> list[Case]:
-    """Every case of the campaign, in a stable order (scenario, rider, fault set, seed)."""
-    sets = ([FaultSetEntry(name="none")] if campaign.baseline else []) + list(campaign.fault)
+def expand(campaign: Campaign, select: list[str] | None = None) -> list[Case]:
+    """Every case of the campaign, in a stable order (scenario, rider, controller, fault set, seed); with
+    `select`, those whose id contains one of its strings (and the twins they are judged against)."""
+    sets = [FaultSetEntry(name="none")] if campaign.baseline else []
+    coverage = campaign.coverage
+    if coverage is not None:  # a set with operator actions is judged against a twin with the same actions
+        sets += [
+            FaultSetEntry(name=f"{s.name}~twin", operator=s.operator) for s in campaign.fault if s.operator
+        ]
+    sets += campaign.fault
     names = [s.name for s in sets]
     if len(set(names)) != len(names):
         raise ValueError(f"campaign {campaign.name}: fault set names repeat: {names}")
@@ -91,26 +151,68 @@ def expand(campaign: Campaign) -> list[Case]:
     for scenario_path in campaign.scenarios:
         base = load_toml(resolve(scenario_path), Scenario)
         for rider in campaign.riders or [None]:
-            for fault_set in sets:
-                for seed in campaign.seeds:
+            for controller in campaign.controllers or [None]:
+                for fault_set in sets:
+                    faulty = bool(fault_set.inject)
+                    plain_baseline = not (faulty or fault_set.operator) and coverage is None
+                    keep = fault_set.keep_criteria or plain_baseline
                     scenario = msgspec.structs.replace(
                         base,
                         rider=rider or base.rider,
-                        seed=seed,
                         duration=campaign.duration or base.duration,
                         faults=[*base.faults, *fault_set.inject],
-                        criteria=base.criteria if fault_set.keep_criteria or not fault_set.inject else [],
+                        operator=sorted([*base.operator, *fault_set.operator], key=lambda e: e.at),
+                        criteria=base.criteria if keep else [],
                     )
-                    cases.append(
-                        Case(
-                            campaign.name,
-                            scenario_path,
-                            rider,
-                            fault_set.name,
-                            seed,
-                            msgspec.json.encode(scenario),
+                    role = "plain" if coverage is None else "faulty" if faulty else "twin"
+                    twin = f"{fault_set.name}~twin" if fault_set.operator and faulty else "none"
+                    for seed in campaign.seeds:
+                        text = msgspec.json.encode(msgspec.structs.replace(scenario, seed=seed))
+                        cases.append(
+                            Case(
+                                campaign.name,
+                                scenario_path,
+                                rider,
+                                fault_set.name,
+                                seed,
+                                text,
+                                controller,
+                                role,
+                                coverage,
+                                twin,
+                            )
                         )
-                    )
+    for entry in campaign.fault_free:
+        for scenario_path in entry.scenarios:
+            base = load_toml(resolve(scenario_path), Scenario)
+            for rider in entry.riders or [None]:
+                for controller in entry.controllers or [None]:
+                    for seed in campaign.seeds:
+                        scenario = msgspec.structs.replace(
+                            base,
+                            rider=rider or base.rider,
+                            duration=entry.duration or base.duration,
+                            seed=seed,
+                            criteria=[],
+                        )
+                        name = "fault_free" if entry.duration is None else f"fault_free_{entry.duration:g}s"
+                        cases.append(
+                            Case(
+                                campaign.name,
+                                scenario_path,
+                                rider,
+                                name,
+                                seed,
+                                msgspec.json.encode(scenario),
+                                controller,
+                                "fault_free",
+                                coverage,
+                            )
+                        )
+    if select:
+        chosen = [c for c in cases if any(text in c.id for text in select)]
+        twins = {c.twin_id for c in chosen if c.role == "faulty"}
+        cases = [c for c in cases if c in chosen or c.id in twins]
     return cases
 
 
@@ -125,6 +227,13 @@ class CaseResult:
     fallen: str | None = None
     peak_tilt_deg: float = 0.0
     safety_events: list[str] = field(default_factory=list)
+    role: str = "plain"
+    twin: str = ""
+    outcome: Outcome | None = None
+    coverage: Classification | None = None
+    """A faulty case's class (set once its twin has run)."""
+    false_trip: str = ""
+    """A fault-free case of a coverage campaign: why it counts as a false trip ('' if it does not)."""
 
     @property
     def failed(self) -> list[dict]:
@@ -135,6 +244,11 @@ class CaseResult:
         if self.error:
             return self.error
         lines = []
+        if self.coverage is not None and not self.coverage.passed:
+            c = self.coverage
+            lines.append(f"{c.label}: {c.cause or 'no reaction of its own'}; {c.note}".rstrip("; "))
+        if self.false_trip:
+            lines.append(f"false trip: {self.false_trip}")
         for v in self.failed:
             line = f"{v['criterion']}: measured {v['value']:.4g} {v['units']}, limit {v['limit']}".rstrip()
             lines.append(line + (f" ({v['note']})" if v["note"] else ""))
@@ -145,12 +259,13 @@ def run_case(
     case: Case, out: Path | None = None, can: str | None = None, controller: str | None = None
 ) -> CaseResult:
     """Run one case in this process, lockstep, with its own zenoh hub on a free loopback port; on a private
-    virtual bus unless `can` names the lab's bus (INTERFACE:CHANNEL), with the scenario's controller unless
+    virtual bus unless `can` names the lab's bus (INTERFACE:CHANNEL), with the case's controller unless
     `controller` says otherwise (`external`: the lab's own, already on that bus)."""
     from drivers.can_bus import parse_can_spec
     from drivers.zenoh_link import free_loopback_endpoint
     from hil.runner import run_scenario, summary
 
+    controller = controller or case.controller
     start = time.monotonic()
     try:
         result = run_scenario(
@@ -162,14 +277,23 @@ def run_case(
         )
     except Exception as exc:  # a broken case is a result (an error), never the end of the campaign
         detail = "".join(traceback.format_exception_only(type(exc), exc)).strip()
-        return CaseResult(case.id, case.scenario, False, time.monotonic() - start, error=detail)
+        return CaseResult(
+            case.id,
+            case.scenario,
+            False,
+            time.monotonic() - start,
+            error=detail,
+            role=case.role,
+            twin=case.twin_id,
+        )
     tr = result.trace
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         (out / "summary.json").write_bytes(
             msgspec.json.format(msgspec.json.encode(summary(result)), indent=2)
         )
-    return CaseResult(
+    judged = case.role != "plain"
+    res = CaseResult(
         case.id,
         case.scenario,
         result.passed,
@@ -180,7 +304,36 @@ def run_case(
         safety_events=[
             f"{e.t:.3f} {e.to_state}/{e.cause}" for e in tr.safety_events if e.kind == "transition"
         ],
+        role=case.role,
+        twin=case.twin_id,
+        outcome=outcome(result) if judged else None,
     )
+    if case.role in ("twin", "fault_free"):
+        res.false_trip = false_trip(res.outcome)
+        res.passed = res.passed and not res.false_trip
+    return res
+
+
+def judge(result: CaseResult, twin: CaseResult | None, bounds: Bounds) -> None:
+    """Class a faulty case against its twin (coverage campaigns); its verdict is its class's."""
+    if result.role != "faulty" or result.error:
+        return
+    if twin is None or twin.outcome is None:
+        result.coverage = Classification("MISSED", note=f"no twin to judge against ({result.twin})")
+    else:
+        result.coverage = classify(result.outcome, twin.outcome, bounds)
+        if twin.wall > 0 and result.wall > bounds.wall_ratio * twin.wall:
+            result.verdicts.append(
+                {
+                    "criterion": "wall time vs twin",
+                    "value": result.wall / twin.wall,
+                    "limit": f"<= {bounds.wall_ratio:g}x",
+                    "units": "x",
+                    "passed": False,
+                    "note": f"{result.wall:.1f} s against its twin's {twin.wall:.1f} s",
+                }
+            )
+    result.passed = result.coverage.passed and not result.failed
 
 
 def run_campaign(
@@ -195,20 +348,35 @@ def run_campaign(
     On a shared bus (`can`) cases run one at a time in this process: they would share the bus."""
     results: list[CaseResult] = []
     folder = (lambda c: out / c.id) if out is not None else (lambda c: None)
+    # Coverage: twins first, so a faulty case is judged the moment it finishes.
+    cases = sorted(cases, key=lambda c: c.role == "faulty")
+    by_id: dict[str, CaseResult] = {}
+
+    def done(case: Case, result: CaseResult) -> None:
+        if case.bounds is not None:
+            judge(result, by_id.get(case.twin_id), case.bounds)
+        by_id[result.case_id] = result
+        results.append(result)
+        if progress:
+            progress(len(results), len(cases), result)
+
     if workers <= 1 or can is not None:
         for case in cases:
-            results.append(run_case(case, folder(case), can, controller))
-            if progress:
-                progress(len(results), len(cases), results[-1])
-        return results
-    with ProcessPoolExecutor(
-        max_workers=workers, mp_context=get_context("spawn"), initializer=_quiet_worker
-    ) as pool:
-        futures = [pool.submit(run_case, case, folder(case)) for case in cases]
-        for future in as_completed(futures):
-            results.append(future.result())
-            if progress:
-                progress(len(results), len(cases), results[-1])
+            done(case, run_case(case, folder(case), can, controller))
+    else:
+        with ProcessPoolExecutor(
+            max_workers=workers, mp_context=get_context("spawn"), initializer=_quiet_worker
+        ) as pool:
+            futures = {
+                pool.submit(run_case, c, folder(c), None, controller): c for c in cases if c.role != "faulty"
+            }
+            for future in as_completed(futures):
+                done(futures[future], future.result())
+            futures = {
+                pool.submit(run_case, c, folder(c), None, controller): c for c in cases if c.role == "faulty"
+            }
+            for future in as_completed(futures):
+                done(futures[future], future.result())
     order = {c.id: i for i, c in enumerate(cases)}
     return sorted(results, key=lambda r: order[r.case_id])
 
@@ -222,6 +390,52 @@ def _quiet_worker() -> None:
 def worst_first(results: list[CaseResult]) -> list[CaseResult]:
     """Errors, then failures (most failed verdicts first), then passes closest to a fall (peak tilt)."""
     return sorted(results, key=lambda r: (not r.error, r.passed, -len(r.failed), -r.peak_tilt_deg))
+
+
+def coverage_report(results: list[CaseResult]) -> str:
+    """The coverage table (faulty cases by class, then fault-free runs that tripped) and its totals."""
+    faulty = [r for r in results if r.role == "faulty"]
+    fault_free = [r for r in results if r.role in ("twin", "fault_free")]
+    if not faulty and not fault_free:
+        return ""
+    classes = Counter(r.coverage.label if r.coverage else "ERROR" for r in faulty)
+    detected, missed = classes["DETECTED"] + classes["LATE"], classes["MISSED"]
+    trips = [r for r in fault_free if r.false_trip or r.error]
+    by_id = {r.case_id: r for r in results}
+    ratios = [r.wall / by_id[r.twin].wall for r in faulty if r.twin in by_id and by_id[r.twin].wall > 0]
+    reactions = [r.coverage.reaction for r in faulty if r.coverage and r.coverage.reaction is not None]
+    lines = [
+        "## Diagnostic coverage",
+        "",
+        f"- faulty cases: {len(faulty)}: " + ", ".join(f"{k} {v}" for k, v in sorted(classes.items())),
+        "- diagnostic coverage (detected / (detected + missed)): "
+        + (f"{detected / (detected + missed):.1%}" if detected + missed else "n/a"),
+        f"- reaction: median {np.median(reactions) * 1e3:.1f} ms, max {max(reactions) * 1e3:.1f} ms"
+        if reactions
+        else "- reaction: none",
+        f"- false trips: {len(trips)} of {len(fault_free)} fault-free runs",
+        f"- wall time of a faulty run vs its twin: max {max(ratios):.2f}x" if ratios else "",
+        "",
+        "| class | case | cause | reaction ms | departed ms | bound ms | note |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    order = {"ERROR": 0, "MISSED": 1, "LATE": 2, "DETECTED": 3, "BENIGN": 4}
+    for r in sorted(faulty, key=lambda r: (order[r.coverage.label if r.coverage else "ERROR"], r.case_id)):
+        c = r.coverage
+        if c is None:
+            lines.append(
+                f"| ERROR | {r.case_id} |  |  |  |  | {r.error.splitlines()[0][:120] if r.error else ''} |"
+            )
+            continue
+        reaction = "" if c.reaction is None else f"{c.reaction * 1e3:.1f}"
+        departed = "" if c.departed is None else f"{c.departed * 1e3:.1f}"
+        bound = f"{r.outcome.detect_within * 1e3:.0f}" if r.outcome else ""
+        lines.append(
+            f"| {c.label} | {r.case_id} | {c.cause} | {reaction} | {departed} | {bound} | {c.note} |"
+        )
+    for r in trips:
+        lines.append(f"| FALSE TRIP | {r.case_id} |  |  |  |  | {r.false_trip or r.error.splitlines()[0]} |")
+    return "\n".join(line for line in lines if line is not None) + "\n"
 
 
 def report(campaign: str, results: list[CaseResult]) -> str:
@@ -245,7 +459,8 @@ def report(campaign: str, results: list[CaseResult]) -> str:
         "|" + "---|" * len(head),
     ]
     lines += ["| " + " | ".join(row) + " |" for row in rows]
-    return "\n".join(lines) + "\n"
+    coverage = coverage_report(results)
+    return "\n".join(lines) + "\n" + ("\n" + coverage if coverage else "")
 
 
 def junit_xml(campaign: str, results: list[CaseResult]) -> bytes:

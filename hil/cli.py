@@ -142,9 +142,9 @@ def _campaign(args: argparse.Namespace) -> int:
     """A campaign's cases in parallel processes: progress, a report (worst first) and JUnit XML."""
     from hil.campaign import expand, junit_xml, load_campaign, report, run_campaign
 
-    campaign = load_campaign(resolve(args.file))
     try:
-        cases = expand(campaign)
+        campaign = load_campaign(resolve(args.file))
+        cases = expand(campaign, args.select)
     except ValueError as exc:
         print(f"pure-hil campaign: {exc}", file=sys.stderr)
         return 2
@@ -497,6 +497,12 @@ def build_parser() -> argparse.ArgumentParser:
     cam.add_argument("file", help="configs/campaigns/*.toml")
     cam.add_argument("--workers", type=int, default=1, help="parallel processes (lockstep runs)")
     cam.add_argument("--out", default=None, help="report folder (default runs/campaign-NAME-TIMESTAMP)")
+    cam.add_argument(
+        "--select",
+        action="append",
+        metavar="TEXT",
+        help="only the cases whose id contains TEXT (and their twins); repeat for more",
+    )
     cam.add_argument(
         "--can", default=None, help="the lab's bus, e.g. socketcan:vcan0 (default: private virtual)"
     )

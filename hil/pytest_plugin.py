@@ -3,9 +3,10 @@
 - Marker `hil`: a test that runs the rig (campaign items carry it; `-m "not hil"` skips them).
 - Fixtures: `hil_scenario` (load a scenario by name or path, with overrides), `hil_rig` (run it on the
   virtual bus in lockstep, or on the lab's bus with `--hil-can` and `--hil-controller external`).
-- Campaign files (`*.toml` in a folder named `campaigns`) are collected: one item per case, so
-  `pytest -n auto` (pytest-xdist) spreads them over cores and `--junitxml` reports them; a failing case
-  says which verdict failed and what was expected instead.
+- Campaign files (`*.toml` in a folder named `campaigns`) are collected: one item per case (a long
+  campaign's `pytest_select` subset unless `--hil-full`), so `pytest -n auto` (pytest-xdist) spreads them
+  over cores and `--junitxml` reports them; a failing case says which verdict failed and what was expected
+  instead. A coverage campaign's faulty case is classed against its fault-free twin (run once per process).
 - Assertion helpers: hil/testing.py (`assert_passed`, `assert_supervisor`, `assert_metric`, ...).
 """
 
@@ -26,6 +27,11 @@ def pytest_addoption(parser: pytest.Parser) -> None:
         "--hil-can",
         default=None,
         help="bus for hil_rig runs: INTERFACE:CHANNEL (default: in-process virtual)",
+    )
+    group.addoption(
+        "--hil-full",
+        action="store_true",
+        help="collect every case of a campaign, not its pytest_select subset",
     )
     group.addoption(
         "--hil-controller",
@@ -53,10 +59,16 @@ class CampaignFile(pytest.File):
     def collect(self):
         from hil.campaign import expand, load_campaign
 
-        for case in expand(load_campaign(self.path)):
+        campaign = load_campaign(self.path)
+        select = None if self.config.getoption("--hil-full") else campaign.pytest_select
+        for case in expand(campaign, select or None):
             item = CampaignItem.from_parent(self, name=case.id, case=case)
             item.add_marker(pytest.mark.hil)
             yield item
+
+
+_twins: dict[str, object] = {}
+"""Fault-free twins already run in this process, by case id (a coverage campaign judges against them)."""
 
 
 class CampaignItem(pytest.Item):
@@ -65,16 +77,28 @@ class CampaignItem(pytest.Item):
         self.case = case
 
     def runtest(self) -> None:
-        from hil.campaign import run_case
+        from hil.campaign import expand, judge, load_campaign, run_case
 
         config = self.config
         root = config.getoption("--hil-out")
-        result = run_case(
-            self.case,
-            None if root is None else Path(root) / self.case.id,
-            config.getoption("--hil-can"),
-            config.getoption("--hil-controller"),
-        )
+
+        def run(case):
+            return run_case(
+                case,
+                None if root is None else Path(root) / case.id,
+                config.getoption("--hil-can"),
+                config.getoption("--hil-controller"),
+            )
+
+        result = run(self.case)
+        if self.case.role == "twin":
+            _twins[self.case.id] = result
+        if self.case.role == "faulty":
+            twin = _twins.get(self.case.twin_id)
+            if twin is None:  # its twin ran in another worker, or was not selected
+                case = next(c for c in expand(load_campaign(self.path)) if c.id == self.case.twin_id)
+                twin = _twins[case.id] = run(case)
+            judge(result, twin, self.case.bounds)
         for v in result.verdicts:
             self.user_properties.append((v["criterion"], v["value"]))
         if not result.passed:

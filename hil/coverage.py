@@ -1,0 +1,263 @@
+"""Diagnostic coverage: each faulty run classed against its fault-free twin (docs/safety.md "Coverage").
+
+- DETECTED: the supervisor's first transition after the fault started (after the demand, for a latent
+  fault: its first e-stop) names a cause of its own evidence (a watchdog, E2E, a diagnostic), before any
+  hazard, within the fault kind's bound (250 ms; a drive's fault 50 ms). A supervisor that cannot act (it
+  was killed) is replaced by the drives' own watchdog on its frame: their permission timing out without
+  an e-stop counts as the reaction PERMISSION_TIMEOUT.
+- LATE: the same, after the bound.
+- BENIGN: no such reaction, no hazard, and the run stays within `benign_speed` and `benign_tilt_deg` of
+  its twin's peak speed and tilt from the fault's start on. A disturbance (a push, the rider's weight
+  shifting) is not a fault of the robot: it is BENIGN when it is ridden through without a hazard.
+
+The bound counts from the fault's onset: its start, or the moment the faulty run first departs from its
+twin (speed by `onset_speed`, tilt by `onset_tilt_deg`) if that is later. A fault that changes nothing yet
+(a stuck encoder on a wheel that does not turn) has no evidence to see and does no harm until it does.
+- MISSED: anything else: a hazard (a fall, the speed above the supervisor's cap plus its margin, a drive
+  powered longer than `powered_after_estop` after an e-stop) or a departure from the twin beyond the
+  benign bound, with no reaction of the supervisor's own before it. Reactions to consequences (tilt,
+  speed, a stop that does not stop) do not count as seeing the fault.
+
+A fault-free run in which the supervisor acts on its own (any transition but an operator's) is a false trip.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import msgspec
+import numpy as np
+
+from safety.machine import Cause
+
+if TYPE_CHECKING:
+    from hil.runner import RunResult
+
+OWN_EVIDENCE = frozenset(
+    {
+        Cause.HEARTBEAT_LOST,
+        Cause.CONTROLLER_FAULT,
+        Cause.DRIVES_SILENT,
+        Cause.IMU_SILENT,
+        Cause.WRENCH_SILENT,
+        Cause.SC_SILENT,
+        Cause.E2E_ERRORS,
+        Cause.TORQUE_RANGE,
+        Cause.SENSOR_STUCK,
+        Cause.SENSOR_DISAGREE,
+        Cause.WRENCH_IMPLAUSIBLE,
+        Cause.DRIVE_FAULT,
+        Cause.ACTUATOR_MISMATCH,
+        Cause.DRIVE_NOT_DISABLED,
+        Cause.CONTACTOR_FAULT,
+    }
+)
+"""Causes that see a fault itself; the others see its consequence (TILT, speed, a stop that fails) or are
+an operator's action."""
+_OWN_EVIDENCE = frozenset(c.name for c in OWN_EVIDENCE) | {"PERMISSION_TIMEOUT"}
+
+
+class Bounds(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """How a coverage campaign judges (the `[coverage]` table of a campaign file)."""
+
+    benign_speed: float = 0.25
+    """m/s: a fault whose run's peak ground speed stays this close to its twin's is benign ..."""
+    benign_tilt_deg: float = 3.0
+    """... and its peak chassis tilt this close, deg."""
+    powered_after_estop: float = 0.05
+    """s: a drive still powered this long after the supervisor's e-stop is a hazard."""
+    wall_ratio: float = 2.0
+    """A faulty run may take at most this many times its twin's wall time."""
+    benign_yaw_rate: float = 0.3
+    """rad/s: ... and its peak yaw rate this close."""
+    onset_speed: float = 0.05
+    """m/s: the faulty run departs from its twin when its ground speed differs this much ..."""
+    onset_tilt_deg: float = 0.5
+    """... or its chassis tilt this much, deg ..."""
+    onset_yaw_rate: float = 0.1
+    """... or its yaw rate this much, rad/s."""
+
+
+@dataclass(slots=True)
+class Outcome:
+    """What a run did, compact enough to travel back from a worker process."""
+
+    t: list[float]
+    """Decimated to 100 Hz: time, ground speed, largest tilt and yaw rate of the truth."""
+    speed: list[float]
+    tilt_deg: list[float]
+    yaw_rate: list[float]
+    transitions: list[tuple[float, str, str]] = field(default_factory=list)
+    """(t, state, cause) of every supervisor transition, and PERMISSION_TIMEOUT when the drives lost their
+    permission without an e-stop before it."""
+    fell_at: float | None = None
+    fault_start: float | None = None
+    fault_kinds: list[str] = field(default_factory=list)
+    latent: bool = False
+    disturbance: bool = False
+    detect_within: float = 0.25
+    powered_after_estop: float = 0.0
+    """s: the longest a drive stayed powered after an e-stop was entered."""
+    hazard_speed: float = math.inf
+    """m/s above which the speed is a hazard: the supervisor's absolute cap plus its margin."""
+
+    def departs(self, twin: Outcome, start: float, bounds: Bounds) -> float | None:
+        """When this run first departs from its twin after `start` (None: never)."""
+        n = min(len(self.t), len(twin.t))
+        for i in range(n):
+            if self.t[i] < start - 1e-9:
+                continue
+            if (
+                abs(self.speed[i] - twin.speed[i]) > bounds.onset_speed
+                or abs(self.tilt_deg[i] - twin.tilt_deg[i]) > bounds.onset_tilt_deg
+                or abs(self.yaw_rate[i] - twin.yaw_rate[i]) > bounds.onset_yaw_rate
+            ):
+                return self.t[i]
+        return None
+
+    def peaks_after(self, start: float) -> tuple[float, float, float]:
+        """Peak ground speed, tilt and |yaw rate| from `start` on."""
+        after = np.asarray(self.t) >= start - 1e-9
+        if not after.any():
+            return 0.0, 0.0, 0.0
+        return tuple(
+            float(np.abs(np.asarray(x)[after]).max()) for x in (self.speed, self.tilt_deg, self.yaw_rate)
+        )
+
+
+def outcome(result: RunResult) -> Outcome:
+    tr = result.trace
+    speed = np.hypot(tr.velocity[:, 0], tr.velocity[:, 1]) if len(tr.t) else np.zeros(0)
+    tilt = np.degrees(np.abs(tr.tilt).max(axis=1)) if len(tr.t) else np.zeros(0)
+    every = max(round(result.scenario.tick_hz / 100.0), 1)
+    windows = [w for w in tr.fault_windows if w is not None]
+    faults = [f for f, w in zip(tr.faults, tr.fault_windows, strict=True) if w is not None]
+    safety = result.scenario.safety.speed
+    fell = None
+    if tr.fallen is not None and len(tr.t):
+        fell = float(tr.t[-1])
+    return Outcome(
+        t=tr.t[::every].round(4).tolist(),
+        speed=speed[::every].round(4).tolist(),
+        tilt_deg=tilt[::every].round(3).tolist(),
+        yaw_rate=tr.yaw_rate[::every].round(4).tolist(),
+        transitions=_reactions(tr),
+        fell_at=fell,
+        fault_start=min((w[0] for w in windows), default=None),
+        fault_kinds=[f.kind for f in faults],
+        latent=any(f.latent for f in faults),
+        disturbance=bool(faults) and all(f.disturbance for f in faults),
+        detect_within=min((f.detect_within for f in faults), default=0.25),
+        powered_after_estop=_powered_after_estop(tr),
+        hazard_speed=safety.absolute_cap + safety.margin,
+    )
+
+
+def _reactions(tr) -> list[tuple[float, str, str]]:
+    out = [(e.t, e.to_state, e.cause) for e in tr.safety_events if e.kind == "transition"]
+    for lost in tr.stats.permission_lost_at:
+        if not any(state == "ESTOP" and lost - 0.1 <= t <= lost + 1e-9 for t, state, _ in out):
+            out.append((lost, "ESTOP", "PERMISSION_TIMEOUT"))
+    return sorted(out)
+
+
+def _powered_after_estop(tr) -> float:
+    """The longest stretch a drive stayed powered after the supervisor entered ESTOP (as its frame says)."""
+    estop = tr.safety_state == 3
+    longest, entered = 0.0, None
+    for i in range(len(tr.t)):
+        if estop[i] and entered is None:
+            entered = tr.t[i]
+        elif not estop[i]:
+            entered = None
+        if entered is not None and tr.powered[i]:
+            longest = max(longest, float(tr.t[i] - entered))
+    return longest
+
+
+@dataclass(frozen=True, slots=True)
+class Classification:
+    label: str
+    """DETECTED, LATE, BENIGN or MISSED."""
+    cause: str = ""
+    reaction: float | None = None
+    """s from the fault's start (or the demand) to the supervisor's reaction."""
+    departed: float | None = None
+    """s from the fault's start (or the demand) to the run's departure from its twin, if that came first."""
+    note: str = ""
+
+    @property
+    def passed(self) -> bool:
+        return self.label in ("DETECTED", "BENIGN")
+
+
+OPERATOR_CAUSES = frozenset({"OPERATOR_ESTOP", "BUTTON_ESTOP", "RESET"})
+"""What an operator does to the supervisor: never a trip of its own."""
+
+
+def false_trip(o: Outcome) -> str:
+    """Why a fault-free run counts as a false trip ('' if it does not): the supervisor acted on its own."""
+    own = [x for x in o.transitions if x[2] not in OPERATOR_CAUSES]
+    if own:
+        t, state, cause = own[0]
+        return f"{state}/{cause} at {t:.3f} s without a fault"
+    if o.fell_at is not None:
+        return f"fell at {o.fell_at:.3f} s without a fault"
+    return ""
+
+
+def classify(o: Outcome, twin: Outcome, bounds: Bounds) -> Classification:
+    if o.fault_start is None:
+        return Classification("MISSED", note="the fault never started")
+    start = o.fault_start
+    if o.latent:  # detection time counts from the demand: the first e-stop after the fault started
+        start = next((t for t, state, _ in o.transitions if state == "ESTOP" and t >= start - 1e-9), start)
+    hazard_t, hazard = _hazard(o, bounds)
+    reaction = next(
+        ((t, cause) for t, state, cause in o.transitions if t >= start - 1e-9 and cause in _OWN_EVIDENCE),
+        None,
+    )
+    if reaction is not None and (hazard_t is None or reaction[0] <= hazard_t + 1e-9):
+        departed = o.departs(twin, start, bounds)
+        if departed is not None and departed > reaction[0]:
+            departed = None  # seen before any consequence, whenever that was
+        # The bound counts from the fault's start, or from the departure if the fault changed nothing before.
+        delay = reaction[0] - (start if departed is None else max(start, departed))
+        if departed is None and reaction[0] - start > o.detect_within:
+            delay = 0.0
+        note = f"then {hazard}" if hazard else ""
+        label = "DETECTED" if delay <= o.detect_within + 1e-9 else "LATE"
+        since = None if departed is None else departed - start
+        return Classification(label, reaction[1], reaction[0] - start, since, note)
+    if hazard:
+        return Classification("MISSED", note=f"{hazard} with no reaction of the supervisor's own before it")
+    if o.disturbance:
+        return Classification("BENIGN", note="a disturbance, ridden through without a hazard")
+    d_speed, d_tilt, d_yaw = np.subtract(o.peaks_after(start), twin.peaks_after(start))
+    differs = f"peak speed {d_speed:+.2f} m/s, tilt {d_tilt:+.1f} deg, yaw rate {d_yaw:+.2f} rad/s vs twin"
+    if (
+        d_speed <= bounds.benign_speed
+        and d_tilt <= bounds.benign_tilt_deg
+        and d_yaw <= bounds.benign_yaw_rate
+    ):
+        return Classification("BENIGN", note=differs)
+    return Classification("MISSED", note=f"{differs}: beyond the benign bound, unseen")
+
+
+def _hazard(o: Outcome, bounds: Bounds) -> tuple[float | None, str]:
+    """The first hazard of a run after its fault started: (time, what)."""
+    start = o.fault_start or 0.0
+    found: list[tuple[float, str]] = []
+    if o.fell_at is not None:
+        found.append((o.fell_at, "fell"))
+    for t, v in zip(o.t, o.speed, strict=True):
+        if t >= start and v > o.hazard_speed:
+            found.append((t, f"speed {v:.2f} m/s above {o.hazard_speed:.2f}"))
+            break
+    if o.powered_after_estop > bounds.powered_after_estop:
+        found.append((math.inf, f"a drive powered {o.powered_after_estop:.2f} s after the e-stop"))
+    if not found:
+        return None, ""
+    return min(found)
