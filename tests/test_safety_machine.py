@@ -15,9 +15,12 @@ from safety.machine import (
     BALANCING,
     CONTROLLED,
     FAULT,
+    FINDINGS,
     IMMEDIATE,
     STREAMS,
     Cause,
+    DriveReport,
+    Finding,
     Observation,
     Request,
     State,
@@ -30,13 +33,25 @@ LIMIT = 3.75
 HEALTHY = dict.fromkeys(STREAMS, 0.0)
 FREE = Request("free", 0.0, "agent")
 DT = 0.0025
+OFF = DriveReport(enabled=False, bus_powered=True)
+"""A drive that confirms it is off, on a live bus."""
+OFF3 = (OFF, OFF, OFF)
+CONFIRM = CFG.drives.confirm
 
 
 def obs(t=1.0, speed=0.0, tilt=0.0, ages=None, **kw) -> Observation:
     kw.setdefault("controller_state", BALANCING)
     kw.setdefault("seat_load", 600.0)
     kw.setdefault("request", FREE)
+    kw.setdefault("drives", OFF3)
     return Observation(t=t, speed=speed, tilt=tilt, ages={**HEALTHY, **(ages or {})}, **kw)
+
+
+def drives(i: int, **report) -> tuple[DriveReport, ...]:
+    """Three drives confirming off, except drive i (1-based) as given."""
+    return tuple(
+        DriveReport(**{"enabled": False, "bus_powered": True, **report}) if j == i else OFF for j in (1, 2, 3)
+    )
 
 
 def supervisor(config=CFG, request=FREE) -> Supervisor:
@@ -161,6 +176,8 @@ CONTROLLED_CASES = {
     Cause.HARD_SPEED: dict(speed=CFG.speed.hard_limit + 0.01),
     Cause.E2E_ERRORS: dict(e2e_errors=CFG.integrity.e2e_max_errors),
     Cause.WRENCH_SILENT: dict(ages={"wrench": CFG.watchdogs.wrench + DT}),
+    Cause.DRIVE_FAULT: dict(drives=drives(2, enabled=False, watchdog=True)),
+    **{cause: dict(findings=(Finding(cause, "test"),)) for cause in FINDINGS},
 }
 
 
@@ -179,6 +196,94 @@ def test_controlled_causes_turn_the_drives_off_when_the_controller_is_not_balanc
     s = supervisor()
     d = s.update(obs(controller_state=controller_state, **{"speed": 0.5, **CONTROLLED_CASES[cause]}))
     assert (d.state, d.cause, d.drives_permitted) == (State.ESTOP, cause, False)
+
+
+# ------------------------------------------------------------------------------- drives and root cause
+def test_a_tripped_drive_watchdog_is_the_controllers_fault_when_its_heartbeat_is_as_old():
+    # A dead controller trips the drives' 20 ms watchdog before the 50 ms heartbeat watchdog: the event
+    # still names the root cause (and acts on it at once), HEARTBEAT_LOST.
+    tripped = drives(1, watchdog=True)
+    d = supervisor().update(obs(t=2.0, speed=0.5, drives=tripped, ages={"heartbeat": 0.0225}))
+    assert (d.state, d.cause) == (State.ESTOP, Cause.HEARTBEAT_LOST)
+    # Positive control: with the heartbeat fresh the same report is the drive's (lost commands).
+    d = supervisor().update(obs(t=2.0, speed=0.5, drives=tripped, ages={"heartbeat": 0.0025}))
+    assert (d.state, d.cause) == (State.STOPPING, Cause.DRIVE_FAULT)
+
+
+def test_a_drive_that_stays_off_when_permitted_and_told_to_enable_is_a_drive_fault():
+    s = supervisor()
+    off_yet_commanded = drives(3, enabled=False, commanded_for=CONFIRM - DT)
+    assert s.update(obs(t=1.0, drives=off_yet_commanded)).state is State.NORMAL, "within the bound"
+    d = s.update(obs(t=1.0 + DT, drives=drives(3, enabled=False, commanded_for=CONFIRM)))
+    assert (d.state, d.cause) == (State.STOPPING, Cause.DRIVE_FAULT)
+    assert "drive 3" in s.events[-1].detail
+    # Not commanded to enable: off is right.
+    assert supervisor().update(obs(t=1.0, drives=drives(3, enabled=False))).state is State.NORMAL
+
+
+def test_simultaneous_findings_name_the_most_upstream_cause():
+    both = (Finding(Cause.SENSOR_DISAGREE, "yaw"), Finding(Cause.SENSOR_STUCK, "pitch frozen"))
+    d = supervisor().update(obs(speed=0.5, findings=both))
+    assert (d.cause, supervisor().update(obs(speed=0.5, findings=both[::-1])).cause) == (
+        Cause.SENSOR_STUCK,
+    ) * 2
+
+
+def test_controlled_stop_waits_for_the_chassis_to_come_upright_before_power_off():
+    # A rider still leaning holds the chassis tilted at standstill: power off would tip it.
+    s = supervisor()
+    to_stopping(s, speed=0.5)
+    tilted = math.radians(CFG.stop.standstill_tilt_deg) + 0.01
+    d, t = hold(s, 1.0 + DT, 2.0 * CFG.stop.standstill_time + CFG.stop.timeout, speed=0.01, tilt=tilted)
+    assert (d.state, d.drives_permitted) == (State.STOPPING, True), "no timeout while stopped and tilted"
+    d, t = hold(s, t, CFG.stop.standstill_time + 2 * DT, speed=0.01, tilt=0.0)
+    assert (d.state, d.drives_permitted) == (State.ESTOP, False)
+
+
+# --------------------------------------------------------------------------------- the second path
+def test_a_drive_that_does_not_confirm_off_opens_the_main_contactor():
+    s = supervisor()
+    to_estop(s)  # at t = 1.0
+    stuck = drives(2, enabled=True)
+    d = s.update(obs(t=1.0 + CONFIRM - DT, drives=stuck))
+    assert (d.state, d.contactor_closed) == (State.ESTOP, True), "within the bound"
+    d = s.update(obs(t=1.0 + CONFIRM, drives=stuck))
+    assert (d.state, d.cause, d.contactor_closed) == (State.ESTOP, Cause.DRIVE_NOT_DISABLED, False)
+    assert "drive 2" in s.events[-1].detail and "contactor opened" in s.events[-1].detail
+    # It stays open, and a reset is refused while the drive still reports itself on.
+    d = s.update(obs(t=2.0, drives=stuck, operator="reset"))
+    assert (d.state, d.contactor_closed) == (State.ESTOP, False)
+    assert "drive 2 still enabled" in s.events[-1].detail
+
+
+def test_drives_that_confirm_off_leave_the_contactor_closed_and_silence_opens_it():
+    s = supervisor()
+    to_estop(s)
+    d, _ = hold(s, 1.0 + DT, 1.0)
+    assert (d.state, d.contactor_closed) == (State.ESTOP, True)
+    s = supervisor()
+    to_estop(s)
+    d = s.update(obs(t=1.0 + CONFIRM, drives=drives(1, enabled=None)))  # no fresh feedback: unconfirmed
+    assert (d.cause, d.contactor_closed) == (Cause.DRIVE_NOT_DISABLED, False)
+
+
+def test_a_contactor_that_does_not_cut_the_bus_is_a_fault_of_its_own():
+    s = supervisor()
+    to_estop(s)
+    s.update(obs(t=1.0 + CONFIRM, drives=drives(1, enabled=True)))
+    live = tuple(DriveReport(enabled=False, bus_powered=True) for _ in range(3))
+    d = s.update(obs(t=1.0 + 2 * CONFIRM, drives=live))
+    assert (d.cause, d.contactor_closed) == (Cause.CONTACTOR_FAULT, False)
+    cut = tuple(DriveReport(enabled=False, bus_powered=False) for _ in range(3))
+    d = s.update(obs(t=2.0, drives=cut, operator="reset"))
+    assert d.state is State.ESTOP and "contactor did not open" in s.events[-1].detail
+    # Positive control: a contactor that cut the bus is no fault, and a reset closes it again.
+    s = supervisor()
+    to_estop(s)
+    s.update(obs(t=1.0 + CONFIRM, drives=drives(1, enabled=True)))
+    assert s.update(obs(t=1.0 + 2 * CONFIRM, drives=cut)).cause is Cause.DRIVE_NOT_DISABLED
+    d = s.update(obs(t=2.0, drives=cut, operator="reset"))
+    assert (d.state, d.contactor_closed) == (State.NORMAL, True)
 
 
 def test_rider_absent_stops_only_when_moving_for_the_window():
@@ -281,11 +386,20 @@ def test_controlled_stop_ends_with_drives_off_after_standstill():
     ],
 )
 def test_stop_escalates_to_drives_off(speeds, cause):
+    # Once the stop keeps failing for the escalation time: a brief excursion (a rider rebalancing) is not.
     s = supervisor()
     to_stopping(s, speed=1.0)
-    d = None
-    for i, v in enumerate(speeds):
-        d = s.update(obs(t=1.1 + i * DT, speed=v))
+    t = 1.1
+    for v in speeds[:-1]:
+        s.update(obs(t=t, speed=v))
+        t += DT
+    window = CFG.stop.escalation_time
+    d, t = hold(s, t, window - 2 * DT, speed=speeds[-1])
+    assert d.state is State.STOPPING
+    s.update(obs(t=t, speed=0.01))  # one tick back within bounds restarts the window
+    d, t = hold(s, t + DT, window - 2 * DT, speed=speeds[-1])
+    assert d.state is State.STOPPING
+    d, _ = hold(s, t, 2 * DT, speed=speeds[-1])
     assert (d.state, d.cause) == (State.ESTOP, cause)
 
 
@@ -328,6 +442,8 @@ UNSAFE_FOR_RESET = {
     "wrench silent": dict(ages={"wrench": 1.0}),
     "controller fault": dict(controller_state=FAULT),
     "bus errors": dict(e2e_errors=CFG.integrity.e2e_max_errors),
+    "a drive still on": dict(drives=drives(1, enabled=True)),
+    "a sensor check failing": dict(findings=(Finding(Cause.SENSOR_DISAGREE, "yaw"),)),
 }
 
 
@@ -408,6 +524,19 @@ steps = st.lists(
             "button": st.booleans(),
             "request": requests,
             "operator": st.sampled_from([None, None, None, "estop", "reset"]),
+            "drives": st.sampled_from(
+                [
+                    OFF3,
+                    OFF3,
+                    (),
+                    drives(1, enabled=True),
+                    drives(2, watchdog=True),
+                    drives(3, enabled=None),
+                    tuple(DriveReport(enabled=True, bus_powered=True, commanded_for=1.0) for _ in range(3)),
+                    tuple(DriveReport(enabled=False, bus_powered=False) for _ in range(3)),
+                ]
+            ),
+            "findings": st.sampled_from([(), (), (Finding(Cause.SENSOR_STUCK, "x"),)]),
         }
     ),
     max_size=60,
@@ -419,6 +548,7 @@ steps = st.lists(
 def test_properties_over_any_observation_sequence(sequence):
     s = Supervisor(CFG, LIMIT)
     t = 0.0
+    closed = True
     for step in sequence:
         t += step.pop("dt")
         o = Observation(t=t, **step)
@@ -429,6 +559,12 @@ def test_properties_over_any_observation_sequence(sequence):
         if before is State.ESTOP and d.state is not State.ESTOP:
             assert o.operator == "reset" and refusal == ""
             assert (d.state, d.cause) == (State.NORMAL, Cause.RESET)
+        # The main contactor opens only in ESTOP and never closes again while in it.
+        if not d.contactor_closed:
+            assert d.state is State.ESTOP
+        if d.contactor_closed and not closed:
+            assert before is State.ESTOP and d.state is State.NORMAL and d.cause is Cause.RESET
+        closed = d.contactor_closed
         # The forwarded SC command never exceeds the active cap, and is never `free`.
         assert d.command.mode in ("idle", "limit")
         assert d.command.cap <= d.cap
@@ -460,3 +596,10 @@ def test_a_dropped_cap_is_enforced_along_a_braking_ramp():
     ramp_crossing = (sp.margin + sp.decel * sp.brake_delay) / (sp.decel - 0.2)
     assert (d.state, d.cause) == (State.LIMITING, Cause.OVER_CAP)
     assert t - 1.0 == pytest.approx(ramp_crossing + CFG.speed.window, abs=4 * DT)
+
+
+def test_the_dbc_names_every_cause_as_the_supervisor_numbers_it():
+    # SUPERVISOR_ESTOP.Reason is the cause on the wire: a controller reads it by the DBC's value table.
+    from drivers.can_codec import Catalog
+
+    assert Catalog()["SUPERVISOR_ESTOP"].values("Reason") == {c.value: c.name for c in Cause}

@@ -17,13 +17,16 @@ from tests.zenoh_helpers import hub_endpoint, wait_matching
 
 
 class StandInRobot:
-    """Drives, IMU, controller heartbeat and SYNC at 400 Hz on the bus; the seat wrench on zenoh."""
+    """Drives, IMU, controller heartbeat and SYNC at 400 Hz on the bus; the seat wrench on zenoh. The drives
+    obey the supervisor's frame: off while it asserts e-stop, their DC bus live while the contactor is
+    commanded closed."""
 
     def __init__(self, bus_config: BusConfig, link: ZenohLink):
         self.bus = open_bus(bus_config)
         self.node = CanNode(self.bus, name="robot")
         self.link = link
         self.heartbeat = True
+        self.permitted, self.bus_powered = True, True
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.frames: list = []
@@ -35,7 +38,15 @@ class StandInRobot:
         while not self.stop.is_set():
             tick += 1
             for i in (1, 2, 3):
-                send(f"DRIVE{i}_FEEDBACK", {"Position": 0, "Velocity": 0.0, "Enabled": 1})
+                send(
+                    f"DRIVE{i}_FEEDBACK",
+                    {
+                        "Position": 0,
+                        "Velocity": 0.0,
+                        "Enabled": int(self.permitted),
+                        "BusPowered": int(self.bus_powered),
+                    },
+                )
             send("IMU_ATTITUDE", {"Roll": 0.0, "Pitch": 0.0, "Yaw": 0.0, "Valid": 1})
             send("IMU_RATE", {"RateX": 0.0, "RateY": 0.0, "RateZ": 0.0, "Valid": 1})
             if self.heartbeat:
@@ -48,6 +59,8 @@ class StandInRobot:
             while (rx := self.node.recv(timeout=0.0)) is not None:
                 if rx.name == "SUPERVISOR_ESTOP":
                     self.frames.append((time.monotonic(), rx.signals))
+                    self.permitted = not rx.signals["Estop"]
+                    self.bus_powered = bool(rx.signals["Contactor"])
             time.sleep(0.0025)
 
     def estop_frames_since(self, t0: float):

@@ -1,0 +1,248 @@
+"""The supervisor's diagnostics, check by check: each stays quiet on consistent evidence (physics from the
+plant where it can be) and fires on the fault it is there for (the positive control)."""
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from drivers.config import load_toml
+from hil.truth_balancer import TruthBalancer
+from plant.ballbot import Plant, RiderIntent
+from plant.params import RobotParams, SimParams
+from plant.rider import Hold, Ramp
+from safety.config import RobotGeometry, SupervisorConfig
+from safety.diagnostics import (
+    AttitudeCheck,
+    EncoderCheck,
+    Replay,
+    SeatCheck,
+    Stuck,
+    TorqueCheck,
+    TrendCheck,
+    YawCheck,
+    motor_jacobian,
+    world_acceleration,
+)
+from safety.machine import Cause
+from tests.helpers import RIDER_75, ROOT
+
+CFG = SupervisorConfig()
+SENSORS = CFG.sensors
+GEOMETRY = load_toml(ROOT / "configs/robot/pure.toml", RobotGeometry)
+ROBOT = load_toml(ROOT / "configs/robot/pure.toml", RobotParams)
+DT = 1.0 / 400
+RAD_PER_COUNT = 2 * math.pi / 8192
+
+
+def encoder(velocities, counts0=0):
+    """A drive turning at the given velocities, one per frame: (counts, velocity) as it reports them."""
+    angle, out = counts0 * RAD_PER_COUNT, []
+    for v0, v1 in zip([velocities[0], *velocities], velocities, strict=False):
+        angle += 0.5 * (v0 + v1) * DT
+        out.append((round(angle / RAD_PER_COUNT), v1))
+    return out
+
+
+def run_encoder(frames, periods=1):
+    check = EncoderCheck(1, SENSORS, DT, RAD_PER_COUNT, 1 << 32)
+    found = [check.frame(c, v, periods) for c, v in frames]
+    return check, [f for f in found if f is not None]
+
+
+# ----------------------------------------------------------------------------------------- encoders
+def test_position_and_velocity_of_a_healthy_drive_agree_even_across_lost_frames_and_wraps():
+    velocities = list(40.0 * np.sin(np.linspace(0, 6, 800)))
+    check, found = run_encoder(encoder(velocities, counts0=(1 << 31) - 2000))  # the 32-bit count wraps
+    assert not found and check.peak < 0.3
+    every_other = encoder(velocities)[::2]  # a frame lost between each: two periods each
+    check, found = run_encoder(every_other, periods=2)
+    assert not found and check.peak < 0.3
+
+
+@pytest.mark.parametrize("fault", ["sign flip", "stuck position", "half velocity"])
+def test_a_wrong_position_or_velocity_disagrees_within_the_window(fault):
+    frames = encoder([20.0] * 100)
+    if fault == "sign flip":
+        frames = [(c, -v) for c, v in frames]
+    elif fault == "stuck position":
+        frames = [(frames[0][0], v) for _, v in frames]
+    else:
+        frames = [(c, 0.5 * v) for c, v in frames]
+    check = EncoderCheck(1, SENSORS, DT, RAD_PER_COUNT, 1 << 32)
+    first = next(i for i, (c, v) in enumerate(frames) if check.frame(c, v, 1))
+    assert first <= round(SENSORS.window / DT) + 1
+    assert check.cause is Cause.SENSOR_DISAGREE
+
+
+# --------------------------------------------------------------------------------------------- yaw
+def test_the_encoders_yaw_rate_agrees_with_the_gyro_and_a_flipped_encoder_does_not():
+    g = motor_jacobian(GEOMETRY)
+    check = YawCheck(SENSORS, np.linalg.inv(g), DT)
+    relative = np.array([0.3, 6.0, -0.8])  # rolling forward while turning at 0.8 rad/s
+    motors = list(g @ relative)
+    assert all(check.update(motors, 0.8, DT) is None for _ in range(40))
+    flipped = [-motors[0], *motors[1:]]
+    found = [check.update(flipped, 0.8, DT) for _ in range(12)]
+    assert any(found)
+    assert "encoders" in next(f for f in found if f).detail
+
+
+# ---------------------------------------------------------------------------------------- attitude
+def test_attitude_follows_its_integrated_rate_and_a_frozen_one_does_not():
+    check = AttitudeCheck("pitch", SENSORS)
+    t = np.arange(0, 2.0, DT)
+    angle, rate = 0.1 * np.sin(3 * t), 0.3 * np.cos(3 * t)
+    assert all(check.update(a, r, 0.0, DT) is None for a, r in zip(angle, rate, strict=True))
+    assert check.peak < 0.2
+    # Frozen while the rate says it moves: caught once the motion adds up to the tolerance.
+    frozen = [check.update(angle[-1], 0.3, 0.0, DT) for _ in range(400)]
+    caught = next(i for i, f in enumerate(frozen) if f)
+    assert caught * DT == pytest.approx(SENSORS.attitude_tolerance / 0.3, rel=0.2)
+
+
+def test_what_small_angle_kinematics_neglect_widens_the_attitude_bound():
+    quiet, coupled = AttitudeCheck("roll", SENSORS), AttitudeCheck("roll", SENSORS)
+    for _ in range(40):  # 5 mrad/s off: the neglected rate × tilt terms can be that large
+        quiet.update(0.0, 0.1, 0.0, DT)
+        coupled.update(0.0, 0.1, 0.5, DT)
+    assert coupled.peak < quiet.peak
+
+
+# ------------------------------------------------------------------------------ speed vs accelerometer
+def test_world_acceleration_undoes_the_imus_body_frame():
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        roll, pitch = rng.uniform(-0.4, 0.4, 2)
+        body = rng.normal(size=3)
+        world = Rotation.from_euler("YX", [pitch, roll]).apply(body)  # world = Ry(pitch) Rx(roll) body
+        assert world_acceleration(body, roll, pitch) == pytest.approx(world, abs=1e-12)
+
+
+def test_the_plants_accelerometer_integrates_to_its_speed_change():
+    # Physics against physics: the IMU's specific force (the plant's model of the sensor) integrated over
+    # a window equals the change of the IMU point's velocity from the plant's state, in both planes, while
+    # the robot accelerates, turns and stops.
+    plant = Plant(
+        ROBOT,
+        RIDER_75,
+        SimParams(seed=2),
+        RiderIntent(pitch=[Hold(duration=0.5), Ramp(to=8.0, duration=1.0)]),
+    )
+    bal = TruthBalancer(plant)
+    checks = (TrendCheck("forward", SENSORS, DT), TrendCheck("left", SENSORS, DT))
+    h, r = ROBOT.body.imu_height, ROBOT.ball.radius
+    for k in range(1600):
+        bal.set_velocity(0.8 * min(k / 400, 1.0) if k < 1000 else 0.0, 0.3 if 400 < k < 1200 else 0.0)
+        bal.yaw_rate_command = 0.5 if 600 < k < 900 else 0.0
+        bal.drive()
+        plant.step()
+        (roll, pitch, _), rate, body = plant.imu_truth()
+        ax, ay, _ = world_acceleration(body, roll, pitch)
+        x = plant.x
+        forward = r * x[3] + h * math.cos(pitch) * rate[1]
+        left = -r * x[9] - h * math.cos(roll) * rate[0]
+        assert checks[0].update(forward, ax, DT) is None
+        assert checks[1].update(left, ay, DT) is None
+    assert max(c.peak for c in checks) < 0.2
+    # Positive control: a speed read 50 % high is a disagreement once the robot accelerates (1 m/s²).
+    check = TrendCheck("forward", SENSORS, DT)
+    found = [check.update(1.5 * 1.0 * k * DT, 1.0, DT) for k in range(400)]
+    assert any(found)
+
+
+# ------------------------------------------------------------------------------------------- stuck
+def test_a_repeated_value_is_stuck_only_when_other_evidence_moved():
+    still = Stuck(20, need=3e-4)
+    assert not any(still.sample(0.1234, 0.0) for _ in range(100)), "at rest a constant reading is fine"
+    moving = Stuck(20, need=3e-4)
+    flags = [moving.sample(0.1234, 1e-4) for _ in range(25)]
+    assert flags.index(True) == 19
+    assert not moving.sample(0.1235, 1e-4), "a new value ends the run"
+
+
+def test_a_replay_from_one_counter_period_back_is_seen_and_a_live_or_constant_stream_is_not():
+    rng = np.random.default_rng(0)
+    live = Replay(16)
+    assert not any(live.frame((round(float(x), 4),)) for x in rng.normal(0, 1e-3, 2000))
+    constant = Replay(16)
+    assert not any(constant.frame((0.0, 1)) for _ in range(200))
+    replay = Replay(16)
+    recorded = [(round(float(x), 4),) for x in rng.normal(0, 1e-3, 16)]
+    flags = [replay.frame(recorded[i % 16]) for i in range(64)]
+    assert flags.index(True) == 31, "a whole cycle replayed after the recorded one"
+
+
+# ------------------------------------------------------------------------------------------- torque
+def test_measured_torque_must_follow_the_command():
+    check = TorqueCheck(1, 0.15, 0.1, 3, 3.75)
+    assert all(check.sample(c + 0.01, c, True) is None for c in np.linspace(-4, 4, 50))  # clamped at 3.75
+    assert check.sample(0.0, 2.0, False) is None, "a disabled drive makes none"
+    found = [check.sample(0.0, 1.0, True) for _ in range(3)]
+    assert found[:2] == [None, None] and found[2].cause is Cause.ACTUATOR_MISMATCH
+
+
+# --------------------------------------------------------------------------------------------- seat
+def seated(check, n=400, load=600.0, **kw):
+    return [
+        check.sample((0.0, 0.0, -load), (0.0, -15.0, 0.0), (-0.025, 0.0), 9.80665, 1e-3, **kw)
+        for _ in range(n)
+    ]
+
+
+def seat_check():
+    return SeatCheck(CFG.seat, CFG.motion.rider_min_load, GEOMETRY.body.seat_height, DT, 3e-4)
+
+
+def test_the_seat_tares_the_rider_and_accepts_what_a_rider_does():
+    check = seat_check()
+    # Noise so the values are not frozen; a slow lean moves the COP and the moment together.
+    rng = np.random.default_rng(0)
+    for k in range(2000):
+        fz = -600.0 + rng.normal(0, 1)
+        my = -15.0 - 40.0 * math.sin(k * DT)
+        cop = ((0.03 * 0.0 - my) / fz, 0.0)
+        assert check.sample((0.0, 0.0, fz), (0.0, my, 0.0), cop, 9.80665, 1e-3) is None
+    assert check.tare == pytest.approx(600.0, abs=1.0)
+
+
+@pytest.mark.parametrize(
+    "wrench, what",
+    [
+        (((0.0, 0.0, -1900.0), (0.0, -15.0, 0.0), (-0.008, 0.0)), "load"),
+        (((0.0, 0.0, -400.0), (0.0, -15.0, 0.0), (-0.0375, 0.0)), "load"),
+        (((0.0, 0.0, -600.0), (0.0, -240.0, 0.0), (-0.4, 0.0)), "centre of pressure"),
+        (((0.0, 0.0, -600.0), (0.0, -15.0, 0.0), (0.1, 0.0)), "reported COP"),
+    ],
+)
+def test_a_seat_wrench_no_seated_rider_makes_is_implausible(wrench, what):
+    check = seat_check()
+    rng = np.random.default_rng(0)
+    for _ in range(400):
+        check.sample((0.0, 0.0, -600.0 + rng.normal()), (0.0, -15.0, 0.0), (-0.025, 0.0), 9.80665, 1e-3)
+    found = check.sample(*wrench, 9.80665, 1e-3)
+    assert found is not None and found.cause is Cause.WRENCH_IMPLAUSIBLE and what in found.detail
+
+
+def test_a_seat_that_jumps_faster_than_a_body_or_freezes_is_implausible():
+    check = seat_check()
+    rng = np.random.default_rng(0)
+    for _ in range(400):
+        check.sample((rng.normal(), 0.0, -600.0), (0.0, -15.0, 0.0), (-0.025, 0.0), 9.80665, 1e-3)
+    h = GEOMETRY.body.seat_height
+    jump = check.sample(
+        (250.0, 0.0, -600.0), (0.0, -15.0, 0.0), ((h * 250.0 + 15.0) / -600.0, 0.0), 9.80665, 1e-3
+    )
+    assert "force changing" in jump.detail
+    frozen = seat_check()
+    found = seated(frozen, n=500)
+    assert any(f and "frozen" in f.detail for f in found)
+    resting = seat_check()  # frozen values while the chassis does not move at all: no evidence
+    assert not any(
+        f and "frozen" in f.detail
+        for f in [
+            resting.sample((0.0, 0.0, -600.0), (0.0, -15.0, 0.0), (-0.025, 0.0), 9.80665, 0.0)
+            for _ in range(500)
+        ]
+    )

@@ -1,0 +1,102 @@
+"""The supervisor's diagnostics and second shutdown path in the lockstep rig, with the reference controller:
+a drive stuck on during an e-stop, conflicting SC agents, the root cause of a dead controller, and faulty
+runs that never wait out the wall-clock guard tick after tick. The plant's truth is the referee."""
+
+import msgspec
+import numpy as np
+
+from drivers.config import load_toml
+from drivers.schemas import ScCommand, decode
+from hil.faults import parse_fault
+from hil.runner import run_scenario
+from hil.scenario import OperatorEntry, Scenario
+from safety.config import SupervisorConfig
+from tests.helpers import ROOT
+from tests.zenoh_helpers import hub_endpoint
+
+BENCH = load_toml(ROOT / "configs/scenarios/bench_smoke.toml", Scenario)
+CFG = SupervisorConfig()
+
+
+def run(faults=(), operator=(), safety=CFG, duration=2.5):
+    scenario = msgspec.structs.replace(
+        BENCH,
+        duration=duration,
+        faults=[parse_fault(f) for f in faults],
+        operator=list(operator),
+        safety=safety,
+        criteria=[],
+    )
+    return run_scenario(scenario, hub_endpoint=hub_endpoint()).trace
+
+
+def causes(trace):
+    return [(round(e.t, 4), e.to_state, e.cause) for e in trace.safety_events if e.kind == "transition"]
+
+
+STUCK = [{"kind": "plant.drive_stuck_enabled", "motor": 2, "at": 1.0}]
+ESTOP = [OperatorEntry(at=1.0, action="estop")]
+
+
+def test_a_drive_stuck_on_during_an_estop_ends_unpowered_and_at_rest():
+    tr = run(STUCK, ESTOP)
+    estop = next(t for t, state, _ in causes(tr) if state == "ESTOP")
+    cut = next(t for t, _, cause in causes(tr) if cause == "DRIVE_NOT_DISABLED")
+    assert cut - estop <= CFG.drives.confirm + 0.0025, "within the drives' confirm bound"
+    assert tr.stats.contactor_opened == 1
+    after = tr.t > cut + 0.005
+    assert not tr.powered[after].any(), "every drive unpowered from the contactor on"
+    assert tr.fallen is None and tr.resting[-1]
+    # Positive control: without the second path in time the stuck drive stays powered to the end.
+    slow = msgspec.structs.replace(CFG, drives=msgspec.structs.replace(CFG.drives, confirm=100.0))
+    tr = run(STUCK, ESTOP, safety=slow)
+    assert tr.powered[-1] and tr.stats.contactor_opened == 0
+
+
+def sc_commands(trace, after: float) -> list[ScCommand]:
+    return [
+        decode(data, ScCommand)
+        for tick, key, data in trace.zenoh_inputs
+        if key.endswith("sc/command") and tick * 0.0025 > after
+    ]
+
+
+def flood(mode, source, cap=0.0):
+    return {"kind": "zenoh.sc_flood", "mode": mode, "cap": cap, "source": source, "per_tick": 20, "at": 1.0}
+
+
+def test_two_floods_of_conflicting_sc_requests_never_lift_a_cap():
+    tr = run([flood("free", "a"), flood("limit", "b", cap=0.5)])
+    forwarded = sc_commands(tr, 1.0 + 0.0025)
+    assert forwarded and max(c.speed_cap for c in forwarded) <= 0.5
+    assert {c.mode for c in forwarded} == {"limit"}
+    arbitration = tr.sc_arbitration
+    assert arbitration["conflicts"] > 0
+    assert all(arbitration["sources"][s]["refused_rate"] > 1000 for s in ("a", "b")), "rate-limited"
+    # Positive control: one free flood alone is forwarded at the absolute cap, so a lifted cap would show.
+    alone = sc_commands(run([flood("free", "a")]), 1.0 + 0.0025)
+    assert max(c.speed_cap for c in alone) == CFG.speed.absolute_cap
+
+
+def test_a_dead_controller_is_named_the_root_cause_before_its_heartbeat_watchdog():
+    # The drives' 20 ms command watchdog trips first; the event still says HEARTBEAT_LOST, at once.
+    tr = run([{"kind": "process.kill", "target": "controller", "at": 1.0}])
+    t, state, cause = causes(tr)[0]
+    assert (state, cause) == ("ESTOP", "HEARTBEAT_LOST")
+    assert t - 1.0 < CFG.watchdogs.heartbeat, "before the heartbeat's own watchdog"
+    assert "watchdog tripped" in tr.safety_events[0].detail
+
+
+def test_faulty_runs_never_wait_out_the_guard_tick_after_tick():
+    # What makes a faulty lockstep run slow is waiting: the rig for commands that will not come, the
+    # supervisor and the controller for inputs a fault withheld. Counted, not timed.
+    for fault in (
+        {"kind": "zenoh.malformed", "at": 1.0},
+        {"kind": "can.drop", "message": "DRIVE1_COMMAND", "at": 1.0},
+        {"kind": "process.kill", "target": "controller", "at": 1.0},
+        {"kind": "zenoh.wrench_dropout", "at": 1.0},
+    ):
+        tr = run([fault])
+        assert tr.stats.guards_expired <= 1, fault
+        assert tr.fence_misses == 0, fault
+    assert np.isfinite(tr.t[-1])
