@@ -125,7 +125,8 @@ def decision_cost(ticks: int) -> None:
         assert machine.state.name == "NORMAL", f"the healthy recording tripped it: {machine.events[-1]}"
     plant_us = us_per_call(lambda i: plant.step(), ticks)
     total = sum(best.values())
-    print(f"decision cost per tick, a moving robot's {len(recorded[0][0])} frames + seat (best of 5 runs)")
+    frames = sum(len(f) for f, _ in recorded) / len(recorded)
+    print(f"decision cost per tick, a moving robot's {frames:.0f} frames + seat sample (best of 5 runs)")
     print(f"  frames -> monitors (per-frame checks)  {best['frames']:7.1f} µs")
     print(f"  observe (cross-checks, speed, drives)  {best['observe']:7.1f} µs")
     print(f"  state machine update                   {best['update']:7.1f} µs")
@@ -149,7 +150,7 @@ def reaction_latency(trips: int) -> None:
     thread = SupervisorThread(node).start()
     bus = open_bus(config)
     robot = CanNode(bus, name="robot")
-    state = {"heartbeat": BALANCING, "tripped_at": None}
+    state = {"heartbeat": BALANCING, "tripped_at": None, "permitted": True, "bus": True}
     latencies: list[float] = []
     done = threading.Event()
     lock = threading.Lock()
@@ -158,8 +159,15 @@ def reaction_latency(trips: int) -> None:
         tick = 0
         while not done.is_set():
             tick += 1
+            # The drives obey the supervisor's frame: off under e-stop, their bus live while the contactor is.
+            feedback = {
+                "Position": 0,
+                "Velocity": 0.0,
+                "Enabled": int(state["permitted"]),
+                "BusPowered": int(state["bus"]),
+            }
             for i in (1, 2, 3):
-                robot.send(f"DRIVE{i}_FEEDBACK", {"Position": 0, "Velocity": 0.0, "Enabled": 1})
+                robot.send(f"DRIVE{i}_FEEDBACK", feedback)
             robot.send("IMU_ATTITUDE", {"Roll": 0.0, "Pitch": 0.0, "Yaw": 0.0, "Valid": 1})
             robot.send("IMU_RATE", {"RateX": 0.0, "RateY": 0.0, "RateZ": 0.0, "Valid": 1})
             with lock:
@@ -181,6 +189,8 @@ def reaction_latency(trips: int) -> None:
             deadline = time.perf_counter() + 0.0025
             while (remaining := deadline - time.perf_counter()) > 0:
                 rx = robot.recv(timeout=remaining)
+                if rx is not None and rx.name == "SUPERVISOR_ESTOP":
+                    state["permitted"], state["bus"] = not rx.signals["Estop"], bool(rx.signals["Contactor"])
                 if rx is not None and rx.name == "SUPERVISOR_ESTOP" and rx.signals["Estop"]:
                     with lock:
                         if state["tripped_at"] is not None and state["heartbeat"] == FAULT:

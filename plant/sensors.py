@@ -69,7 +69,7 @@ class DriveFeedbackModel:
 @dataclass(frozen=True, slots=True)
 class ImuSample:
     attitude: tuple[float, float, float]
-    """Roll, pitch, yaw (ZYX Euler), rad."""
+    """Roll, pitch, yaw (ZYX Euler), rad; yaw wrapped to [-π, π)."""
     rate: tuple[float, float, float]
     """Angular rate in the body frame, rad/s."""
     accel: tuple[float, float, float]
@@ -98,8 +98,10 @@ class ImuModel:
             gb[i] += self.gyro_step * n[9 + i]
             ab[i] += self.accel_step * n[12 + i]
         sa, sg, sf = self.attitude_sigma, self.gyro_sigma, self.accel_sigma
+        # An AHRS reports its heading wrapped to [-π, π) (the DBC's range), however far the robot has turned.
+        yaw = (attitude[2] + sa * n[2] + math.pi) % (2.0 * math.pi) - math.pi
         return ImuSample(
-            (attitude[0] + sa * n[0], attitude[1] + sa * n[1], attitude[2] + sa * n[2]),
+            (attitude[0] + sa * n[0], attitude[1] + sa * n[1], yaw),
             (rate[0] + gb[0] + sg * n[3], rate[1] + gb[1] + sg * n[4], rate[2] + gb[2] + sg * n[5]),
             (accel[0] + ab[0] + sf * n[6], accel[1] + ab[1] + sf * n[7], accel[2] + ab[2] + sf * n[8]),
         )

@@ -55,6 +55,16 @@ def test_imu_white_noise_matches_density(rate):
     assert np.abs(gyro.mean(axis=0)).max() < 4 * 6.1e-5 * band / math.sqrt(len(s))
 
 
+def test_imu_heading_wraps_like_an_ahrs():
+    # However far the robot has turned, the yaw an AHRS reports stays in [-π, π) (the DBC's range: a value
+    # beyond it would saturate on the wire and read as frozen).
+    imu = ImuModel(quiet_imu(), np.random.default_rng(1))
+    for turned in (0.5, 3.0, 4.0, -4.0, 40.0):
+        yaw = imu.sample((0.0, 0.0, turned), (0.0, 0.0, 0.0), (0.0, 0.0, 9.81)).attitude[2]
+        assert -math.pi <= yaw < math.pi
+        assert math.remainder(yaw - turned, 2 * math.pi) == pytest.approx(0.0, abs=1e-2)
+
+
 def test_imu_bias_turn_on_and_random_walk():
     walk, steps, rate = 1e-3, 400, 400.0
     finals, initial = [], []
