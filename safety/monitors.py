@@ -146,15 +146,13 @@ class Monitors:
         self._imu_stuck = {
             name: [Stuck(sensors.stuck_samples, MOVED) for _ in names] for name, names in IMU_CHANNELS.items()
         }
-        self._imu_findings: dict[str, Finding | None] = {}
         self._attitude_at_rate = (0.0, 0.0)
         self._imu_motion = 0.0
         """rad the chassis turned (|rates| × dt) since the last seat sample: evidence for the seat's."""
-        self._seat_finding: Finding | None = None
         self._replay = {name: Replay(COUNTER_MODULO) for name in REPLAY_CHECKED}
-        self._replay_findings: dict[str, Finding | None] = {}
+        self._found: dict[str, Finding | None] = {}
+        """What the frame-driven checks found at their last frame, by check (None: nothing)."""
         self._checks_at: float | None = None
-        self._check_findings: list[Finding] = []
         self.degraded = False
         """A sensor check failed: the speed estimate is the conservative one until a reset."""
         self.controller_state: int | None = None
@@ -183,7 +181,7 @@ class Monitors:
         lost = 0 if e2e is None else e2e.lost
         if name in self._replay:
             replayed = self._replay[name].frame(tuple(v for k, v in s.items() if k not in (COUNTER, CRC)))
-            self._replay_findings[name] = (
+            self._found[f"{name} replay"] = (
                 Finding(
                     Cause.SENSOR_STUCK,
                     f"{name} repeats its frames of {COUNTER_MODULO} frames ago: "
@@ -235,7 +233,7 @@ class Monitors:
             for i, (checker, moved) in enumerate(zip(self._imu_stuck[name], evidence, strict=True))
             if checker.sample(s[signals[i]], moved)
         ]
-        self._imu_findings[name] = (
+        self._found[f"{name} stuck"] = (
             Finding(
                 Cause.SENSOR_STUCK,
                 f"{name}.{signals[stuck[0]]} frozen at {values[stuck[0]]:.4f} while other evidence moved",
@@ -252,7 +250,7 @@ class Monitors:
             self.last["wrench"] = t
             attitude = self.imu["IMU_ATTITUDE"]
             vertical = world_acceleration(self.imu["IMU_ACCEL"], attitude[0], attitude[1])[2]
-            self._seat_finding = self.seat.sample(
+            self._found["seat"] = self.seat.sample(
                 w.force,
                 w.moment,
                 w.cop,
@@ -346,10 +344,7 @@ class Monitors:
         found = self._cross_checks(t)
         for drive in self.drives:
             found += [f for f in drive.findings.values() if f is not None]
-        found += [f for f in self._imu_findings.values() if f is not None]
-        found += [f for f in self._replay_findings.values() if f is not None]
-        if self._seat_finding is not None:
-            found.append(self._seat_finding)
+        found += [f for f in self._found.values() if f is not None]
         if any(f.cause in (Cause.SENSOR_STUCK, Cause.SENSOR_DISAGREE) for f in found):
             self.degraded = True
         return tuple(found)
