@@ -220,17 +220,16 @@ def classify(o: Outcome, twin: Outcome, bounds: Bounds) -> Classification:
         None,
     )
     if reaction is not None and (hazard_t is None or reaction[0] <= hazard_t + 1e-9):
+        seen, cause = reaction
         departed = o.departs(twin, start, bounds)
-        if departed is not None and departed > reaction[0]:
-            departed = None  # seen before any consequence, whenever that was
-        # The bound counts from the fault's start, or from the departure if the fault changed nothing before.
-        delay = reaction[0] - (start if departed is None else max(start, departed))
-        if departed is None and reaction[0] - start > o.detect_within:
-            delay = 0.0
+        # Seen before the run departed from its twin is seen before any consequence, whenever that was;
+        # after it, the bound counts from the later of the fault's start and the departure.
+        first = departed is None or departed > seen
+        late = not first and seen - max(start, departed) > o.detect_within + 1e-9
         note = f"then {hazard}" if hazard else ""
-        label = "DETECTED" if delay <= o.detect_within + 1e-9 else "LATE"
-        since = None if departed is None else departed - start
-        return Classification(label, reaction[1], reaction[0] - start, since, note)
+        return Classification(
+            "LATE" if late else "DETECTED", cause, seen - start, None if first else departed - start, note
+        )
     if hazard:
         return Classification("MISSED", note=f"{hazard} with no reaction of the supervisor's own before it")
     if o.disturbance:

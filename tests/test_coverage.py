@@ -1,0 +1,80 @@
+"""The coverage judge itself (hil/coverage.py): each class from synthetic outcomes, so a campaign's 0 MISSED
+means what it says."""
+
+import numpy as np
+
+from hil.coverage import Bounds, Outcome, classify, false_trip
+
+BOUNDS = Bounds()
+T = np.round(np.arange(0.0, 5.0, 0.01), 4).tolist()
+
+
+def run(speed=0.0, tilt=1.0, yaw=0.0, transitions=(), fault_start=3.0, **kw) -> Outcome:
+    """A run at constant values, with `(t0, value)` steps in speed, tilt or yaw rate after t0."""
+
+    def series(x):
+        if isinstance(x, tuple):
+            t0, value = x
+            return [value if t >= t0 else 0.0 for t in T]
+        return [x] * len(T)
+
+    return Outcome(
+        T, series(speed), series(tilt), series(yaw), list(transitions), fault_start=fault_start, **kw
+    )
+
+
+TWIN = run()
+
+
+def test_a_reaction_of_its_own_within_the_bound_is_detected_and_a_later_one_late():
+    c = classify(run(speed=(3.05, 0.3), transitions=[(3.1, "STOPPING", "SENSOR_DISAGREE")]), TWIN, BOUNDS)
+    assert (c.label, c.cause) == ("DETECTED", "SENSOR_DISAGREE") and abs(c.reaction - 0.1) < 1e-9
+    c = classify(run(speed=(3.05, 0.3), transitions=[(3.5, "STOPPING", "SENSOR_DISAGREE")]), TWIN, BOUNDS)
+    assert c.label == "LATE" and abs(c.departed - 0.05) < 1e-9
+
+
+def test_seen_before_the_run_departs_from_its_twin_is_detected_however_long_after_the_start():
+    c = classify(run(speed=(4.5, 0.3), transitions=[(4.0, "STOPPING", "SENSOR_DISAGREE")]), TWIN, BOUNDS)
+    assert c.label == "DETECTED" and c.departed is None
+    # The bound counts from the departure when the fault changed nothing at first.
+    c = classify(run(speed=(4.0, 0.3), transitions=[(4.1, "STOPPING", "SENSOR_DISAGREE")]), TWIN, BOUNDS)
+    assert c.label == "DETECTED"
+    c = classify(run(speed=(4.0, 0.3), transitions=[(4.4, "STOPPING", "SENSOR_DISAGREE")]), TWIN, BOUNDS)
+    assert c.label == "LATE"
+
+
+def test_a_consequence_is_not_a_detection():
+    fell = run(tilt=(3.5, 25.0), transitions=[(3.4, "ESTOP", "TILT")], fell_at=3.8)
+    c = classify(fell, TWIN, BOUNDS)
+    assert c.label == "MISSED" and "fell" in c.note
+    assert classify(run(speed=(3.2, 2.3)), TWIN, BOUNDS).label == "MISSED", "over the cap, unseen"
+
+
+def test_unseen_and_within_the_benign_bounds_is_benign_beyond_them_missed():
+    assert classify(run(speed=(3.2, 0.2)), TWIN, BOUNDS).label == "BENIGN"
+    assert classify(run(yaw=(3.2, 0.5)), TWIN, BOUNDS).label == "MISSED", "a drive lost: the robot yaws"
+    assert classify(run(speed=(3.2, 0.7)), TWIN, BOUNDS).label == "MISSED"
+    push = run(speed=(3.2, 0.7), disturbance=True)
+    assert classify(push, TWIN, BOUNDS).label == "BENIGN", "a push ridden through"
+
+
+def test_a_latent_fault_counts_from_its_demand_and_a_drive_left_powered_is_a_hazard():
+    demand = [(3.0, "STOPPING", "OPERATOR_ESTOP"), (4.0, "ESTOP", "OPERATOR_ESTOP")]
+    seen = run(transitions=[*demand, (4.02, "ESTOP", "DRIVE_NOT_DISABLED")], latent=True, detect_within=0.05)
+    c = classify(seen, TWIN, BOUNDS)
+    assert (c.label, c.cause) == ("DETECTED", "DRIVE_NOT_DISABLED") and abs(c.reaction - 0.02) < 1e-9
+    unseen = run(transitions=demand, latent=True, powered_after_estop=0.9)
+    assert classify(unseen, TWIN, BOUNDS).label == "MISSED"
+
+
+def test_a_dead_supervisors_reaction_is_the_drives_own_watchdog():
+    c = classify(run(transitions=[(3.045, "ESTOP", "PERMISSION_TIMEOUT")]), TWIN, BOUNDS)
+    assert (c.label, c.cause) == ("DETECTED", "PERMISSION_TIMEOUT")
+
+
+def test_false_trips_are_the_supervisors_own_actions():
+    assert false_trip(run(fault_start=None)) == ""
+    operator = [(3.0, "STOPPING", "OPERATOR_ESTOP"), (3.3, "ESTOP", "OPERATOR_ESTOP")]
+    assert false_trip(run(fault_start=None, transitions=operator)) == ""
+    assert "OVER_CAP" in false_trip(run(fault_start=None, transitions=[(2.0, "LIMITING", "OVER_CAP")]))
+    assert "fell" in false_trip(run(fault_start=None, fell_at=4.0))
