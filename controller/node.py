@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 
 from controller.core import Controller, Fault, Output, ScInput, State, Wrench
 from drivers.can_bus import CanNode, Received
@@ -31,6 +32,8 @@ through the controlled stop."""
 LATE_RUN = 3
 SHORT_WAIT = 0.005
 """s the lockstep controller waits for the rig's fence once it has been late LATE_RUN ticks in a row."""
+BOOT_PERIOD = 0.1
+"""s between boot-up heartbeats (State INIT) until the first SYNC: the rig's start-up handshake."""
 
 
 class ControllerNode:
@@ -152,14 +155,25 @@ class ControllerNode:
             self._wrench = samples[-1]
 
     # -------------------------------------------------------------------------------------------- loop
+    def boot(self) -> None:
+        """The boot-up heartbeat: State INIT, sent until the first SYNC (after the zenoh subscriptions are
+        declared, so a rig that starts on it finds them)."""
+        mode = self.controller.config.mode
+        boot = {"State": int(State.INIT), "Mode": int(mode == "ihacs"), "FaultCode": 0}
+        self.can.send("CONTROLLER_HEARTBEAT", boot)
+
     def run(self, stop: threading.Event, poll: float = 0.1, paused: threading.Event | None = None) -> None:
         """Receive until `stop` is set (recv blocks at most `poll` seconds, so stopping is prompt); while
         `paused` is set, take nothing in (a hung controller, for fault injection)."""
+        next_boot = time.monotonic()
         while not stop.is_set():
             if paused is not None and paused.is_set():
                 stop.wait(0.001)
                 continue
-            rx = self.can.recv(timeout=poll)
+            if self.tick is None and time.monotonic() >= next_boot:
+                self.boot()
+                next_boot = time.monotonic() + BOOT_PERIOD
+            rx = self.can.recv(timeout=min(poll, BOOT_PERIOD) if self.tick is None else poll)
             if rx is not None:
                 self.handle(rx)
 

@@ -1,4 +1,4 @@
-"""zenoh key expressions of the rig (DESIGN.md §5), all under one configurable prefix."""
+"""zenoh key expressions of the rig (docs/zenoh.md), all under one configurable prefix."""
 
 from __future__ import annotations
 
@@ -50,11 +50,6 @@ class Keys:
     def controller_telemetry(self) -> str:
         """ControllerTelemetry: the controller's internal commands per tick, for recording and metrics."""
         return f"{self.prefix}/controller/telemetry"
-
-    @property
-    def rig_telemetry(self) -> str:
-        """RigTelemetry: the rig's periodic summary of the plant's truth."""
-        return f"{self.prefix}/rig/telemetry"
 
     @property
     def rig_tick(self) -> str:

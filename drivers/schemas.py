@@ -122,20 +122,6 @@ class RigTick(Payload, frozen=True, kw_only=True):
     puts: dict[Annotated[str, msgspec.Meta(max_length=200)], Annotated[int, msgspec.Meta(ge=0)]]
 
 
-class RigTelemetry(Payload, frozen=True, kw_only=True):
-    """A periodic summary of the plant's truth (for operators and dashboards, never for control)."""
-
-    tick: Annotated[int, msgspec.Meta(ge=0)]
-    velocity: tuple[Rate, Rate]
-    """Ground speed in the heading frame (forward, left), m/s."""
-    tilt: tuple[Angle, Angle]
-    """Chassis tilt (pitch, roll), rad."""
-    lean: tuple[Angle, Angle]
-    """Torso lean relative to the chassis (pitch, roll), rad."""
-    yaw_rate: Rate
-    fallen: bool = False
-
-
 P = TypeVar("P", bound=Payload)
 
 _encoder = msgspec.msgpack.Encoder()

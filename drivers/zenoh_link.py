@@ -159,6 +159,31 @@ def open_session(
     return zenoh.open(load_config(path, role, hub_endpoint, allow_network, certs, identity))
 
 
+def open_hub(
+    path: Path | str = LOOPBACK,
+    endpoint: str | None = None,
+    fallback: bool = False,
+    allow_network: bool = False,
+) -> tuple[zenoh.Session, str | None]:
+    """The rig's hub session and the endpoint it listens on. A port already taken (another rig on this
+    machine) moves a self-contained run (`fallback`: nobody else has to find it) to a free loopback port;
+    otherwise it is a ZenohConfigError naming the port and the option, never a traceback."""
+    try:
+        return open_session(path, "hub", endpoint, allow_network), endpoint
+    except zenoh.ZError as exc:
+        if "Address already in use" not in str(exc):
+            raise ZenohConfigError(f"{path}: cannot open the rig's zenoh hub: {exc}") from None
+        taken = endpoint or ", ".join(_endpoints(_get(load_config(path, "hub"), "listen/endpoints")))
+        if not fallback:
+            raise ZenohConfigError(
+                f"{taken} is in use (another rig on this machine?): give this rig and every process of its "
+                "bench another hub endpoint, --hub tcp/127.0.0.1:PORT"
+            ) from None
+    free = free_loopback_endpoint()
+    log.warning("%s is in use (another rig on this machine?): this run's hub listens on %s", taken, free)
+    return open_session(path, "hub", free, allow_network), free
+
+
 P = TypeVar("P", bound=Payload)
 
 

@@ -53,7 +53,6 @@ def _progress(t: float, duration: float) -> None:
 def _run(args: argparse.Namespace) -> int:
     from drivers.can_bus import BusConfigError, parse_can_spec
     from hil.runner import format_table, load_scenario, run_scenario
-    from hil.session import ControllerUnavailable
 
     scenario = load_scenario(resolve(args.scenario))
     try:
@@ -81,7 +80,7 @@ def _run(args: argparse.Namespace) -> int:
     show_progress = sys.stderr.isatty() and not args.quiet
     clock = args.clock or scenario.clock
     print(f"pure-hil run: {scenario.name} ({controller}, {clock}) -> {out}")
-    spawned = _spawn_controller(args.can, scenario, mode, clock) if args.spawn_controller else None
+    spawned = _spawn_controller(args.can, scenario, mode, clock, args.hub) if args.spawn_controller else None
     try:
         result = run_scenario(
             scenario,
@@ -92,21 +91,23 @@ def _run(args: argparse.Namespace) -> int:
             out=out,
             progress=_progress if show_progress else None,
             supervisor=args.supervisor,
+            hub_endpoint=args.hub,
         )
-    except ControllerUnavailable as exc:
-        print(f"\npure-hil: {exc}", file=sys.stderr)
-        return 1
     finally:
         if spawned is not None:
             _stop(spawned)
     if show_progress:
         print(file=sys.stderr)
+    failure = result.trace.failure
+    if failure is not None and not len(result.trace.t):
+        print(f"pure-hil: {failure.error} ({failure.stage}; summary: {out}/summary.json)", file=sys.stderr)
+        return 2 if failure.config else 1
     print(format_table(result))
     print(f"outputs: {out}/summary.json, can.log, recording.rrd, plots.png")
     return 0 if result.passed else 1
 
 
-def _spawn_controller(can_spec: str, scenario, mode: str, clock: str):
+def _spawn_controller(can_spec: str, scenario, mode: str, clock: str, hub: str | None):
     """`pure-controller` as a subprocess on the rig's bus (the rig is the zenoh hub it joins)."""
     import subprocess
 
@@ -122,6 +123,8 @@ def _spawn_controller(can_spec: str, scenario, mode: str, clock: str):
     ]
     if clock == "lockstep":
         command.append("--lockstep")
+    if hub is not None:
+        command += ["--hub", hub]
     print(f"pure-hil run: spawned {' '.join(command)}")
     return subprocess.Popen(command)
 
@@ -237,7 +240,7 @@ def _until_interrupted(message: str) -> None:
 def _serve(args: argparse.Namespace) -> int:
 
     from drivers.can_bus import parse_can_spec
-    from drivers.zenoh_link import LOOPBACK, open_session
+    from drivers.zenoh_link import LOOPBACK, open_hub
     from hil.service import RigService
 
     view = None
@@ -246,7 +249,7 @@ def _serve(args: argparse.Namespace) -> int:
 
         # The operator's own viewer (`rerun` on their machine); the rig connects out to it and never serves.
         view = rr.GrpcSink(args.view)
-    session = open_session(args.zenoh or LOOPBACK, "hub", args.hub)
+    session, _ = open_hub(args.zenoh or LOOPBACK, args.hub)  # operators find it there: it never moves
     service = RigService(
         session,
         can=parse_can_spec(args.can) if args.can else None,
@@ -329,7 +332,7 @@ def _supervisor(args: argparse.Namespace) -> int:
     """The supervisor as its own process, on its own timer (what runs beside a real robot)."""
 
     from drivers.can_bus import BusConfigError, CanNode, open_bus, parse_can_spec
-    from drivers.zenoh_link import LOOPBACK, ZenohLink, open_session
+    from drivers.zenoh_link import LOOPBACK, ZenohLink, open_hub, open_session
     from safety.config import RobotGeometry, SupervisorConfig
     from safety.node import SupervisorNode, SupervisorThread
 
@@ -346,10 +349,13 @@ def _supervisor(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
+    if args.role == "hub" and not args.certs:
+        session, _ = open_hub(args.zenoh or LOOPBACK, args.hub)
+    else:
+        session = open_session(
+            args.zenoh or LOOPBACK, args.role, args.hub, certs=args.certs, identity=args.identity
+        )
     bus = open_bus(can)
-    session = open_session(
-        args.zenoh or LOOPBACK, args.role, args.hub, certs=args.certs, identity=args.identity
-    )
     link = ZenohLink(session)
     node = SupervisorNode(CanNode(bus, name="supervisor"), link, config, robot, tick_hz=args.tick_hz)
     thread = SupervisorThread(node, sync=args.clock == "sync").start()
@@ -478,6 +484,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="start pure-controller (the scenario's mode) as a subprocess on the same shared bus",
     )
     run.add_argument("--seed", type=int, default=None)
+    run.add_argument(
+        "--hub",
+        default=None,
+        help="the rig's zenoh hub endpoint (default tcp/127.0.0.1:7447; a run with every part in this "
+        "process moves to a free port when that one is taken)",
+    )
     run.add_argument("--out", default=None, help="run folder (default runs/NAME-TIMESTAMP)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.set_defaults(func=_run)
@@ -620,6 +632,13 @@ def main(argv: list[str] | None = None) -> int:
         if not isinstance(exc, ZenohConfigError):
             raise
         print(f"pure-hil: zenoh config error: {exc}", file=sys.stderr)
+        return 2
+    except Exception as exc:
+        import zenoh
+
+        if not isinstance(exc, zenoh.ZError):
+            raise
+        print(f"pure-hil: zenoh: {exc}", file=sys.stderr)  # an endpoint taken or unreachable
         return 2
 
 

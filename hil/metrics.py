@@ -32,14 +32,23 @@ class PlaneMetrics:
     """Conventional RMSE of the ball rate, rad/s."""
 
 
+NEEDS_TELEMETRY = ("rmse", "rmse_paper")
+"""Metrics that need the controller's command speed (pure/controller/telemetry): unavailable without it."""
+
+
 def plane_metrics(t, lean, tilt, speed, command_speed, ball_radius: float) -> PlaneMetrics:
+    """One plane's metrics; NaN where there is nothing to measure (no ticks; the RMSEs without the
+    controller's telemetry)."""
+    if not len(t):
+        return PlaneMetrics(math.nan, math.nan, math.nan, math.nan, math.nan)
     valid = ~np.isnan(command_speed)
     commanded_rate = command_speed[valid] / ball_radius
     rate = speed[valid] / ball_radius
+    told = bool(valid.any())
     return PlaneMetrics(
         max_lean_deg=float(np.degrees(np.abs(lean).max())),
         max_tilt_deg=float(np.degrees(np.abs(tilt).max())),
         max_speed=float(np.abs(speed).max()),
-        rmse_paper=1e3 * paper_rmse(t[valid], commanded_rate, rate),
-        rmse=rmse(commanded_rate, rate),
+        rmse_paper=1e3 * paper_rmse(t[valid], commanded_rate, rate) if told else math.nan,
+        rmse=rmse(commanded_rate, rate) if told else math.nan,
     )

@@ -22,7 +22,7 @@ import msgspec
 from drivers.can_bus import BusConfig, open_bus, private_channel
 from drivers.can_codec import Catalog
 from drivers.dut import DutSpec, start_dut
-from drivers.zenoh_link import ZenohLink, open_session
+from drivers.zenoh_link import ZenohLink, open_hub
 from hil.scenario import ROOT, resolve
 
 CONTROLLER_FRAMES = {"DRIVE1_COMMAND", "DRIVE2_COMMAND", "DRIVE3_COMMAND", "CONTROLLER_HEARTBEAT"}
@@ -46,16 +46,19 @@ class _Tick:
 
 
 def _ticks(log: Path, catalog: Catalog) -> list[_Tick]:
-    """Split the log at each SYNC: the rig's frames up to and including SYNC, then the controller's answer."""
+    """Split the log at each SYNC: the rig's frames up to and including SYNC, then the controller's answer.
+    The controller's frames before the first SYNC are its boot-up (the start-up handshake), not answers."""
     ticks: list[_Tick] = []
     current = _Tick()
-    answering = False
+    answering = synced = False
     for msg in can.MessageSync(can.LogReader(str(log)), timestamps=False):
         codec = catalog.by_id(msg.arbitration_id)
         name = codec.name if codec else ""
         if name in CONTROLLER_FRAMES:
-            current.expected.append((msg.arbitration_id, bytes(msg.data)))
+            if synced:
+                current.expected.append((msg.arbitration_id, bytes(msg.data)))
             continue
+        synced = synced or name == "SYNC"
         if answering:  # the first rig frame after the controller's answer starts the next tick
             ticks.append(current)
             current, answering = _Tick(), False
@@ -79,7 +82,7 @@ def replay(
     first_tick = min(inputs) if inputs else 1
     bus_config = BusConfig(channel=private_channel("replay"))
     bus = open_bus(bus_config)
-    session = open_session(role="hub", hub_endpoint=hub_endpoint)
+    session, hub_endpoint = open_hub(endpoint=hub_endpoint, fallback=True)  # nobody else joins a replay
     link = ZenohLink(session, lossless=True)  # a lockstep replay must not lose an input
     dut = None
     result = ReplayResult()
@@ -102,6 +105,9 @@ def replay(
         deadline = time.monotonic() + 10.0
         while not pub.matching_status.matching and time.monotonic() < deadline:
             time.sleep(0.01)
+        heartbeat = catalog["CONTROLLER_HEARTBEAT"]
+        booting = True
+        """Until its first answer the fresh controller may still send boot-up heartbeats: not compared."""
         for i, tick in enumerate(ticks):
             for key, data in inputs.get(first_tick + i, ()):
                 link.put_bytes(key, data)
@@ -112,8 +118,12 @@ def replay(
             answer_deadline = time.monotonic() + 2.0
             while len(actual) < len(tick.expected) and time.monotonic() < answer_deadline:
                 msg = bus.recv(max(answer_deadline - time.monotonic(), 0.0))
-                if msg is not None:
-                    actual.append((msg.arbitration_id, bytes(msg.data)))
+                if msg is None:
+                    continue
+                if booting and msg.arbitration_id == heartbeat.frame_id:
+                    continue  # a boot-up (before the first command)
+                booting = False
+                actual.append((msg.arbitration_id, bytes(msg.data)))
             result.ticks += 1
             result.frames_compared += len(tick.expected)
             if actual != tick.expected:

@@ -1,4 +1,4 @@
-"""The tick loop (DESIGN.md §3): the plant on one side, the controller under test on the wire on the other.
+"""The tick loop (docs/rig.md): the plant on one side, the controller under test on the wire on the other.
 
 One tick k:
   1. the plant advances one tick under the torques the drives hold;
@@ -157,6 +157,31 @@ class Rig:
             time.sleep(0.01)
         return True
 
+    def await_boot(self, timeout: float) -> str:
+        """The start-up handshake, before the first SYNC: wait until the controller's boot-up heartbeat
+        (CONTROLLER_HEARTBEAT, any state) and the supervisor's first SUPERVISOR_ESTOP have arrived.
+        Returns '' or what is still missing after `timeout` seconds."""
+        deadline = time.monotonic() + timeout
+        controller = supervisor = False
+        while True:
+            missing = [
+                what
+                for what, seen in (
+                    ("the controller's boot-up (CONTROLLER_HEARTBEAT)", controller),
+                    ("the supervisor's first SUPERVISOR_ESTOP", supervisor),
+                )
+                if not seen
+            ]
+            remaining = deadline - time.monotonic()
+            if not missing or remaining <= 0:
+                return " and ".join(missing)
+            rx = self.can.recv(timeout=min(remaining, 0.1))
+            if rx is None:
+                continue
+            self._other_frame(rx)
+            controller = controller or rx.name == "CONTROLLER_HEARTBEAT"
+            supervisor = supervisor or (rx.name == "SUPERVISOR_ESTOP" and rx.ok)
+
     def tick(self, deadline: float | None = None, lockstep: bool = True) -> None:
         """One tick; wait for the controller's answer until `deadline` (time.monotonic()).
 
@@ -188,7 +213,7 @@ class Rig:
         if self.supervisor is not None:
             self.supervisor.update(plant.t, fence=k if lockstep else None)
         self._drain_nowait()
-        self._update_permission()
+        self.apply_permission()
         self.stats.ticks += 1
 
     # ------------------------------------------------------------------------------------------ outputs
@@ -307,9 +332,10 @@ class Rig:
             self._contactor_commanded = bool(rx.signals["Contactor"])
             self.safety_state = int(rx.signals["State"])
 
-    def _update_permission(self) -> None:
+    def apply_permission(self) -> None:
         """The drives run only on a fresh SUPERVISOR_ESTOP frame that does not assert e-stop; the main
-        contactor stays closed only on a fresh-enough one that says so (its own, longer timeout)."""
+        contactor stays closed only on a fresh-enough one that says so (its own, longer timeout). Called
+        every tick, and once before the first so the drives take the controller's first commands."""
         drives, age = self.plant.drives, self.plant.t - self._permission_seen
         permitted = age <= self.permission_timeout + 1e-9 and not self._estop_asserted
         if permitted != self._permitted:

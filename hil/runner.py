@@ -1,4 +1,4 @@
-"""Run a scenario and judge it: metrics, verdicts, and the run folder (DESIGN.md §8).
+"""Run a scenario and judge it: metrics, verdicts, and the run folder (docs/rig.md).
 
 Run folder: summary.json (config echo, seed, versions, metrics, verdicts, bus and timing statistics),
 can.log (candump -L format; python-can's LogReader and can-utils read it), zenoh_inputs.msgpack (what the
@@ -20,7 +20,7 @@ from drivers.can_bus import BusConfig
 from drivers.config import load_toml
 from hil.faults import FaultSet
 from hil.faults.verdicts import fault_verdicts
-from hil.metrics import plane_metrics
+from hil.metrics import NEEDS_TELEMETRY, plane_metrics
 from hil.rig import OperatorStep, ScStep
 from hil.scenario import ROOT, UNITS, Criterion, Scenario, Verdict, resolve
 from hil.session import RunSpec, Trace, run
@@ -45,7 +45,7 @@ class RunResult:
 
     @property
     def passed(self) -> bool:
-        return all(v.passed for v in self.verdicts)
+        return self.trace.failure is None and all(v.passed for v in self.verdicts)
 
 
 def plane_speed(trace: Trace, plane: str) -> np.ndarray:
@@ -122,6 +122,7 @@ def run_scenario(
     session=None,
     supervisor: str = "embedded",
     fault_set: FaultSet | None = None,
+    boot_timeout: float | None = None,
 ) -> RunResult:
     """Run and judge a scenario. `fault_set`: a FaultSet built from the scenario's faults that the caller
     keeps to inject more live (the service)."""
@@ -158,6 +159,7 @@ def run_scenario(
         stop=stop,
         session=session,
         controller_config=ROOT / "configs/controller/default.toml",
+        boot_timeout=boot_timeout,
     )
     trace = run(spec)
     result = RunResult(
@@ -172,7 +174,10 @@ def run_scenario(
     )
     for c in scenario.criteria:
         value = measure(trace, c, robot.ball.radius)
-        result.verdicts.append(Verdict(c.label, value, c.describe(), UNITS[c.metric], c.check(value), c.note))
+        note = unavailable(trace, c.metric) if math.isnan(value) else ""
+        result.verdicts.append(
+            Verdict(c.label, value, c.describe(), UNITS[c.metric], c.check(value), note or c.note)
+        )
     result.verdicts += fault_verdicts(trace)
     if out is not None:
         write_outputs(result, out)
@@ -180,6 +185,7 @@ def run_scenario(
 
 
 def summary_metrics(trace: Trace, ball_radius: float) -> dict[str, float]:
+    """The run's metrics; NaN for those with nothing to measure (unavailable(): why)."""
     out: dict[str, float] = {}
     for k, plane in enumerate(("pitch", "roll")):
         speed = plane_speed(trace, plane)
@@ -188,9 +194,19 @@ def summary_metrics(trace: Trace, ball_radius: float) -> dict[str, float]:
         )
         for name in ("max_speed", "max_tilt_deg", "max_lean_deg", "rmse", "rmse_paper"):
             out[f"{plane}.{name}"] = round(float(getattr(m, name)), 9)
-    out["distance"] = round(float(np.hypot(*trace.position[-1])), 9)
-    out["max_yaw_rate"] = round(float(np.abs(trace.yaw_rate).max()), 9)
+    ran = bool(len(trace.t))
+    out["distance"] = round(float(np.hypot(*trace.position[-1])), 9) if ran else math.nan
+    out["max_yaw_rate"] = round(float(np.abs(trace.yaw_rate).max()), 9) if ran else math.nan
     return out
+
+
+def unavailable(trace: Trace, metric: str) -> str:
+    """Why a metric could not be measured in this run ('' if it could)."""
+    if not len(trace.t):
+        return "unavailable (the run never ticked)"
+    if metric.split(".")[-1] in NEEDS_TELEMETRY and trace.controller_telemetry_missing == len(trace.t):
+        return "unavailable (no controller telemetry)"
+    return ""
 
 
 def versions() -> dict[str, str]:
@@ -223,9 +239,11 @@ def summary(result: RunResult) -> dict:
         "seed": result.seed,
         "versions": versions(),
         "passed": result.passed,
+        "failure": None if tr.failure is None else {"stage": tr.failure.stage, "error": tr.failure.error},
         "fallen": tr.fallen,
         "simulated": round(float(tr.t[-1]), 6) if len(tr.t) else 0.0,
-        "metrics": result.metrics,
+        "metrics": {k: None if math.isnan(v) else v for k, v in result.metrics.items()},
+        "metrics_unavailable": {k: why for k in result.metrics if (why := unavailable(tr, k))},
         "verdicts": [msgspec.to_builtins(v) for v in result.verdicts],
         "rig": {
             "ticks": tr.stats.ticks,
@@ -298,29 +316,52 @@ def _drives_off_at(tr: Trace) -> float | None:
     return round(float(tr.t[on[-1] + 1 if len(on) else 0]), 6)
 
 
-def write_outputs(result: RunResult, out: Path) -> None:
+def write_outputs(result: RunResult, out: Path) -> dict[str, str]:
+    """The run folder: summary.json first and always, then each other output on its own (one that fails
+    is named in the summary, and the rest are still written). Returns the failed outputs and why."""
+    summary_file = out / "summary.json"
+
+    def write_summary(failed: dict[str, str]) -> None:
+        data = {**summary(result), "outputs_failed": failed}
+        summary_file.write_bytes(msgspec.json.format(msgspec.json.encode(data), indent=2))
+
+    write_summary({})
+    failed: dict[str, str] = {}
+    for name, write in _outputs(result, out):
+        try:
+            write()
+        except Exception as exc:  # one output failing must not lose the others or the summary
+            failed[name] = f"{type(exc).__name__}: {exc}"
+    if failed:
+        write_summary(failed)
+    return failed
+
+
+def _outputs(result: RunResult, out: Path):
+    """(file, writer) of the run folder besides summary.json and can.log (the recorder writes that one)."""
+    tr = result.trace
+    yield (
+        "zenoh_inputs.msgpack",
+        lambda: (out / "zenoh_inputs.msgpack").write_bytes(msgspec.msgpack.encode(tr.zenoh_inputs)),
+    )
+    if not len(tr.t):
+        return  # nothing ran: no recording, no plots
     # Imported here: matplotlib and rerun cost seconds of start-up (a minute on an emulated CPU), and a
     # run without a folder never needs them.
     from hil.plots import write_plots
     from hil.recording import write_rrd
 
-    (out / "summary.json").write_bytes(msgspec.json.format(msgspec.json.encode(summary(result)), indent=2))
-    (out / "zenoh_inputs.msgpack").write_bytes(msgspec.msgpack.encode(result.trace.zenoh_inputs))
-    write_rrd(out / "recording.rrd", result.trace, result.scenario.name)
     caps = [e.cap for e in result.scenario.sc if e.mode == "limit"]
-    write_plots(
-        out / "plots.png",
-        result.trace,
-        f"{result.scenario.name} ({result.controller}, {result.clock})",
-        caps[0] if caps else None,
-    )
+    title = f"{result.scenario.name} ({result.controller}, {result.clock})"
+    yield "recording.rrd", lambda: write_rrd(out / "recording.rrd", tr, result.scenario.name)
+    yield "plots.png", lambda: write_plots(out / "plots.png", tr, title, caps[0] if caps else None)
 
 
 def format_table(result: RunResult) -> str:
     rows = [
         (
             v.criterion,
-            f"{v.value:.3f} {v.units}".strip(),
+            "unavailable" if v.note.startswith("unavailable") else f"{v.value:.3f} {v.units}".strip(),
             v.limit,
             "PASS" if v.passed else "FAIL",
         )
@@ -332,6 +373,8 @@ def format_table(result: RunResult) -> str:
     lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in rows]
     lines += [f"  {v.criterion}: {v.note}" for v in result.verdicts if not v.passed and v.note]
     tr = result.trace
+    if tr.failure is not None:
+        lines.append(f"the run failed at {tr.failure.stage}: {tr.failure.error}")
     lines.append(
         f"{result.scenario.name}: {tr.t[-1] if len(tr.t) else 0:.2f} s simulated "
         f"({result.controller}, {result.clock}) in {tr.timing.wall_time:.1f} s wall "

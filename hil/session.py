@@ -8,20 +8,21 @@ import math
 import threading
 import time
 from collections.abc import Callable
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import zenoh
 
-from drivers.can_bus import BusConfig, BusRecorder, CanNode, open_bus, private_channel
-from drivers.config import load_toml
-from drivers.dut import DutSpec, start_dut
+from drivers.can_bus import BusConfig, BusConfigError, BusRecorder, CanNode, open_bus, private_channel
+from drivers.config import ConfigError, load_toml
+from drivers.dut import DutNotFound, DutSpec, start_dut
 from drivers.keys import Keys
 from drivers.schemas import SafetyState
-from drivers.zenoh_link import LOOPBACK, ZenohLink, open_session
+from drivers.zenoh_link import LOOPBACK, ZenohConfigError, ZenohLink, open_hub
 from hil.clock import LockstepClock, RealtimeClock, TimingStats
-from hil.faults import FaultEvent, FaultSet, FaultSpec
+from hil.faults import FaultError, FaultEvent, FaultSet, FaultSpec
 from hil.rig import OperatorStep, Rig, ScStep, TickStats
 from hil.scenario import ROOT
 from plant.ballbot import Plant, RiderIntent
@@ -33,6 +34,16 @@ from safety.node import SupervisorNode
 
 class ControllerUnavailable(RuntimeError):
     """The controller under test never showed up, or stopped answering (lockstep)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Failure:
+    """Why a run stopped before its end: where (`stage`: build, start-up, tick N, an output) and what."""
+
+    stage: str
+    error: str
+    config: bool = False
+    """A configuration error (a fault that cannot act on this rig, an unknown controller, a bad bus)."""
 
 
 @dataclass(slots=True)
@@ -67,6 +78,8 @@ class RunSpec:
     """Called after every tick with the plant (the service applies live rider intent there)."""
     stop: threading.Event | None = None
     """Set it to end the run early (the service's stop)."""
+    boot_timeout: float | None = None
+    """s to wait for the controller's boot-up before the first SYNC (None: 10 in-process, 120 external)."""
     session: zenoh.Session | None = None
     """An open hub session to use instead of opening one (the long-running service owns its session)."""
     faults: tuple[FaultSpec, ...] = ()
@@ -123,22 +136,83 @@ class Trace:
     fault_events: list[FaultEvent] = field(default_factory=list)
     fault_windows: list[tuple[float, float] | None] = field(default_factory=list)
     """Per fault: (start, end) of the time it acted, None if it never started."""
+    failure: Failure | None = None
+    """Why the run stopped before its end (None: it ran to the end, or to a fall)."""
+
+    @classmethod
+    def empty(cls, failure: Failure) -> Trace:
+        """A run that failed before its first tick."""
+        none, pair = np.zeros(0), np.zeros((0, 2))
+        return cls(
+            t=none,
+            velocity=pair,
+            tilt=pair,
+            lean=pair,
+            position=pair,
+            yaw_rate=none,
+            ball_rate=pair,
+            command_speed=pair,
+            tilt_command=pair,
+            fallen=None,
+            stats=TickStats(),
+            controller_telemetry_missing=0,
+            timing=TimingStats(0, 0.0, 0.0),
+            bus={},
+            motor_torque=np.zeros((0, 3)),
+            zenoh_inputs=[],
+            safety_state=np.zeros(0, int),
+            safety_speed=none,
+            powered=np.zeros(0, bool),
+            resting=np.zeros(0, bool),
+            safety_events=[],
+            failure=failure,
+        )
+
+
+CONFIG_ERRORS = (FaultError, DutNotFound, BusConfigError, ConfigError, ZenohConfigError)
 
 
 def run(spec: RunSpec) -> Trace:
+    """Build the run, hand-shake, tick to the end. Never raises for a run that failed: the trace says where
+    (`failure`) and keeps the ticks done so far."""
+    try:
+        return _run(spec)
+    except Exception as exc:  # before the first tick: nothing to keep but the reason
+        stage = "start-up" if isinstance(exc, ControllerUnavailable) else "build"
+        return Trace.empty(Failure(stage, _reason(exc), isinstance(exc, CONFIG_ERRORS)))
+
+
+def _reason(exc: BaseException) -> str:
+    return (
+        f"{type(exc).__name__}: {exc}"
+        if not isinstance(exc, (ControllerUnavailable, *CONFIG_ERRORS))
+        else str(exc)
+    )
+
+
+def _run(spec: RunSpec) -> Trace:
     robot = load_toml(spec.robot, RobotParams)
     rider = load_toml(spec.rider, RiderParams)
     plant = Plant(robot, rider, spec.sim, spec.intent, tuple(math.radians(a) for a in spec.initial_tilt_deg))
     bus_config = spec.can or BusConfig(channel=private_channel())
-    bus = open_bus(bus_config)
-    recorder = BusRecorder(bus_config, spec.can_log) if spec.can_log is not None else None
-    session = spec.session or open_session(spec.zenoh_config, "hub", spec.hub_endpoint)
-    link = ZenohLink(session, Keys(), lossless=spec.clock == "lockstep")
-    dut = None
-    supervisor = None
-    try:
+    with ExitStack() as resources:  # every resource of the run, closed in reverse on any exit
+        bus = open_bus(bus_config)
+        resources.callback(bus.shutdown)
+        # A run with every part in this process may move its hub when the default port is taken.
+        self_contained = spec.controller != "external" and spec.supervisor == "embedded"
+        if spec.session is not None:
+            session, hub = spec.session, spec.hub_endpoint
+        else:
+            session, hub = open_hub(spec.zenoh_config, spec.hub_endpoint, fallback=self_contained)
+            resources.callback(session.close)
+        link = ZenohLink(session, Keys(), lossless=spec.clock == "lockstep")
+        resources.callback(link.close)
+        if spec.can_log is not None:
+            resources.callback(BusRecorder(bus_config, spec.can_log).stop)
+        supervisor = None
         if spec.supervisor == "embedded":
             supervisor_bus = open_bus(bus_config)
+            resources.callback(supervisor_bus.shutdown)
             supervisor = SupervisorNode(
                 CanNode(supervisor_bus, name="supervisor"),
                 link,
@@ -159,13 +233,14 @@ def run(spec: RunSpec) -> Trace:
         )
         if supervisor is None:  # an external supervisor: its transitions as it announces them
             rig.safety_states = link.subscribe(link.keys.safety_state, SafetyState, capacity=1 << 14)
+        dut = None
         if spec.controller != "external":
             dut = start_dut(
                 spec.controller,
                 DutSpec(
                     can=bus_config,
                     zenoh_config=str(spec.zenoh_config),
-                    hub_endpoint=spec.hub_endpoint,
+                    hub_endpoint=hub,
                     mode=spec.mode,  # type: ignore[arg-type]
                     robot=str(spec.controller_robot or spec.robot),
                     rider=str(spec.rider),
@@ -174,27 +249,38 @@ def run(spec: RunSpec) -> Trace:
                     tick_hz=spec.sim.tick_hz,
                 ),
             )
+            resources.callback(dut.stop)
         rig.dut = dut
         faults.attach(rig)
-        wait = 10.0 if dut is not None else 120.0
-        if not rig.wait_for_subscriber(rig.keys.tes_wrench, wait):
-            raise ControllerUnavailable(
-                f"no controller subscribed to {rig.keys.tes_wrench} within {wait:g} s"
-            )
-        if supervisor is None and not rig.wait_for_subscriber(rig.keys.sc_request, 120.0):
-            raise ControllerUnavailable(f"no supervisor subscribed to {rig.keys.sc_request} within 120 s")
+        _start_up(rig, spec, bus_config, in_process=dut is not None)
         return _loop(rig, plant, spec, dut)
-    finally:
-        if dut is not None:
-            dut.stop()
-        if supervisor is not None:
-            supervisor.can.bus.shutdown()
-        if recorder is not None:
-            recorder.stop()
-        link.close()
-        if spec.session is None:
-            session.close()
-        bus.shutdown()
+
+
+ZENOH_GRACE = 2.0
+"""s the rig waits after the controller's boot-up for it to subscribe to the seat wrench; a controller on
+CAN alone never does, and the run starts without it."""
+
+
+def _start_up(rig: Rig, spec: RunSpec, bus: BusConfig, in_process: bool) -> None:
+    """The start-up handshake before the first SYNC (docs/contract.md): the supervisor's first frame (the
+    embedded one sends it now, at t = 0), the controller's boot-up heartbeat, then its zenoh subscriptions
+    if it has any. Raises ControllerUnavailable saying what did not come."""
+    if rig.supervisor is not None:
+        rig.supervisor.update(0.0)
+    timeout = spec.boot_timeout if spec.boot_timeout is not None else 10.0 if in_process else 120.0
+    missing = rig.await_boot(timeout)
+    if missing:
+        where = f"{bus.interface}:{bus.channel}"
+        raise ControllerUnavailable(
+            f"waited {timeout:g} s on {where} for {missing}: start it on this bus "
+            f"(docs/contract.md, start-up), e.g. python examples/balance_controller.py --can {where}"
+        )
+    rig.wait_for_subscriber(rig.keys.tes_wrench, ZENOH_GRACE)
+    if rig.supervisor is None and not rig.wait_for_subscriber(rig.keys.sc_request, 10.0):
+        raise ControllerUnavailable(
+            f"the supervisor on {bus.interface}:{bus.channel} does not read pure/sc/request"
+        )
+    rig.apply_permission()
 
 
 def _loop(rig: Rig, plant: Plant, spec: RunSpec, dut) -> Trace:
@@ -205,9 +291,14 @@ def _loop(rig: Rig, plant: Plant, spec: RunSpec, dut) -> Trace:
     supervisor = rig.supervisor  # its record outlives a kill
     n = 0
     next_report = time.monotonic() + 0.5
+    failure = None
     clock.start()
     while n < ticks:
-        rig.tick(clock.command_deadline(), lockstep)
+        try:
+            rig.tick(clock.command_deadline(), lockstep)
+        except Exception as exc:  # a bug or a broken bus mid-run: keep what ran, say where it stopped
+            failure = Failure(f"tick {plant.tick} (t = {plant.t:.4f} s)", _reason(exc))
+            break
         tr = plant.truth()
         rows[n] = (
             tr.t,
@@ -241,7 +332,7 @@ def _loop(rig: Rig, plant: Plant, spec: RunSpec, dut) -> Trace:
     command = np.full((n, 2), np.nan)
     tilt_cmd = np.full((n, 2), np.nan)
     first_tick = plant.tick - n + 1
-    for _ in range(50):  # the last telemetry samples may still be in flight
+    for _ in range(50 if n else 0):  # the last telemetry samples may still be in flight
         for sample in rig.telemetry.drain():
             i = sample.seq - first_tick
             if 0 <= i < n:
@@ -277,6 +368,7 @@ def _loop(rig: Rig, plant: Plant, spec: RunSpec, dut) -> Trace:
         faults=list(rig.faults.specs),
         fault_events=list(rig.faults.events),
         fault_windows=[rig.faults.window(n, plant.t) for n in range(len(rig.faults.specs))],
+        failure=failure,
     )
 
 

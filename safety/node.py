@@ -121,15 +121,7 @@ class SupervisorNode:
     def _emit(self, t: float, d: Decision, changed: bool, refused: str = "") -> None:
         out = self.config.output
         if changed or t - self._frame_sent >= out.estop_frame_period - 1e-9:
-            self.can.send(
-                "SUPERVISOR_ESTOP",
-                {
-                    "Estop": int(d.state is State.ESTOP),
-                    "Contactor": int(d.contactor_closed),
-                    "State": int(d.state),
-                    "Reason": int(d.cause),
-                },
-            )
+            self._send_frame(d.state, d.cause, d.contactor_closed)
             self._frame_sent = t
         stamp = self._stamp(t)
         if d.command != self._forwarded or t - self._sc_sent >= out.sc_period - 1e-9:
@@ -162,6 +154,17 @@ class SupervisorNode:
             )
             self._state_sent = t
 
+    def _send_frame(self, state: State, cause, contactor_closed: bool) -> None:
+        self.can.send(
+            "SUPERVISOR_ESTOP",
+            {
+                "Estop": int(state is State.ESTOP),
+                "Contactor": int(contactor_closed),
+                "State": int(state),
+                "Reason": int(cause),
+            },
+        )
+
     def _stamp(self, t: float) -> float:
         """Stamps are in the controller's time base: the SYNC tick count over the tick rate."""
         return t if self.tick is None else self.tick / self.tick_hz
@@ -190,9 +193,13 @@ class SupervisorNode:
 
     def run_on_sync(self, stop: threading.Event, poll: float = 0.1) -> None:
         """Standalone beside a lockstep rig: time is the SYNC tick (simulated time, whatever the wall clock
-        does), and every SYNC triggers an update with the traffic of the tick before it."""
+        does), and every SYNC triggers an update with the traffic of the tick before it. Until the first
+        SYNC it announces itself every `poll` seconds (the rig's start-up handshake waits for its frame)."""
+        period = self.config.output.estop_frame_period
         while not stop.is_set():
-            rx = self.can.recv(timeout=poll)
+            if self.tick is None:
+                self._send_frame(self.machine.state, self.machine.cause, self.machine.contactor_closed)
+            rx = self.can.recv(timeout=poll if self.tick is not None else period)
             if rx is None:
                 continue
             self.frame(rx, self._stamp(0.0))

@@ -1,5 +1,6 @@
 """The `pure-hil` command: the plant-only main job runs, reports, and fails cleanly on bad input."""
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -47,4 +48,9 @@ def test_a_fault_that_cannot_act_on_the_rig_exits_2_naming_it(tmp_path, capsys):
     )
     assert main(["run", str(scenario), "--quiet", "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
-    assert "fault error: fault 0 (can.drop message=IMU_RATES): can.drop: no message 'IMU_RATES'" in err
+    assert "pure-hil: fault 0 (can.drop message=IMU_RATES): can.drop: no message 'IMU_RATES'" in err
+    assert "Traceback" not in err
+    # The run folder says what failed and where.
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["passed"] is False and summary["failure"]["stage"] == "build"
+    assert "IMU_RATES" in summary["failure"]["error"]

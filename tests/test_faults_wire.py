@@ -476,7 +476,7 @@ def applied_commands(session, fault, ticks=80):
 
     bench = Bench(session, [fault] if fault else [])
     responder = Responder(bench)
-    bench.rig._update_permission = lambda: None  # no supervisor here: permission is not the subject
+    bench.rig.apply_permission = lambda: None  # no supervisor here: permission is not the subject
     bench.plant.drives.set_permission(True)
     out = []
     try:

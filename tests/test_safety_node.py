@@ -4,12 +4,14 @@ stand-in robot on a virtual bus, driven by `pure-hil estop` over zenoh on loopba
 import threading
 import time
 
+import msgspec
 import pytest
 
 from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
 from drivers.schemas import ScCommand, ScRequest, TesWrench
 from drivers.zenoh_link import ZenohLink, open_session
 from hil.cli import main
+from safety.config import SupervisorConfig, Watchdogs
 from safety.machine import BALANCING
 from safety.node import SupervisorNode, SupervisorThread
 from tests.helpers import wait_for
@@ -79,7 +81,11 @@ def bench():
     hub_link = ZenohLink(hub)
     bus_config = BusConfig(channel=private_channel("safety"))
     sup_bus = open_bus(bus_config)
-    node = SupervisorNode(CanNode(sup_bus, name="supervisor"), hub_link)
+    # The stand-in robot is a Python thread paced by sleep, not a 400 Hz source: on a loaded machine it can
+    # stall for 50 ms. These tests are about the operator's paths, so the stream watchdogs get room.
+    watchdogs = Watchdogs(drives=0.3, imu=0.3, heartbeat=0.3, wrench=0.5)
+    config = msgspec.structs.replace(SupervisorConfig(), watchdogs=watchdogs)
+    node = SupervisorNode(CanNode(sup_bus, name="supervisor"), hub_link, config)
     thread = SupervisorThread(node).start()
     robot = StandInRobot(bus_config, hub_link)
     try:

@@ -11,9 +11,10 @@ from hypothesis import strategies as st
 
 from drivers.keys import Keys
 from drivers.schemas import (
+    ControllerTelemetry,
     EstopCommand,
     PayloadError,
-    RigTelemetry,
+    RigTick,
     SafetyState,
     ScCommand,
     ScRequest,
@@ -38,8 +39,15 @@ SAMPLES = [
     ScCommand(seq=3, stamp=3.0, mode="idle", speed_cap=0.0, source="supervisor", reason="speed above cap"),
     SafetyState(seq=4, stamp=3.1, state="LIMITING", reason="SPEED_OVER_CAP", cap=0.5, since=3.05),
     EstopCommand(seq=5, stamp=1.7e9, action="reset", source="operator"),
-    RigTelemetry(
-        seq=6, stamp=4.0, tick=1600, velocity=(0.4, -0.1), tilt=(0.02, 0.0), lean=(0.3, 0.0), yaw_rate=0.1
+    ControllerTelemetry(
+        seq=6,
+        stamp=4.0,
+        state=3,
+        mode="ihacs",
+        command_speed=(0.4, -0.1),
+        tilt_command=(0.02, 0.0),
+        yaw_rate_command=0.1,
+        ball_torque=(1.0, -2.0, 0.5),
     ),
 ]
 
@@ -132,7 +140,7 @@ def test_every_payload_round_trips_between_two_sessions(hub_and_member):
             keys.sc_command,
             keys.safety_state,
             keys.safety_estop,
-            keys.rig_telemetry,
+            keys.controller_telemetry,
         ],
         SAMPLES,
         strict=True,
@@ -225,7 +233,7 @@ def test_malformed_payloads_are_counted_and_dropped_by_the_subscriber(hub_and_me
 @settings(max_examples=500, deadline=None)
 @given(st.binary(max_size=200))
 def test_fuzzed_bytes_never_escape_as_anything_but_payload_error(data):
-    for t in (TesWrench, ScRequest, ScCommand, SafetyState, EstopCommand, RigTelemetry):
+    for t in (TesWrench, ScRequest, ScCommand, SafetyState, EstopCommand, ControllerTelemetry, RigTick):
         with contextlib.suppress(PayloadError):  # anything else escaping fails the test
             decode(data, t)
 

@@ -24,8 +24,6 @@ NonNegative = Annotated[float, msgspec.Meta(ge=0)]
 Positive = Annotated[float, msgspec.Meta(gt=0)]
 Probability = Annotated[float, msgspec.Meta(gt=0, le=1)]
 
-SAFETY_STATES = ("NORMAL", "LIMITING", "STOPPING", "ESTOP")
-
 
 class Expect(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """The reaction a fault should cause; each field given becomes a verdict of the run.

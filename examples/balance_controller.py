@@ -1,0 +1,202 @@
+#!/usr/bin/env python3
+"""A balancing controller for PURE written from docs/contract.md alone: the template a controller team starts
+from. It imports nothing from pure-hil: python-can for the bus, cantools for the DBC, numpy for the maths.
+
+It keeps the robot upright and still (no rider input: it reads nothing from zenoh, as a controller board on
+CAN alone would). Per tick it follows the contract:
+  - boot-up: CONTROLLER_HEARTBEAT with State INIT every 100 ms until the first SYNC (the rig starts on it);
+  - every frame it receives is checked (E2E CRC-8) and decoded through the DBC;
+  - on SYNC(k): estimate (tilt and tilt rate from the IMU, ball rates from the three motor velocities through
+    the omniwheel map), one state feedback per plane, ball torques -> motor torques, then DRIVE1..3_COMMAND
+    tagged k, then CONTROLLER_HEARTBEAT (always after the commands);
+  - Enable = 1 only while balancing and the supervisor's last SUPERVISOR_ESTOP says Estop 0; after an
+    e-stop it stays disabled (an operator's enable comes over zenoh, which this example does not read).
+
+    python examples/balance_controller.py --can socketcan:vcan0
+    pure-hil run configs/scenarios/balance.toml --controller external --can socketcan:vcan0
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import threading
+import time
+from pathlib import Path
+
+import can
+import cantools
+import numpy as np
+
+DBC = Path(__file__).resolve().parents[1] / "configs" / "can" / "pure.dbc"
+
+# Robot geometry (docs/contract.md "Geometry").
+BALL_RADIUS = 0.1145  # m
+WHEEL_RADIUS = 0.0625  # m
+ZENITH = math.radians(45.0)  # wheel contact angle from the vertical
+AZIMUTH0 = 0.0  # wheel 1 on body +x; wheels 2 and 3 at +120 and +240 deg
+MOTOR_SIGN = (1, 1, 1)
+GEAR_RATIO = 8.0
+TORQUE_LIMIT = 3.75  # Nm at the motor shaft
+
+# Ball torque (Nm) per rad of tilt, rad/s of tilt rate and rad/s of ball rate, per plane: LQR with
+# Q = diag(100, 1, 10), R = 0.1 on the planar model of docs/contract.md with a 60 kg rider sitting still
+# (50-80 kg riders give gains within 8 %). Yaw: a rate damper.
+GAINS = (540.0, 140.0, 10.5)
+YAW_GAIN = 20.0  # Nm of ball yaw torque per rad/s of yaw rate
+
+INIT, DISABLED, BALANCING = 0, 1, 3  # CONTROLLER_HEARTBEAT.State
+BOOT_PERIOD = 0.1  # s between boot-up heartbeats until the first SYNC
+
+
+def motor_jacobian() -> np.ndarray:
+    """Motor-shaft rates = G @ [ball rate x - body rate x, ball rate y - body rate y, -yaw rate]."""
+    rho = BALL_RADIUS / WHEEL_RADIUS
+    rows = []
+    for i, sign in enumerate(MOTOR_SIGN):
+        azimuth = AZIMUTH0 + 2.0 * math.pi * i / 3.0
+        direction = (
+            -math.cos(ZENITH) * math.cos(azimuth),
+            -math.cos(ZENITH) * math.sin(azimuth),
+            math.sin(ZENITH),
+        )
+        rows.append([sign * GEAR_RATIO * rho * x for x in direction])
+    return np.array(rows)
+
+
+G = motor_jacobian()
+TO_RELATIVE = np.linalg.inv(G)  # motor rates -> ball-to-body rates
+TO_MOTORS = np.linalg.inv(G.T)  # ball torques (x, y, z) -> motor torques
+
+
+def crc8(data: bytes) -> int:
+    """CRC-8/SAE-J1850: poly 0x1D, init 0xFF, no reflection, xorout 0xFF; check("123456789") = 0x4B."""
+    crc = 0xFF
+    for byte in data:
+        crc ^= byte
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1D) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
+    return crc ^ 0xFF
+
+
+class Wire:
+    """The DBC, E2E-sealed sending (alive counter + CRC over the frame id and the payload with a zero
+    CRC field) and checked receiving."""
+
+    def __init__(self, bus: can.BusABC, dbc: Path):
+        self.bus = bus
+        self.db = cantools.database.load_file(str(dbc))
+        self.counters: dict[int, int] = {}
+        self.rejected = 0
+
+    def send(self, name: str, values: dict[str, float]) -> None:
+        message = self.db.get_message_by_name(name)
+        counter = self.counters.get(message.frame_id, 0)
+        self.counters[message.frame_id] = (counter + 1) % 16
+        values = {**values, "Counter": counter, "Crc": 0}
+        data = message.encode(values)
+        values["Crc"] = crc8(message.frame_id.to_bytes(2, "little") + data)
+        data = message.encode(values)
+        self.bus.send(can.Message(arbitration_id=message.frame_id, data=data, is_extended_id=False))
+
+    def receive(self, msg: can.Message) -> tuple[str, dict] | None:
+        """(message name, signals) of a frame that decodes and passes its CRC; None otherwise."""
+        try:
+            message = self.db.get_message_by_frame_id(msg.arbitration_id)
+            signals = message.decode(msg.data, decode_choices=False)
+        except (KeyError, ValueError, cantools.database.errors.DecodeError):
+            self.rejected += 1
+            return None
+        if "Crc" in signals:
+            cleared = bytearray(msg.data)
+            crc_signal = message.get_signal_by_name("Crc")
+            cleared[crc_signal.start // 8] = 0
+            if crc8(msg.arbitration_id.to_bytes(2, "little") + bytes(cleared)) != signals["Crc"]:
+                self.rejected += 1
+                return None
+        return message.name, signals
+
+
+class BalanceController:
+    def __init__(self, wire: Wire):
+        self.wire = wire
+        self.state = INIT
+        self.permitted = False
+        self.attitude: tuple[float, float] | None = None  # roll, pitch
+        self.rate: tuple[float, float, float] | None = None
+        self.velocity: list[float | None] = [None, None, None]
+        self.synced = False
+
+    def frame(self, name: str, s: dict) -> None:
+        if name == "IMU_ATTITUDE" and s["Valid"]:
+            self.attitude = (s["Roll"], s["Pitch"])
+        elif name == "IMU_RATE" and s["Valid"]:
+            self.rate = (s["RateX"], s["RateY"], s["RateZ"])
+        elif name.startswith("DRIVE") and name.endswith("_FEEDBACK"):
+            self.velocity[int(name[5]) - 1] = s["Velocity"]
+        elif name == "SUPERVISOR_ESTOP":
+            self.permitted = not s["Estop"]
+            if s["Estop"] and self.state == BALANCING:
+                self.state = DISABLED  # stays disabled: a reset permits motion, it never causes it
+        elif name == "SYNC":
+            self.synced = True
+            self.tick(int(s["Tick"]))
+
+    def torques(self) -> tuple[float, float, float]:
+        roll, pitch = self.attitude
+        rate_x, rate_y, rate_z = self.rate
+        relative = TO_RELATIVE @ np.array(self.velocity)
+        k_tilt, k_rate, k_ball = GAINS
+        # Ball rate per plane = ball-to-body rate + body rate; the roll plane turns about +x, pitch about +y.
+        tau_x = k_tilt * roll + k_rate * rate_x + k_ball * (relative[0] + rate_x)
+        tau_y = k_tilt * pitch + k_rate * rate_y + k_ball * (relative[1] + rate_y)
+        tau_z = YAW_GAIN * rate_z  # the body yaws under -tau_z: a positive tau_z slows a positive yaw rate
+        motors = TO_MOTORS @ np.array([tau_x, tau_y, tau_z])
+        return tuple(float(np.clip(m, -TORQUE_LIMIT, TORQUE_LIMIT)) for m in motors)
+
+    def tick(self, k: int) -> None:
+        ready = self.attitude is not None and self.rate is not None and None not in self.velocity
+        if self.state == INIT and ready:
+            self.state = BALANCING
+        balancing = self.state == BALANCING
+        torques = self.torques() if balancing else (0.0, 0.0, 0.0)
+        enable = int(balancing and self.permitted)
+        for i, torque in enumerate(torques, 1):
+            command = {"Torque": torque if enable else 0.0, "Tick": k, "Enable": enable}
+            self.wire.send(f"DRIVE{i}_COMMAND", command)
+        self.wire.send("CONTROLLER_HEARTBEAT", {"State": self.state, "Mode": 0, "FaultCode": 0})
+
+    def run(self, stop: threading.Event) -> None:
+        next_boot = time.monotonic()
+        while not stop.is_set():
+            if not self.synced and time.monotonic() >= next_boot:
+                self.wire.send("CONTROLLER_HEARTBEAT", {"State": INIT, "Mode": 0, "FaultCode": 0})
+                next_boot = time.monotonic() + BOOT_PERIOD
+            msg = self.wire.bus.recv(timeout=0.05)
+            if msg is not None and not msg.is_error_frame:
+                frame = self.wire.receive(msg)
+                if frame is not None:
+                    self.frame(*frame)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--can", default="socketcan:vcan0", help="INTERFACE:CHANNEL for python-can")
+    parser.add_argument("--dbc", type=Path, default=DBC)
+    args = parser.parse_args(argv)
+    interface, _, channel = args.can.partition(":")
+    bus = can.Bus(interface=interface, channel=channel or None)
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        BalanceController(Wire(bus, args.dbc)).run(stop)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        bus.shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
