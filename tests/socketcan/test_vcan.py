@@ -1,6 +1,6 @@
 """The product's central promise on a real kernel CAN bus: the rig, the reference controller and the
 supervisor as three separate processes on vcan0 (zenoh between them on loopback), checked against
-can-utils, a client nobody here wrote. Runs inside ../shared/tools/vcan-vm (software CPU emulation, ~18x
+can-utils, a client nobody here wrote. Runs inside the vcan VM of .ci/run (software CPU emulation, ~18x
 slower than the host): scenarios are short and timing bounds are in simulated time, never wall time.
 """
 
@@ -54,11 +54,13 @@ def _tool(name: str) -> str:
     return path
 
 
-def run_bench(tmp_path: Path, scenario: Path, actions=(), spawn: bool = False) -> BenchRun:
-    """candump, supervisor (--clock sync), controller (--lockstep) and the rig (--controller external
-    --supervisor external) as separate processes on vcan0; `spawn`: the rig starts the controller itself
-    (--spawn-controller). `actions`: (sim tick, name, callable(procs)) fired once the rig's SYNC reaches
-    that tick."""
+def run_bench(
+    tmp_path: Path, scenario: Path, actions=(), spawn: bool = False, controller: list[str] | None = None
+) -> BenchRun:
+    """candump, supervisor (--clock sync), controller (--lockstep; `controller`: another command) and the
+    rig (--controller external --supervisor external) as separate processes on vcan0; `spawn`: the rig
+    starts the controller itself (--spawn-controller). `actions`: (sim tick, name, callable(procs)) fired
+    once the rig's SYNC reaches that tick."""
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
     out, capture = tmp_path / "run", tmp_path / "candump.log"
     logs = {name: tmp_path / f"{name}.log" for name in ("supervisor", "controller", "rig")}
@@ -92,8 +94,8 @@ def run_bench(tmp_path: Path, scenario: Path, actions=(), spawn: bool = False) -
             "supervisor", [str(BIN / "pure-hil"), "supervisor", "--can", "socketcan:vcan0", "--clock", "sync"]
         )
         if not spawn:
-            controller = [str(BIN / "pure-controller"), "--can", "socketcan:vcan0", "--rider", RIDER]
-            start("controller", [*controller, "--mode", "hacs", "--lockstep"])
+            reference = [str(BIN / "pure-controller"), "--can", "socketcan:vcan0", "--rider", RIDER]
+            start("controller", controller or [*reference, "--mode", "hacs", "--lockstep"])
         watcher = threading.Thread(target=watch, daemon=True)
         watcher.start()
         rig = [str(BIN / "pure-hil"), "run", str(scenario), "--can", "socketcan:vcan0", "--out", str(out)]
@@ -161,6 +163,17 @@ def test_three_processes_pass_the_smoke_scenario_and_candump_agrees(tmp_path, ca
             statuses.setdefault(codec.name, set()).add(checker.check(codec, data).status)
     assert {"DRIVE1_COMMAND", "SUPERVISOR_ESTOP", "CONTROLLER_HEARTBEAT", "IMU_RATE"} <= set(statuses)
     assert all(v == {E2EStatus.OK} for v in statuses.values()), statuses
+
+
+def test_a_controller_written_from_the_contract_alone_balances_the_robot(tmp_path):
+    # examples/balance_controller.py: python-can, cantools and numpy, its own E2E, no zenoh.
+    example = [sys.executable, str(ROOT / "examples/balance_controller.py"), "--can", "socketcan:vcan0"]
+    run = run_bench(tmp_path, SMOKE, controller=example)
+    assert run.rig_exit == 0, run.logs["rig"] + run.logs.get("controller", "")
+    s = run.summary
+    assert s["fallen"] is None and s["safety"]["final_state"] == "NORMAL"
+    assert s["bus"]["e2e"] == {}, "every frame the example sent passed the rig's E2E check"
+    assert s["metrics_unavailable"]["pitch.rmse"] == "unavailable (no controller telemetry)"
 
 
 def _scenario(tmp_path: Path, duration: float) -> Path:
