@@ -3,7 +3,7 @@ send, recv, decode, check) on a SocketCAN channel, next to python-can's in-proce
 in the same run.
 
     python benchmarks/can_path.py                                  # virtual only (no vcan0 here)
-    ../shared/tools/vcan-vm -- .venv/bin/python benchmarks/can_path.py --socketcan vcan0 --emulated
+    $VCAN_VM -- .venv/bin/python benchmarks/can_path.py --socketcan vcan0 --emulated   # the VM .ci/run uses
 
 Inside vcan-vm the CPU is emulated (QEMU TCG, ~18x slower than the host): the figures are labelled so and
 say what the path costs relative to the virtual bus on the same emulated CPU, not what a bench will see.

@@ -1,4 +1,4 @@
-"""Balance per plane: the cascaded LQR-PI of physics.md §1.3, with the iHACS interaction compensation.
+"""Balance per plane: the cascaded LQR-PI of docs/physics.md §1.3, with the iHACS interaction compensation.
 
     τ_r = −K (s − s_c)                        LQR reference torque, s = [θ, φ, θ̇, φ̇], no gain on φ
     φ̈_r = A[3,:] (s − s_c) + B[3] τ_r         reference model, linearised about the command state
@@ -23,10 +23,10 @@ from controller.model import G0, PlaneModel
 def equilibrium(
     model: PlaneModel, f_x: float, f_z: float, m_y: float, ball_rate: float
 ) -> tuple[float, float]:
-    """θ_EQ and τ_EQ (physics.md §4.2, closed form) for a wrench (F_x, F_z world, M_y) at P and a ball rate.
+    """θ_EQ and τ_EQ (docs/physics.md §4.2) for a wrench (F_x, F_z world, M_y) at P and a ball rate.
 
     The wrench is the rider's *deviation* from sitting upright (the tared seat wrench, convention (a) of
-    physics.md §4.3), so the model's m_B and l include the upright rider.
+    docs/physics.md §4.3), so the model's m_B and l include the upright rider.
     """
     a_ = model.mass * G0 * model.com - model.top_height * f_z
     b_ = model.top_height * f_x

@@ -1,7 +1,7 @@
 """Where the rider wants to go: the HACS command-speed generator, gated by the shared controller.
 
 Per plane: tared seat moment -> low-pass -> deadband -> gain -> virtual mass-damper -> speed and
-acceleration limits (physics.md §8). Yaw: twist moment -> deadband -> gain -> limit. The SC command then
+acceleration limits (docs/physics.md §8). Yaw: twist moment -> deadband -> gain -> limit. The SC command then
 clamps the result: idle = 0 whatever the rider does, limit = |v| ≤ cap, free = unchanged.
 """
 

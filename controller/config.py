@@ -103,7 +103,7 @@ class SpeedPi(_Strict):
 
 
 class Hacs(_Strict):
-    """Command speed (physics.md §8): tared seat moment -> deadband -> gain -> mass-damper -> limits."""
+    """Command speed (docs/physics.md §8): tared seat moment -> deadband -> gain -> mass-damper -> limits."""
 
     filter_hz: Positive = 8.0
     """Low-pass on the tared TES moments."""

@@ -230,13 +230,13 @@ class Controller:
     ) -> tuple[float, float]:
         """θ_EQ, τ_EQ for one plane from the rider's interaction moment at P.
 
-        Convention (a) of physics.md §4.3: the model's body includes the upright rider, so the interaction
-        is the seat moment beyond that of a rigid upright rider at the current chassis tilt (tilting rotates
-        that rider's weight in the seat frame: moment W (x_c cos θ + z_c sin θ) about P, with x_c from the
-        tare and z_c the seat load's COM height from the rider model). The seat *forces* are left out: at
-        a steady lean they are only the rider's weight, and their dynamic part is the inertia of a rider
-        moving with the chassis, which the lumped model already has; feeding it back closes a loop from the
-        chassis motion into θ_EQ (the stability pitfall of physics.md §10).
+        Convention (a) of docs/physics.md §4.3: the model's body includes the upright rider, so the
+        interaction is the seat moment beyond that of a rigid upright rider at the current chassis tilt
+        (tilting rotates that rider's weight in the seat frame: moment W (x_c cos θ + z_c sin θ) about P,
+        with x_c from the tare and z_c the seat load's COM height from the rider model). The seat *forces*
+        are left out: at a steady lean they are only the rider's weight, and their dynamic part is the
+        inertia of a rider moving with the chassis, which the lumped model already has; feeding it back
+        closes a loop from the chassis motion into θ_EQ (the stability pitfall of docs/physics.md §10).
         """
         weight = -self.tare[2]
         axis = 4 if plane == PITCH else 3

@@ -1,5 +1,6 @@
 """The controller's own model: rigid rider lumped onto the robot, the planar linearisation, LQR gains,
-and the omniwheel map. Independent of the rig's plant by design (physics.md §2.4, §3; iHACS paper §III-A).
+and the omniwheel map. Independent of the rig's plant by design (docs/physics.md §2.4, §3;
+iHACS paper §III-A).
 
 Seated rider [Winter-derived, simplified]: one rigid body whose COM is 0.104 H above the hip and straight
 over the ball axis, radius of gyration 0.19 H; hip 0.09 m above the seat. For 75 kg / 1.75 m on PURE this
@@ -90,7 +91,7 @@ def lqr_gain(model: PlaneModel, weights: Lqr) -> np.ndarray:
 
 
 def motor_jacobian(robot: RobotModel) -> np.ndarray:
-    """G: motor-shaft rates = G @ ω_rel, ω_rel = [φ̇_x − θ̇_x, φ̇_y − θ̇_y, −ψ̇] (physics.md §3)."""
+    """G: motor-shaft rates = G @ ω_rel, ω_rel = [φ̇_x − θ̇_x, φ̇_y − θ̇_y, −ψ̇] (docs/physics.md §3)."""
     dt = robot.drivetrain
     rho = robot.ball.radius / dt.wheel_radius
     alpha = math.radians(dt.zenith_deg)

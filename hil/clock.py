@@ -1,5 +1,6 @@
-"""The two modes of time (DESIGN.md §7): lockstep (simulated time, as fast as the loop goes) and real time
-(wall-clock pacing: sleep, then spin the last stretch; overruns counted, period jitter measured)."""
+"""The two modes of time (docs/architecture.md): lockstep (simulated time, as fast as the loop goes)
+and real time (wall-clock pacing: sleep, then spin the last stretch; overruns counted, period jitter
+measured)."""
 
 from __future__ import annotations
 

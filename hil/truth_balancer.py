@@ -16,7 +16,7 @@ from plant.ballbot import PITCH, ROLL, Plant, plane_params
 from plant.plane import PlaneDynamics, PlaneParams
 
 DEFAULT_Q = (100.0, 1.0, 10.0)
-"""LQR weights on [θ, θ̇, φ̇] (physics.md §6.1's illustrative order of magnitude)."""
+"""LQR weights on [θ, θ̇, φ̇] (docs/physics.md §6.1's illustrative order of magnitude)."""
 DEFAULT_R = 0.1
 
 

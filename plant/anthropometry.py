@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 from plant.params import RiderParams, RobotParams
 
-# Winter (2009) Table 4.1, via physics.md §5.1: mass fraction, COM from proximal end / length,
+# Winter (2009) Table 4.1, via docs/physics.md §5.1: mass fraction, COM from proximal end / length,
 # radius of gyration about the COM / length, length / standing height.
 HAT_MASS, HAT_COM, HAT_GYR, HAT_LEN = 0.678, 0.626, 0.496, 0.288
 THIGH_MASS, THIGH_COM, THIGH_GYR, THIGH_LEN = 0.100, 0.433, 0.323, 0.245
@@ -22,7 +22,7 @@ TRUNK_LONG_GYR, TRUNK_LEN = 0.191, 0.3055
 # About its own long axis a limb segment is slender: radius of gyration ≈ 0.15 × length [EST].
 LIMB_LONG_GYR = 0.15
 HIP_ABOVE_SEAT = 0.09
-"""Hip joint centre above the seat surface, m [EST, physics.md §5.2]."""
+"""Hip joint centre above the seat surface, m [EST, docs/physics.md §5.2]."""
 
 
 @dataclass(frozen=True, slots=True)

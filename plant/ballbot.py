@@ -1,6 +1,6 @@
 """PURE + rider: two vertical planes and yaw, drives, sensors and the rider, advanced by fixed-step RK4.
 
-The planes are the heading-frame decomposition of physics.md §2 (pitch: about +y, roll: about +x), each a
+The planes are the heading-frame decomposition of docs/physics.md §2 (pitch: about +y, roll: about +x), each a
 three-body model with the rider's torso (plane.py); yaw is a single body on a ball that does not spin on the
 floor (§2.5). Drive torques are held over a tick (zero-order hold, first-order current lag inside).
 Deterministic for a seed; no clock, no I/O: the caller owns time by calling `step()`.
@@ -306,7 +306,7 @@ class Plant:
     def imu_truth(
         self,
     ) -> tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]:
-        """True (attitude, body rate, body specific force) at the IMU (physics.md §7.1, per plane)."""
+        """True (attitude, body rate, body specific force) at the IMU (docs/physics.md §7.1, per plane)."""
         x, r, h = self.x, self.robot.ball.radius, self.robot.body.imu_height
         a, _ = self._outputs()
         acc = []

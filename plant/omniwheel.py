@@ -1,4 +1,4 @@
-"""Three-omniwheel kinematics and torque map (physics.md §3), as matrices built from the geometry.
+"""Three-omniwheel kinematics and torque map (docs/physics.md §3), as matrices built from the geometry.
 
 ω_rel is the ball's angular velocity relative to the body, in the body frame. With the planar
 coordinates of this package (small tilt, ball not spinning on the floor):
@@ -40,10 +40,10 @@ def motor_jacobian(ball_radius: float, drivetrain: Drivetrain) -> np.ndarray:
 
 
 def wheel_inertia_equivalents(ball_radius: float, drivetrain: Drivetrain) -> tuple[float, float]:
-    """Θ_W for the pitch/roll planes and for yaw (physics.md §3.4), kg m², referred to the ball.
+    """Θ_W for the pitch/roll planes and for yaw (docs/physics.md §3.4), kg m², referred to the ball.
 
     Σ ½ J_act ψ̇_i² with ψ̇ = J ω_rel gives ½ ω_relᵀ (J_act JᵀJ) ω_rel, and JᵀJ = ρ² diag(3/2 cos²α,
-    3/2 cos²α, 3 sin²α). Θ_W here is J_act times the diagonal *without* ρ², matching physics.md's
+    3/2 cos²α, 3 sin²α). Θ_W here is J_act times the diagonal *without* ρ², matching docs/physics.md's
     M11 = ... + Θ_W ρ² convention.
     """
     j_act = drivetrain.wheel_inertia + drivetrain.gear_ratio**2 * drivetrain.rotor_inertia

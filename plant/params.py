@@ -2,7 +2,7 @@
 
 Plain msgspec Structs (data only, no I/O): the rig decodes them from TOML under `configs/`, tests build
 them in code. Every field is SI unless its name says otherwise (`_deg`, `_hz`). Sources and estimates
-for the defaults are in `docs/plant.md` and `../shared/physics.md` §6.
+for the defaults are in `docs/plant.md` and `docs/physics.md` §6.
 """
 
 from __future__ import annotations

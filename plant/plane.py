@@ -1,6 +1,6 @@
 """One vertical plane of the ballbot: ball, chassis (with lumped lower limbs), optionally the rider's torso.
 
-Coordinates q = [φ, θ, γ] (physics.md §5.3, generalised to off-axis COMs):
+Coordinates q = [φ, θ, γ] (docs/physics.md §5.3, generalised to off-axis COMs):
   φ  ball rotation (rolling: x = r_K φ), θ absolute chassis tilt, γ absolute torso (HAT) angle.
 The chassis COM sits at distance l_B and angle δ_B from the body axis, the hip at h_H and δ_H; the HAT COM
 is d_H from the hip along the torso. Lagrange's equations give M(q) q̈ + h(q, q̇) + G(q) = Q with
@@ -20,7 +20,7 @@ is d_H from the hip along the torso. Lagrange's equations give M(q) q̈ + h(q, q
 τ is the drive torque on the ball (reaction on the chassis), u_h the rider's hip torque on the torso,
 f_ψ the drivetrain friction on ψ = φ − θ, (F_x, F_z, M_y) an external wrench on the chassis at P (world
 axes). `tests/test_plant_derivation.py` re-derives all of this with sympy. Without a torso the model is the
-two-body ballbot of physics.md §2 (rider absent or lumped into the chassis).
+two-body ballbot of docs/physics.md §2 (rider absent or lumped into the chassis).
 
 The roll plane uses the same equations in (φ_x, θ_x, γ_x), rotations about +x: forward is −y.
 """
@@ -45,7 +45,7 @@ class PlaneParams:
     ball_inertia: float
     rho: float
     wheel_inertia: float
-    """Θ_W of this plane (physics.md §3.4)."""
+    """Θ_W of this plane (docs/physics.md §3.4)."""
     chassis: Composite
     """Chassis + lower limbs (+ the rigid rider when there is no torso body)."""
     top_height: float
@@ -270,7 +270,7 @@ class PlaneDynamics:
     ) -> tuple[float, float, float]:
         """Wrench of the torso on the chassis, moved to P, in body axes: (forward N, up N, moment Nm).
 
-        Newton-Euler on the HAT (physics.md §5.3): the hip carries F = m_H (g⃗ − a_cH) and the reaction −u_h
+        Newton-Euler on the HAT (docs/physics.md §5.3): hip carries F = m_H (g⃗ − a_cH) and the reaction −u_h
         of the hip torque; the moment arm from P to the hip adds r × F.
         """
         if not self.has_torso:

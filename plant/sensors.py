@@ -173,7 +173,7 @@ def cop(fx: float, fy: float, fz: float, mx: float, my: float, seat_height: floa
     """Centre of pressure on the seat surface (seat_height above P) for a wrench at P, z up.
 
     The load acts at (x, y, h): M = r × F gives Mx = y Fz − h Fy and My = h Fx − x Fz. This is the AMTI
-    formula of physics.md §1.4 written for a z-up frame with the surface above the origin.
+    formula of docs/physics.md §1.4 written for a z-up frame with the surface above the origin.
     """
     if abs(fz) < MIN_SEATED_LOAD:
         return 0.0, 0.0

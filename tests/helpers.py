@@ -21,7 +21,7 @@ NO_FRICTION = Friction(
 )
 ROOT = Path(__file__).resolve().parents[1]
 RIDER_75 = RiderParams(name="winter_75kg_175", mass=75.0, height=1.75)
-"""The worked example of physics.md §5.2 / §6.1."""
+"""The worked example of docs/physics.md §5.2 / §6.1."""
 
 
 def robot(**sections) -> RobotParams:

@@ -1,4 +1,4 @@
-"""The one-way import rules of DESIGN.md §2, checked by parsing every module's imports."""
+"""The one-way import rules of docs/architecture.md, checked by parsing every module's imports."""
 
 import ast
 from pathlib import Path
@@ -43,7 +43,7 @@ def test_imports_flow_one_way(package):
         for root in imported_roots(path.read_text(), package) & OURS - {package}:
             if root not in ALLOWED[package]:
                 bad.append(f"{path.relative_to(ROOT)} imports {root}")
-    assert not bad, "forbidden imports (DESIGN.md §2):\n" + "\n".join(bad)
+    assert not bad, "forbidden imports (docs/architecture.md):\n" + "\n".join(bad)
 
 
 def test_plant_uses_only_numerics():

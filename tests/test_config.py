@@ -15,7 +15,7 @@ RIDERS = sorted((CONFIGS / "riders").glob("*.toml"))
 
 def test_robot_file_is_the_nominal_set():
     robot = load_toml(CONFIGS / "robot" / "pure.toml", RobotParams)
-    # physics.md §6.1 nominal values, and the file agrees with the code defaults.
+    # docs/physics.md §6.1 nominal values, and the file agrees with the code defaults.
     assert robot.ball.radius == 0.1145 and robot.ball.mass == 3.6 and robot.ball.inertia == 0.047
     assert robot.drivetrain.wheel_radius == 0.0625 and robot.drivetrain.zenith_deg == 45.0
     assert robot.body.top_height == 0.386

@@ -111,7 +111,7 @@ def test_rider_profiles_override_the_sensitivity():
     [(20.0, 0.0, -0.99, -2.29), (0.0, 20.0, -1.98, 0.0), (-30.0, -15.0, 2.97, 3.44)],
 )
 def test_ihacs_equilibrium_is_the_closed_form(f_x, m_y, theta_deg, tau):
-    # physics.md §4.2 table (lumped 75 kg / 1.75 m rider); the controller's lumping is its own, so 2 %.
+    # docs/physics.md §4.2 table (lumped 75 kg / 1.75 m rider); the controller's lumping is its own, so 2 %.
     model = plane_model(ROBOT, 75.0, 1.75, "pitch")
     theta, t = equilibrium(model, f_x, 0.0, m_y, 0.0)
     assert math.degrees(theta) == pytest.approx(theta_deg, rel=0.02)

@@ -1,4 +1,4 @@
-"""Omniwheel maps (physics.md §3): JᵀJ identity, power balance, the expanded torque formula, signs, gears."""
+"""Omniwheel maps (docs/physics.md §3): JᵀJ identity, power balance, the expanded torque map, signs, gears."""
 
 import math
 

@@ -49,7 +49,7 @@ def test_friction_dissipates_energy():
 
 # --------------------------------------------------------------------------- linearisation (§2.4)
 def closed_form_ab(p):
-    """A, B of physics.md §2.4 from the two-body parameters (COM on the axis)."""
+    """A, B of docs/physics.md §2.4 from the two-body parameters (COM on the axis)."""
     r, c = p.ball_radius, p.chassis
     m11 = p.ball_mass * r**2 + p.ball_inertia + c.mass * r**2 + p.wheel_inertia * p.rho**2
     m12 = c.mass * r * c.distance - p.wheel_inertia * p.rho * (1 + p.rho)
@@ -71,7 +71,7 @@ def test_linearisation_reproduces_closed_form(rider):
 
 
 def test_linearisation_matches_physics_md_numbers():
-    # physics.md §6.1, rider 75 kg / 1.75 m: A[2,0] 35.9, A[3,0] −161.6, B = [0, 0, −0.341, 2.204].
+    # docs/physics.md §6.1, rider 75 kg / 1.75 m: A[2,0] 35.9, A[3,0] −161.6, B = [0, 0, −0.341, 2.204].
     a, b = linearise_plane(plane_params(robot(friction=NO_FRICTION), RIDER_75, "pitch", torso=False))
     assert a[2, 0] == pytest.approx(35.9, abs=0.05)
     assert a[3, 0] == pytest.approx(-161.6, abs=0.1)
@@ -79,7 +79,7 @@ def test_linearisation_matches_physics_md_numbers():
 
 
 def test_lumping_matches_the_worked_example():
-    # physics.md §5.2: lumped body 105 kg, l = 0.563 m, Θ_B = 13.2 kg m² (hip ≈ 0.089 m behind the axis).
+    # docs/physics.md §5.2: lumped body 105 kg, l = 0.563 m, Θ_B = 13.2 kg m² (hip ≈ 0.089 m behind the axis).
     rob = RobotParams()
     seated = seat_rider(rob, RIDER_75)
     body = composite([robot_body_segment(rob), *seated.lower_limbs, seated.hat_segment()], "pitch")
@@ -158,7 +158,7 @@ def replace_friction(**kw):
 def test_upright_is_unstable_with_the_expected_pole(rider, pole):
     rob = robot(friction=NO_FRICTION)
     _, _, p_closed = closed_form_ab(plane_params(rob, rider, "pitch", torso=False))
-    assert p_closed == pytest.approx(pole, abs=0.1)  # physics.md §6.1
+    assert p_closed == pytest.approx(pole, abs=0.1)  # docs/physics.md §6.1
     plant = Plant(rob, rider, sim(substeps=4), initial_tilt=(1e-6, 0.0))
     if rider is not None:
         plant.torso = None

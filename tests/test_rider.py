@@ -55,7 +55,7 @@ def held_lean(lean_deg, rider=RIDER_75, fixture="clamped", seconds=4.0):
 
 @pytest.mark.parametrize(("lean", "moment"), [(5.0, 13.7), (10.0, 27.3), (20.0, 53.8)])
 def test_forward_lean_produces_the_seat_moment_of_physics_md(lean, moment):
-    # physics.md §4.3 (75 kg / 1.75 m): τ_py ≈ m_HAT g d_HAT sin β, on top of the upright tare.
+    # docs/physics.md §4.3 (75 kg / 1.75 m): τ_py ≈ m_HAT g d_HAT sin β, on top of the upright tare.
     upright = held_lean(0.0).seat_wrench()
     plant = held_lean(lean)
     wrench = plant.seat_wrench()

@@ -83,7 +83,7 @@ def test_imu_bias_turn_on_and_random_walk():
 
 @pytest.mark.parametrize(("pitch", "roll"), [(5.0, 0.0), (0.0, 5.0), (-8.0, 3.0)])
 def test_imu_reads_gravity_at_rest(pitch, roll):
-    # A tilted robot at rest: acc_bx = −g sinθ (physics.md §7.1), roll toward −y puts +g sinθ_x on body y.
+    # Tilted at rest: acc_bx = −g sinθ (docs/physics.md §7.1), roll toward −y puts +g sinθ_x on body y.
     plant = Plant(RobotParams(), None, sim(fixture="clamped"), initial_tilt=(deg(pitch), deg(roll)))
     plant.step()
     attitude, rate, acc = plant.imu_truth()

@@ -1,6 +1,6 @@
 """The faults of one run: when each starts and ends, what it is told, and the fault log.
 
-The rig calls `update(t)` once per tick, right after the plant's step (DESIGN.md §3 step 3): faults whose
+The rig calls `update(t)` once per tick, right after the plant's step (docs/rig.md, One tick): faults whose
 window opens start (plant and process faults act from here), those whose window closed or that were
 cleared end, live requests queued by other threads are taken in. In between, the rig hands its samples,
 frames and puts to the hooks of the faults active now. Random streams are per fault and seeded from the

@@ -1,5 +1,5 @@
-"""The SocketCAN suite needs a kernel with vcan0: on this project's CI machines that is the VM of
-`../shared/tools/vcan-vm` (docs/bench.md). Anywhere else its tests are skipped, saying why."""
+"""The SocketCAN suite needs a kernel with vcan0: on this project's CI machines that is inside
+the team's vcan VM tool (docs/bench.md, In CI). Anywhere else its tests are skipped, saying why."""
 
 from pathlib import Path
 
@@ -12,7 +12,7 @@ def pytest_collection_modifyitems(config, items):
     if VCAN0.exists():
         return
     skip = pytest.mark.skip(
-        reason="no SocketCAN vcan0 on this kernel: .ci/run runs these inside ../shared/tools/vcan-vm"
+        reason="no SocketCAN vcan0 on this kernel: .ci/run runs these inside a VM whose kernel has vcan"
     )
     for item in items:
         if item.get_closest_marker("socketcan"):
