@@ -113,11 +113,12 @@ def test_wildcard_puts_cannot_reach_the_safety_keys(bench):
 
 
 def test_without_credentials_or_with_another_ca_no_connection(bench, impostor_certs, tmp_path):
+    refused_fast = {"connect/timeout_ms": 1000}  # a refused handshake is final: no need to retry for 5 s
     with pytest.raises(zenoh.ZError):
-        bench.client("operator", certs=impostor_certs)  # CN=operator, signed by another CA
+        bench.client("operator", certs=impostor_certs, **refused_fast)  # CN=operator, signed by another CA
     no_cert = {"transport/link/tls/connect_certificate": None, "transport/link/tls/connect_private_key": None}
     with pytest.raises(zenoh.ZError):
-        bench.client("operator", **no_cert)
+        bench.client("operator", **no_cert, **refused_fast)
     anonymous = {"mode": "client", "connect": {"endpoints": [bench.endpoint.replace("tls/", "tcp/")]}}
     with pytest.raises(zenoh.ZError):
         config = zenoh.Config.from_json5(
@@ -125,7 +126,7 @@ def test_without_credentials_or_with_another_ca_no_connection(bench, impostor_ce
                 {**anonymous, "listen": {"endpoints": []}, "scouting": {"multicast": {"enabled": False}}}
             )
         )
-        config.insert_json5("connect/timeout_ms", "2000")
+        config.insert_json5("connect/timeout_ms", "1000")
         config.insert_json5("connect/exit_on_failure", "true")
         zenoh.open(config)
     assert bench.received == []
