@@ -16,7 +16,6 @@ import logging
 import signal
 import sys
 import threading
-from pathlib import Path
 
 import msgspec
 
@@ -26,9 +25,8 @@ from controller.node import ControllerNode
 from drivers.can_bus import BusConfigError, CanNode, open_bus, parse_can_spec
 from drivers.config import ConfigError, load_toml
 from drivers.keys import Keys
+from drivers.resources import find
 from drivers.zenoh_link import LOOPBACK, ZenohConfigError, ZenohLink, open_session
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -40,10 +38,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--hub", default=None, help="override the config's hub endpoint, e.g. tcp/127.0.0.1:7447")
     p.add_argument("--prefix", default="pure", help="zenoh key prefix")
     p.add_argument("--rider", required=True, help="rider TOML (name and height are used)")
-    p.add_argument(
-        "--robot", default=str(ROOT / "configs/robot/pure.toml"), help="the controller's robot model"
-    )
-    p.add_argument("--config", default=str(ROOT / "configs/controller/default.toml"))
+    p.add_argument("--robot", default="robot/pure.toml", help="the controller's robot model")
+    p.add_argument("--config", default="controller/default.toml")
     p.add_argument("--mode", choices=("hacs", "ihacs"), default=None, help="override the config's mode")
     p.add_argument("--lockstep", action="store_true", help="wait for each tick's seat sample (lockstep rigs)")
     return p
@@ -53,10 +49,11 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     try:
-        config = load_toml(args.config, ControllerConfig)
+        config = load_toml(find(args.config, "controller"), ControllerConfig)
         if args.mode:
             config = msgspec.structs.replace(config, mode=args.mode)
-        controller = Controller(config, load_toml(args.robot, RobotModel), load_toml(args.rider, RiderInfo))
+        robot = load_toml(find(args.robot, "robot"), RobotModel)
+        controller = Controller(config, robot, load_toml(find(args.rider, "riders"), RiderInfo))
         bus = open_bus(parse_can_spec(args.can))
         session = open_session(args.zenoh, "member", args.hub)
     except (ConfigError, BusConfigError, ZenohConfigError) as exc:

@@ -14,7 +14,9 @@ from pathlib import Path
 
 import cantools
 
-DEFAULT_DBC = Path(__file__).resolve().parents[1] / "configs" / "can" / "pure.dbc"
+from drivers.resources import SHIPPED
+
+DEFAULT_DBC = SHIPPED / "can" / "pure.dbc"
 
 
 class CanCodecError(ValueError):

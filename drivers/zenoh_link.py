@@ -28,11 +28,12 @@ from typing import Generic, Literal, TypeVar
 import zenoh
 
 from drivers.keys import Keys
+from drivers.resources import SHIPPED
 from drivers.schemas import Payload, PayloadError, RigTick, decode, encode
 
 log = logging.getLogger(__name__)
 
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs" / "zenoh"
+CONFIG_DIR = SHIPPED / "zenoh"
 LOOPBACK = CONFIG_DIR / "loopback.json5"
 Role = Literal["hub", "member"]
 MEMBER_LISTEN = "tcp/127.0.0.1:0"

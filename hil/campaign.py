@@ -29,9 +29,10 @@ import msgspec
 import numpy as np
 
 from drivers.config import load_toml
+from drivers.resources import find
 from hil.coverage import Bounds, Classification, Outcome, classify, false_trip, outcome
 from hil.faults import Fault
-from hil.scenario import OperatorEntry, Scenario, resolve
+from hil.scenario import OperatorEntry, Scenario
 
 Controller = Literal["hacs", "ihacs", "external"]
 
@@ -149,7 +150,7 @@ def expand(campaign: Campaign, select: list[str] | None = None) -> list[Case]:
         raise ValueError(f"campaign {campaign.name}: fault set names repeat: {names}")
     cases = []
     for scenario_path in campaign.scenarios:
-        base = load_toml(resolve(scenario_path), Scenario)
+        base = load_toml(find(scenario_path, "scenarios"), Scenario)
         for rider in campaign.riders or [None]:
             for controller in campaign.controllers or [None]:
                 for fault_set in sets:
@@ -184,7 +185,7 @@ def expand(campaign: Campaign, select: list[str] | None = None) -> list[Case]:
                         )
     for entry in campaign.fault_free:
         for scenario_path in entry.scenarios:
-            base = load_toml(resolve(scenario_path), Scenario)
+            base = load_toml(find(scenario_path, "scenarios"), Scenario)
             for rider in entry.riders or [None]:
                 for controller in entry.controllers or [None]:
                     for seed in campaign.seeds:

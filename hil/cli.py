@@ -15,16 +15,16 @@ from pathlib import Path
 import msgspec
 
 from drivers.config import ConfigError, load_toml
-from hil.scenario import resolve
+from drivers.resources import find
 
 
 def _simulate(args: argparse.Namespace) -> int:
     from hil.plant_run import default_intent, format_summary, run_plant
     from plant.params import RiderParams, RobotParams, SimParams
 
-    robot = load_toml(resolve(args.robot), RobotParams)
-    rider = None if args.no_rider else load_toml(resolve(args.rider), RiderParams)
-    sim = load_toml(resolve(args.sim), SimParams)
+    robot = load_toml(find(args.robot, "robot"), RobotParams)
+    rider = None if args.no_rider else load_toml(find(args.rider, "riders"), RiderParams)
+    sim = load_toml(find(args.sim, "sim"), SimParams)
     if args.seed is not None:
         sim = msgspec.structs.replace(sim, seed=args.seed)
     started = time.perf_counter()
@@ -54,7 +54,7 @@ def _run(args: argparse.Namespace) -> int:
     from drivers.can_bus import BusConfigError, parse_can_spec
     from hil.runner import format_table, load_scenario, run_scenario
 
-    scenario = load_scenario(resolve(args.scenario))
+    scenario = load_scenario(find(args.scenario, "scenarios"))
     try:
         can = parse_can_spec(args.can) if args.can else None
     except BusConfigError as exc:
@@ -115,9 +115,9 @@ def _spawn_controller(can_spec: str, scenario, mode: str, clock: str, hub: str |
     command = [str(script) if script.exists() else "pure-controller", "--can", can_spec]
     command += [
         "--rider",
-        str(resolve(scenario.rider)),
+        str(find(scenario.rider, "riders")),
         "--robot",
-        str(resolve(scenario.robot)),
+        str(find(scenario.robot, "robot")),
         "--mode",
         mode,
     ]
@@ -146,7 +146,7 @@ def _campaign(args: argparse.Namespace) -> int:
     from hil.campaign import expand, junit_xml, load_campaign, report, run_campaign
 
     try:
-        campaign = load_campaign(resolve(args.file))
+        campaign = load_campaign(find(args.file, "campaigns"))
         cases = expand(campaign, args.select)
     except ValueError as exc:
         print(f"pure-hil campaign: {exc}", file=sys.stderr)
@@ -177,15 +177,15 @@ def _compare(args: argparse.Namespace) -> int:
     from hil.runner import load_scenario
     from plant.params import RiderParams
 
-    scenarios = [load_scenario(resolve(s)) for s in args.scenarios]
+    scenarios = [load_scenario(find(s, "scenarios")) for s in args.scenarios]
     riders = tuple(args.riders) if args.riders else PAPER_RIDERS
     for rider in riders:
-        load_toml(resolve(rider), RiderParams)  # a bad rider file fails now, not after an hour of runs
+        load_toml(find(rider, "riders"), RiderParams)  # a bad rider file fails now, not after an hour of runs
     print(
         f"pure-hil compare: {len(scenarios)} scenario(s) x {len(riders)} rider(s) x {args.trials} trial(s) "
         f"x HACS/iHACS, lockstep"
     )
-    result = compare(scenarios, tuple(str(resolve(r)) for r in riders), args.trials)
+    result = compare(scenarios, tuple(str(find(r, "riders")) for r in riders), args.trials)
     out = Path(args.out) if args.out else Path("runs") / f"compare-{time.strftime('%Y%m%d-%H%M%S')}"
     write(result, out)
     print(result.table())
@@ -336,8 +336,8 @@ def _supervisor(args: argparse.Namespace) -> int:
     from safety.config import RobotGeometry, SupervisorConfig
     from safety.node import SupervisorNode, SupervisorThread
 
-    config = load_toml(resolve(args.config), SupervisorConfig)
-    robot = load_toml(resolve(args.robot), RobotGeometry)
+    config = load_toml(find(args.config, "safety"), SupervisorConfig)
+    robot = load_toml(find(args.robot, "robot"), RobotGeometry)
     try:
         can = parse_can_spec(args.can)
     except BusConfigError as exc:

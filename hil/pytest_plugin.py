@@ -117,14 +117,15 @@ class CampaignItem(pytest.Item):
 def hil_scenario():
     """`hil_scenario(name_or_path, **overrides)` -> Scenario (a bare name is configs/scenarios/NAME.toml)."""
     from drivers.config import load_toml
+    from drivers.resources import find
     from hil.faults import parse_fault
-    from hil.scenario import Scenario, resolve
+    from hil.scenario import Scenario
 
     def load(name: str | Path, **overrides):
         path = Path(name)
         if path.suffix != ".toml":
             path = Path("configs/scenarios") / f"{name}.toml"
-        scenario = load_toml(resolve(path), Scenario)
+        scenario = load_toml(find(path, "scenarios"), Scenario)
         if "faults" in overrides:
             overrides["faults"] = [
                 f if not isinstance(f, dict) else parse_fault(f) for f in overrides["faults"]

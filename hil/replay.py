@@ -22,8 +22,8 @@ import msgspec
 from drivers.can_bus import BusConfig, open_bus, private_channel
 from drivers.can_codec import Catalog
 from drivers.dut import DutSpec, start_dut
+from drivers.resources import find
 from drivers.zenoh_link import ZenohLink, open_hub
-from hil.scenario import ROOT, resolve
 
 CONTROLLER_FRAMES = {"DRIVE1_COMMAND", "DRIVE2_COMMAND", "DRIVE3_COMMAND", "CONTROLLER_HEARTBEAT"}
 
@@ -91,12 +91,12 @@ def replay(
             controller,
             DutSpec(
                 can=bus_config,
-                zenoh_config=str(ROOT / "configs/zenoh/loopback.json5"),
+                zenoh_config=str(find("zenoh/loopback.json5")),
                 hub_endpoint=hub_endpoint,
                 mode=summary["controller"],
-                robot=str(resolve(scenario["robot"])),
-                rider=str(resolve(scenario["rider"])),
-                controller_config=str(ROOT / "configs/controller/default.toml"),
+                robot=str(find(scenario["robot"], "robot")),
+                rider=str(find(scenario["rider"], "riders")),
+                controller_config=str(find("controller/default.toml")),
                 lockstep=True,
                 tick_hz=scenario["tick_hz"],
             ),

@@ -18,11 +18,12 @@ import numpy as np
 
 from drivers.can_bus import BusConfig
 from drivers.config import load_toml
+from drivers.resources import find
 from hil.faults import FaultSet
 from hil.faults.verdicts import fault_verdicts
 from hil.metrics import NEEDS_TELEMETRY, plane_metrics
 from hil.rig import OperatorStep, ScStep
-from hil.scenario import ROOT, UNITS, Criterion, Scenario, Verdict, resolve
+from hil.scenario import UNITS, Criterion, Scenario, Verdict
 from hil.session import RunSpec, Trace, run
 from plant.ballbot import RiderIntent
 from plant.params import RobotParams, SimParams
@@ -129,14 +130,14 @@ def run_scenario(
     controller = controller or scenario.controller
     clock = clock or scenario.clock
     seed = scenario.seed if seed is None else seed
-    robot_path = resolve(scenario.robot)
+    robot_path = find(scenario.robot, "robot")
     robot = load_toml(robot_path, RobotParams)
     sim = SimParams(tick_hz=scenario.tick_hz, seed=seed)
     intent = RiderIntent(list(scenario.intent.pitch), list(scenario.intent.roll), list(scenario.intent.twist))
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
     spec = RunSpec(
-        rider=resolve(scenario.rider),
+        rider=find(scenario.rider, "riders"),
         mode="hacs" if controller == "external" else controller,
         controller="external" if controller == "external" else "reference",
         duration=scenario.duration,
@@ -158,7 +159,7 @@ def run_scenario(
         on_tick=on_tick,
         stop=stop,
         session=session,
-        controller_config=ROOT / "configs/controller/default.toml",
+        controller_config=find("controller/default.toml"),
         boot_timeout=boot_timeout,
     )
     trace = run(spec)

@@ -10,7 +10,6 @@ a plane, and bounds; the verdict of each is recorded with the measured value.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Annotated, Literal
 
 import msgspec
@@ -166,15 +165,3 @@ class Scenario(_Record):
     faults: list[Fault] = []
     """Scheduled faults, each with the reaction it expects (hil/faults, docs/faults.md)."""
     criteria: list[Criterion] = []
-
-
-ROOT = Path(__file__).resolve().parents[1]
-"""The source tree: shipped configs are found here when the working directory has no copy."""
-
-
-def resolve(path: str | Path, root: Path = ROOT) -> Path:
-    """A config path: absolute, relative to the working directory if it exists there, else to the source."""
-    p = Path(path)
-    if p.is_absolute() or p.exists():
-        return p
-    return root / p

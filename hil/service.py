@@ -25,9 +25,10 @@ import zenoh
 from drivers.can_bus import BusConfig
 from drivers.config import ConfigError, decode_toml
 from drivers.keys import Keys
+from drivers.resources import find
 from hil.faults import FaultSet, parse_fault
 from hil.runner import load_scenario, run_scenario
-from hil.scenario import Intent, Scenario, resolve
+from hil.scenario import Intent, Scenario
 from plant.ballbot import Plant, RiderIntent
 
 
@@ -120,7 +121,7 @@ class RigService:
         if not text:
             raise ConfigError("pure/rig/start", "expected a scenario file path or its TOML text")
         if "\n" not in text and text.endswith(".toml"):
-            return load_scenario(resolve(text))
+            return load_scenario(find(text, "scenarios"))
         return decode_toml(text, Scenario, "pure/rig/start payload")
 
     def _stop_run(self, query: zenoh.Query) -> None:

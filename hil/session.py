@@ -19,12 +19,12 @@ from drivers.can_bus import BusConfig, BusConfigError, BusRecorder, CanNode, ope
 from drivers.config import ConfigError, load_toml
 from drivers.dut import DutNotFound, DutSpec, start_dut
 from drivers.keys import Keys
+from drivers.resources import SHIPPED
 from drivers.schemas import SafetyState
 from drivers.zenoh_link import LOOPBACK, ZenohConfigError, ZenohLink, open_hub
 from hil.clock import LockstepClock, RealtimeClock, TimingStats
 from hil.faults import FaultError, FaultEvent, FaultSet, FaultSpec
 from hil.rig import OperatorStep, Rig, ScStep, TickStats
-from hil.scenario import ROOT
 from plant.ballbot import Plant, RiderIntent
 from plant.params import RiderParams, RobotParams, SimParams
 from safety.config import RobotGeometry, SupervisorConfig
@@ -51,7 +51,7 @@ class RunSpec:
     rider: Path | str
     mode: str = "hacs"
     duration: float = 5.0
-    robot: Path | str = ROOT / "configs/robot/pure.toml"
+    robot: Path | str = SHIPPED / "robot/pure.toml"
     controller_robot: Path | str | None = None
     """The robot file the controller builds its model from (None: the plant's)."""
     controller_config: Path | str | None = None
