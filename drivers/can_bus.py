@@ -9,6 +9,7 @@ python-can logger (.blf, .asc, .log candump format, ... chosen by file suffix).
 
 from __future__ import annotations
 
+import errno
 import logging
 import time
 import uuid
@@ -72,10 +73,38 @@ def parse_can_spec(spec: str, base: BusConfig | None = None) -> BusConfig:
         raise BusConfigError(f"bad CAN spec {spec!r}: {exc}") from exc
 
 
+class BusUnavailable(BusConfigError):
+    """The configured bus cannot open on this machine (the message says why and what to do)."""
+
+
+_WHY = {
+    errno.EAFNOSUPPORT: (
+        "this kernel has no SocketCAN",
+        "load it (modprobe can-raw vcan) or use a machine with CAN; without CAN use --can virtual",
+    ),
+    errno.ENODEV: ("no such interface", "create it: ip link add dev {ch} type vcan && ip link set {ch} up"),
+    errno.ENETDOWN: ("the interface is down", "ip link set {ch} up"),
+    errno.EPERM: ("permission denied", "run as a user allowed to open raw CAN sockets"),
+    errno.EACCES: ("permission denied", "run as a user allowed to open raw CAN sockets"),
+}
+
+
 def open_bus(config: BusConfig) -> can.BusABC:
-    return can.Bus(
-        interface=config.interface, channel=config.channel, bitrate=config.bitrate, **config.kwargs
-    )
+    """python-can's bus for `config`; BusUnavailable (one line: the bus, the cause, the fix) when it cannot
+    open here."""
+    try:
+        return can.Bus(
+            interface=config.interface, channel=config.channel, bitrate=config.bitrate, **config.kwargs
+        )
+    except (OSError, can.CanError, ImportError, ValueError) as exc:
+        where = f"{config.interface}:{config.channel}"
+        code = getattr(exc, "errno", None) or getattr(exc, "error_code", None)
+        if code in _WHY:
+            why, fix = _WHY[code]
+            raise BusUnavailable(
+                f"CAN bus {where} cannot open: {why}; {fix.format(ch=config.channel)}"
+            ) from exc
+        raise BusUnavailable(f"CAN bus {where} cannot open: {exc}") from exc
 
 
 class Received(NamedTuple):

@@ -349,13 +349,13 @@ def _supervisor(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
+    bus = open_bus(can)
     if args.role == "hub" and not args.certs:
         session, _ = open_hub(args.zenoh or LOOPBACK, args.hub)
     else:
         session = open_session(
             args.zenoh or LOOPBACK, args.role, args.hub, certs=args.certs, identity=args.identity
         )
-    bus = open_bus(can)
     link = ZenohLink(session)
     node = SupervisorNode(CanNode(bus, name="supervisor"), link, config, robot, tick_hz=args.tick_hz)
     thread = SupervisorThread(node, sync=args.clock == "sync").start()
@@ -615,31 +615,37 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Every command ends in one line, never a traceback: 2 for what the user can fix (a config, a bus, a
+    port), 1 for a failure; an unexpected error leaves its traceback in a file and says where."""
+    import zenoh
+
+    from drivers.can_bus import BusConfigError
+    from drivers.zenoh_link import ZenohConfigError
+    from hil.faults import FaultError
+
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except ConfigError as exc:
-        print(f"pure-hil: config error: {exc}", file=sys.stderr)
+    except (ConfigError, BusConfigError, ZenohConfigError, FaultError) as exc:
+        print(f"pure-hil {args.command}: {exc}", file=sys.stderr)
         return 2
-    except ValueError as exc:
-        from drivers.zenoh_link import ZenohConfigError
-        from hil.faults import FaultError
-
-        if isinstance(exc, FaultError):
-            print(f"pure-hil: fault error: {exc}", file=sys.stderr)
-            return 2
-        if not isinstance(exc, ZenohConfigError):
-            raise
-        print(f"pure-hil: zenoh config error: {exc}", file=sys.stderr)
+    except zenoh.ZError as exc:  # an endpoint taken or unreachable, a certificate refused
+        print(f"pure-hil {args.command}: zenoh: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        return 130
     except Exception as exc:
-        import zenoh
+        import tempfile
+        import traceback
 
-        if not isinstance(exc, zenoh.ZError):
-            raise
-        print(f"pure-hil: zenoh: {exc}", file=sys.stderr)  # an endpoint taken or unreachable
-        return 2
+        with tempfile.NamedTemporaryFile("w", prefix="pure-hil-error-", suffix=".txt", delete=False) as f:
+            traceback.print_exc(file=f)
+        print(
+            f"pure-hil {args.command}: unexpected {type(exc).__name__}: {exc} (traceback: {f.name})",
+            file=sys.stderr,
+        )
+        return 1
 
 
 if __name__ == "__main__":

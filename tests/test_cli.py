@@ -54,3 +54,31 @@ def test_a_fault_that_cannot_act_on_the_rig_exits_2_naming_it(tmp_path, capsys):
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     assert summary["passed"] is False and summary["failure"]["stage"] == "build"
     assert "IMU_RATES" in summary["failure"]["error"]
+
+
+def test_a_bus_that_cannot_open_says_why_and_what_to_do(monkeypatch, capsys):
+    import errno
+
+    import can
+
+    def refuse(**kwargs):
+        raise OSError(errno.ENODEV, "No such device")
+
+    monkeypatch.setattr(can, "Bus", refuse)
+    assert main(["supervisor", "--can", "socketcan:vcan7"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert "socketcan:vcan7 cannot open: no such interface; create it: ip link add dev vcan7 type vcan" in err
+
+
+def test_an_unexpected_error_is_one_line_and_keeps_its_traceback_in_a_file(monkeypatch, capsys):
+    import hil.plant_run
+
+    def broken(*args, **kwargs):
+        raise ZeroDivisionError("a bug")
+
+    monkeypatch.setattr(hil.plant_run, "run_plant", broken)
+    assert main(["simulate", "--duration", "0.1"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("pure-hil simulate: unexpected ZeroDivisionError: a bug (traceback: ")
+    assert "ZeroDivisionError" in Path(err.split("traceback: ")[1].rstrip(")\n")).read_text()
