@@ -23,11 +23,11 @@ import time
 from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
 from drivers.config import load_toml
 from drivers.keys import Keys
+from drivers.resources import find
 from drivers.zenoh_link import LOOPBACK, ZenohLink, free_loopback_endpoint, open_session
-from hil.campaign import expand, load_campaign, run_campaign
 from hil.faults import FaultSet, parse_fault
-from hil.rig import Rig
-from hil.scenario import ROOT
+from hil.run.rig import Rig
+from hil.suites.campaign import expand, load_campaign, run_campaign
 from plant.ballbot import Plant
 from plant.params import RiderParams, RobotParams, SimParams
 
@@ -41,8 +41,8 @@ FAULTS["all three"] = FAULTS["sensor"] + FAULTS["frame"] + FAULTS["topic"]
 
 
 def tick_cost(session, faults, ticks: int) -> float:
-    robot = load_toml(ROOT / "configs/robot/pure.toml", RobotParams)
-    rider = load_toml(ROOT / "configs/riders/ref_60kg_180.toml", RiderParams)
+    robot = load_toml(find("pure", "robot"), RobotParams)
+    rider = load_toml(find("ref_60kg_180", "riders"), RiderParams)
     plant = Plant(robot, rider, SimParams(seed=0))
     bus = open_bus(BusConfig(channel=private_channel()))
     link = ZenohLink(session, Keys(private_channel("bench").replace("-", "")))
@@ -64,7 +64,7 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--ticks", type=int, default=2000)
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--campaign", default=str(ROOT / "configs/campaigns/smoke.toml"))
+    parser.add_argument("--campaign", default="smoke")
     parser.add_argument("--no-campaign", action="store_true")
     args = parser.parse_args()
     logging.basicConfig(level=logging.ERROR)

@@ -2,7 +2,7 @@
 of the rig's tick and, measured in the same run, the floor: bare python-can virtual send+recv of the same
 number of frames per tick.
 
-    python benchmarks/lockstep.py [configs/scenarios/speed_limiting.toml] [--duration S]
+    python benchmarks/lockstep.py [SCENARIO (default speed_limiting)] [--duration S]
 """
 
 from __future__ import annotations
@@ -10,22 +10,18 @@ from __future__ import annotations
 import argparse
 import os
 import time
-from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import can
 import msgspec
 
-import hil.rig as rig_module
+import hil.run.rig as rig_module
 from drivers.can_bus import private_channel
-from drivers.config import load_toml
-from hil.runner import run_scenario
-from hil.scenario import Scenario
+from hil.run.pipeline import load_scenario, run
 from plant.ballbot import Plant
 from safety.node import SupervisorNode
 
-ROOT = Path(__file__).resolve().parents[1]
 FRAMES_PER_TICK = 12  # 3 feedback, 3 IMU, SYNC, 3 commands, heartbeat, + (DRIVEn_TORQUE, estop) / 4
 
 
@@ -57,10 +53,10 @@ def bare_floor(ticks: int) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("scenario", nargs="?", default=str(ROOT / "configs/scenarios/speed_limiting.toml"))
+    parser.add_argument("scenario", nargs="?", default="speed_limiting")
     parser.add_argument("--duration", type=float, default=None)
     args = parser.parse_args()
-    scenario = load_toml(args.scenario, Scenario)
+    scenario = load_scenario(args.scenario)
     if args.duration:
         scenario = msgspec.structs.replace(scenario, duration=args.duration)
     totals: dict[str, float] = {}
@@ -70,13 +66,13 @@ def main() -> None:
     Plant.step = timed(totals, "plant.step", Plant.step)
     SupervisorNode.update = timed(totals, "supervisor", SupervisorNode.update)
     t0 = time.perf_counter()
-    result = run_scenario(scenario)
+    result = run(scenario)
     wall = time.perf_counter() - t0
     ticks = result.trace.stats.ticks
     sim = result.trace.t[-1]
     floor = bare_floor(ticks)
     print(
-        f"{scenario.name} ({result.controller}, lockstep, {scenario.tick_hz:g} Hz): {sim:.2f} s simulated, "
+        f"{scenario.name} ({result.law}, lockstep, {scenario.tick_hz:g} Hz): {sim:.2f} s simulated, "
         f"{ticks} ticks"
     )
     print(f"  end to end incl. start-up: {wall:.2f} s wall = {sim / wall:.2f}x real time")

@@ -16,7 +16,7 @@ import time
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from hil.truth_balancer import TruthBalancer
+from hil.run.truth_balancer import TruthBalancer
 from plant.ballbot import Plant, RiderIntent
 from plant.params import RiderParams, RobotParams, SimParams
 from plant.rider import Ramp, Sine

@@ -17,7 +17,7 @@ import threading
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
-from hil.clock import RealtimeClock
+from hil.run.clock import RealtimeClock
 from plant.ballbot import Plant, RiderIntent
 from plant.params import RiderParams, RobotParams, SimParams
 from plant.rider import Sine

@@ -29,10 +29,10 @@ import numpy as np
 
 from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
 from drivers.config import load_toml
+from drivers.resources import find
 from drivers.schemas import EstopCommand, TesWrench
 from drivers.zenoh_link import ZenohLink, free_loopback_endpoint, open_session
-from hil.scenario import ROOT
-from hil.truth_balancer import TruthBalancer
+from hil.run.truth_balancer import TruthBalancer
 from plant.ballbot import Plant, RiderIntent
 from plant.params import RiderParams, RobotParams, SimParams
 from plant.rider import Ramp
@@ -40,7 +40,7 @@ from safety.config import RobotGeometry, SupervisorConfig
 from safety.machine import BALANCING, FAULT, Supervisor
 from safety.monitors import Monitors
 
-ROBOT = ROOT / "configs/robot/pure.toml"
+ROBOT = find("pure", "robot")
 
 
 def us_per_call(fn, n: int) -> float:
@@ -57,7 +57,7 @@ def recorded_ticks(n: int) -> list[tuple[list, TesWrench]]:
     """n ticks of the frames and seat sample a moving robot sends (the plant driven by the truth balancer
     through a lean and a turn), decoded as the supervisor receives them: the checks do their real work."""
     robot = load_toml(ROBOT, RobotParams)
-    rider = load_toml(ROOT / "configs/riders/ref_60kg_180.toml", RiderParams)
+    rider = load_toml(find("ref_60kg_180", "riders"), RiderParams)
     intent = RiderIntent(pitch=[Ramp(to=8.0, duration=1.0)])
     plant = Plant(robot, rider, SimParams(), intent)
     balancer = TruthBalancer(plant)
@@ -97,7 +97,7 @@ def recorded_ticks(n: int) -> list[tuple[list, TesWrench]]:
 
 def decision_cost(ticks: int) -> None:
     robot = load_toml(ROBOT, RobotParams)
-    plant = Plant(robot, load_toml(ROOT / "configs/riders/ref_60kg_180.toml", RiderParams), SimParams())
+    plant = Plant(robot, load_toml(find("ref_60kg_180", "riders"), RiderParams), SimParams())
     recorded = recorded_ticks(ticks)
     config, geometry = SupervisorConfig(), load_toml(ROBOT, RobotGeometry)
     stages = {"frames": 0.0, "observe": 0.0, "update": 0.0}

@@ -36,11 +36,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--can", default="virtual", help="INTERFACE[:CHANNEL], e.g. socketcan:vcan0")
     p.add_argument("--zenoh", default=str(LOOPBACK), help="zenoh config file (loopback by default)")
     p.add_argument("--hub", default=None, help="override the config's hub endpoint, e.g. tcp/127.0.0.1:7447")
+    p.add_argument("--certs", default=None, help="certificate folder on a secured bench (bench-client.json5)")
+    p.add_argument("--identity", default="controller", help="its certificate's role on a secured bench")
+    p.add_argument("--allow-network", action="store_true", help="a router on another host")
     p.add_argument("--prefix", default="pure", help="zenoh key prefix")
     p.add_argument("--rider", required=True, help="rider TOML (name and height are used)")
     p.add_argument("--robot", default="robot/pure.toml", help="the controller's robot model")
     p.add_argument("--config", default="controller/default.toml")
-    p.add_argument("--mode", choices=("hacs", "ihacs"), default=None, help="override the config's mode")
+    p.add_argument(
+        "--law",
+        "--mode",
+        dest="mode",
+        choices=("hacs", "ihacs"),
+        default=None,
+        help="override the config's law (--mode: its old name)",
+    )
     p.add_argument("--lockstep", action="store_true", help="wait for each tick's seat sample (lockstep rigs)")
     return p
 
@@ -55,7 +65,9 @@ def main(argv: list[str] | None = None) -> int:
         robot = load_toml(find(args.robot, "robot"), RobotModel)
         controller = Controller(config, robot, load_toml(find(args.rider, "riders"), RiderInfo))
         bus = open_bus(parse_can_spec(args.can))
-        session = open_session(args.zenoh, "member", args.hub)
+        session = open_session(
+            args.zenoh, "member", args.hub, args.allow_network, certs=args.certs, identity=args.identity
+        )
     except (ConfigError, BusConfigError, ZenohConfigError) as exc:
         print(f"pure-controller: {exc}", file=sys.stderr)
         return 2

@@ -11,7 +11,7 @@ from drivers.can_bus import CanNode, open_bus
 from drivers.config import load_toml
 from drivers.dut import DutSpec
 from drivers.keys import Keys
-from drivers.zenoh_link import ZenohLink, open_session
+from drivers.zenoh_link import ZenohLink
 
 
 def build_controller(spec: DutSpec) -> Controller:
@@ -26,8 +26,8 @@ def build_controller(spec: DutSpec) -> Controller:
 class EmbeddedController:
     def __init__(self, spec: DutSpec):
         self.bus = open_bus(spec.can)
-        self.session = open_session(spec.zenoh_config, "member", spec.hub_endpoint)
-        self.link = ZenohLink(self.session, Keys(spec.keys_prefix))
+        self.session = spec.zenoh.open("controller")
+        self.link = ZenohLink(self.session, Keys(spec.zenoh.prefix))
         self.node = ControllerNode(
             build_controller(spec), CanNode(self.bus, name="controller"), self.link, lockstep=spec.lockstep
         )

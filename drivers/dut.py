@@ -14,16 +14,15 @@ from typing import Literal, Protocol
 import msgspec
 
 from drivers.can_bus import BusConfig
+from drivers.zenoh_link import ZenohAccess
 
 GROUP = "pure_hil.controllers"
 
 
 class DutSpec(msgspec.Struct, frozen=True, kw_only=True):
     can: BusConfig
-    zenoh_config: str
-    hub_endpoint: str | None = None
-    """Overrides the zenoh config's hub endpoint (tests pick a free port)."""
-    keys_prefix: str = "pure"
+    zenoh: ZenohAccess = ZenohAccess()
+    """How to join the rig's zenoh (open sessions with `zenoh.open("controller")`)."""
     mode: Literal["hacs", "ihacs"] = "hacs"
     robot: str
     """Robot TOML the controller builds its model from (may differ from the plant's: model mismatch)."""

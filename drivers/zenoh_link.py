@@ -25,6 +25,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Generic, Literal, TypeVar
 
+import msgspec
 import zenoh
 
 from drivers.keys import Keys
@@ -185,6 +186,50 @@ def open_hub(
     return open_session(path, "hub", free, allow_network), free
 
 
+BENCH_CLIENT = CONFIG_DIR / "bench-client.json5"
+
+
+class ZenohAccess(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """How every process of a bench joins its zenoh: `loopback` (the rig is the hub on 127.0.0.1, the others
+    join it) or `router` (every process a client of the secured bench router, identified by its role's
+    certificate; docs/security.md). A bench file's `[zenoh]` table."""
+
+    mode: Literal["loopback", "router"] = "loopback"
+    endpoint: str | None = None
+    """loopback: the rig's hub (None: the config's, tcp/127.0.0.1:7447); router: the router's (None: the
+    client config's, tls/127.0.0.1:7448)."""
+    certs: str | None = None
+    """router: the folder of `pure-hil certs init` (a command's --certs fills it)."""
+    config: str | None = None
+    """A zenoh config file instead of the shipped loopback.json5 / bench-client.json5."""
+    network: bool = False
+    """router: the router is on another host (its endpoint is not on loopback)."""
+    prefix: str = "pure"
+
+    @property
+    def config_path(self) -> Path:
+        return Path(self.config) if self.config else LOOPBACK if self.mode == "loopback" else BENCH_CLIENT
+
+    def open(self, role: str) -> zenoh.Session:
+        """A session for one process of the bench in `role` (its certificate on a router; on loopback every
+        role but the rig's hub is a member)."""
+        if self.mode == "loopback":
+            return open_session(self.config_path, "member", self.endpoint)
+        if self.certs is None:
+            raise ZenohConfigError("zenoh mode router needs the certificate folder (--certs DIR)")
+        return open_session(
+            self.config_path, "member", self.endpoint, self.network, certs=self.certs, identity=role
+        )
+
+    def open_rig(self, fallback: bool) -> tuple[zenoh.Session, ZenohAccess]:
+        """The rig's session, and the access its other processes use (a loopback hub may have moved to a
+        free port: `fallback`, see open_hub)."""
+        if self.mode == "router":
+            return self.open("rig"), self
+        session, endpoint = open_hub(self.config_path, self.endpoint, fallback)
+        return session, msgspec.structs.replace(self, endpoint=endpoint)
+
+
 P = TypeVar("P", bound=Payload)
 
 
@@ -259,17 +304,24 @@ class ZenohLink:
     """A node's zenoh side: publishers declared once per key, typed subscriptions, and the lockstep fence
     (every put is counted per key; `put_fence` tells the other nodes how many there were)."""
 
-    def __init__(self, session: zenoh.Session, keys: Keys | None = None, lossless: bool = False):
+    def __init__(
+        self,
+        session: zenoh.Session,
+        keys: Keys | None = None,
+        lossless: bool = False,
+        puts: Counter[str] | None = None,
+    ):
         """lossless: publishers block instead of dropping when zenoh's queue is full (lockstep: an input
-        lost under load would make the run depend on the machine's load)."""
+        lost under load would make the run depend on the machine's load). puts: a counter shared by the
+        links of one process (its fence counts the puts of all its sessions)."""
         self.session = session
         self.keys = keys or Keys()
         self._congestion = zenoh.CongestionControl.BLOCK if lossless else zenoh.CongestionControl.DROP
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._subscriptions: list[Subscription] = []
         self.arrived = threading.Condition(threading.RLock())
-        self.puts: Counter[str] = Counter()
-        """Payloads put on each key by this link."""
+        self.puts: Counter[str] = Counter() if puts is None else puts
+        """Payloads put on each key by this link (and the links sharing its counter)."""
 
     def declare_publishers(self, keys: Iterable[str]) -> None:
         for key in keys:
@@ -282,6 +334,16 @@ class ZenohLink:
                 key, congestion_control=self._congestion
             )
         return pub
+
+    def wait_for_subscriber(self, key: str, timeout: float) -> bool:
+        """Block until someone subscribes to `key` (a put before that reaches nobody), at most `timeout` s."""
+        pub = self.publisher(key)
+        matched = threading.Event()
+        listener = pub.declare_matching_listener(lambda status: status.matching and matched.set())
+        try:
+            return pub.matching_status.matching or matched.wait(timeout)
+        finally:
+            listener.undeclare()
 
     def put(self, key: str, payload: Payload) -> None:
         self.put_bytes(key, encode(payload))

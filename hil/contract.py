@@ -90,7 +90,7 @@ def signal_table(catalog: Catalog | None = None) -> str:
 def model_table(root: Path = ROOT) -> str:
     """Per shipped rider and plane, the linearised planar model about upright rest (rider rigid with the
     chassis): the nonzero entries of A and B for s = [θ, φ, θ̇, φ̇], input the plane's ball torque."""
-    from hil.truth_balancer import linearise_plane
+    from hil.run.truth_balancer import linearise_plane
     from plant.ballbot import plane_params
     from plant.params import RiderParams, RobotParams
 

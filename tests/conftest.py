@@ -13,15 +13,15 @@ pytest_plugins = ["pytester"]  # tests of the HIL pytest plugin run pytest insid
 def shipped(tmp_path_factory):
     """Every shipped scenario run once in lockstep (speed_limiting with its run folder): (results, folder)."""
     from drivers.config import load_toml
-    from hil.runner import run_scenario
-    from hil.scenario import Scenario
+    from hil.run.pipeline import run
+    from hil.run.scenario import Scenario
     from tests.helpers import ROOT
-    from tests.zenoh_helpers import hub_endpoint
+    from tests.zenoh_helpers import private_bench
 
     out = tmp_path_factory.mktemp("runs")
     results = {}
     for path in sorted((ROOT / "configs/scenarios").glob("*.toml")):
         scenario = load_toml(path, Scenario)
         folder = out / scenario.name if scenario.name == "speed_limiting" else None
-        results[scenario.name] = run_scenario(scenario, out=folder, hub_endpoint=hub_endpoint())
+        results[scenario.name] = run(scenario, private_bench(), out=folder)
     return results, out

@@ -12,7 +12,7 @@ from drivers.keys import Keys
 from drivers.schemas import ScRequest, TesWrench
 from drivers.zenoh_link import ZenohLink
 from hil.faults import FaultSet, parse_fault
-from hil.rig import Rig
+from hil.run.rig import Rig
 from plant.ballbot import Plant
 from plant.params import RiderParams, RobotParams, SimParams
 from tests.helpers import ROOT, wait_for

@@ -10,7 +10,7 @@ import xml.etree.ElementTree as ET
 import msgspec
 import pytest
 
-from hil.campaign import Campaign, CaseResult, expand, junit_xml, load_campaign, report
+from hil.suites.campaign import Campaign, CaseResult, expand, junit_xml, load_campaign, report
 from tests.helpers import ROOT
 
 SMOKE = ROOT / "configs/campaigns/smoke.toml"
@@ -184,7 +184,7 @@ def test_plugin_fixtures_run_a_scenario_with_faults_and_assert_on_events(pyteste
     pytester.makepyfile(
         f"""
         import pytest
-        from hil.testing import assert_no_reaction, assert_passed, assert_supervisor, assert_metric
+        from hil.suites.testing import assert_no_reaction, assert_passed, assert_supervisor, assert_metric
 
         @pytest.mark.hil
         def test_imu_loss(hil_rig, hil_scenario):

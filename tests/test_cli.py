@@ -34,11 +34,11 @@ def test_console_script_is_installed():
     assert "simulate" in out.stdout
 
 
-def test_spawn_controller_needs_a_shared_bus(capsys):
-    from hil.cli import main
-
-    assert main(["run", "configs/scenarios/balance.toml", "--spawn-controller"]) == 2
-    assert "needs a bus shared with another process" in capsys.readouterr().err
+def test_a_spawned_controller_needs_a_shared_bus(capsys):
+    assert main(["run", "balance", "--controller", "spawned"]) == 2
+    err = capsys.readouterr().err
+    assert "controller.where = 'spawned' needs a CAN bus shared between processes" in err
+    assert err.count("\n") == 1
 
 
 def test_a_fault_that_cannot_act_on_the_rig_exits_2_naming_it(tmp_path, capsys):
@@ -48,7 +48,7 @@ def test_a_fault_that_cannot_act_on_the_rig_exits_2_naming_it(tmp_path, capsys):
     )
     assert main(["run", str(scenario), "--quiet", "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
-    assert "pure-hil: fault 0 (can.drop message=IMU_RATES): can.drop: no message 'IMU_RATES'" in err
+    assert "pure-hil run: fault 0 (can.drop message=IMU_RATES): can.drop: no message 'IMU_RATES'" in err
     assert "Traceback" not in err
     # The run folder says what failed and where.
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
@@ -72,12 +72,12 @@ def test_a_bus_that_cannot_open_says_why_and_what_to_do(monkeypatch, capsys):
 
 
 def test_an_unexpected_error_is_one_line_and_keeps_its_traceback_in_a_file(monkeypatch, capsys):
-    import hil.plant_run
+    import hil.run.plant_run
 
     def broken(*args, **kwargs):
         raise ZeroDivisionError("a bug")
 
-    monkeypatch.setattr(hil.plant_run, "run_plant", broken)
+    monkeypatch.setattr(hil.run.plant_run, "run_plant", broken)
     assert main(["simulate", "--duration", "0.1"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("pure-hil simulate: unexpected ZeroDivisionError: a bug (traceback: ")

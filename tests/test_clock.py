@@ -2,7 +2,7 @@
 
 import time
 
-from hil.clock import LockstepClock, RealtimeClock
+from hil.run.clock import LockstepClock, RealtimeClock
 
 
 def test_realtime_clock_paces_and_measures_jitter():

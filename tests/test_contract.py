@@ -12,14 +12,15 @@ import threading
 import time
 
 import can
+import msgspec
 import pytest
 
 from drivers.can_bus import BusConfig, private_channel
 from drivers.config import load_toml
-from hil.runner import run_scenario
-from hil.scenario import Scenario
+from hil.run.pipeline import run
+from hil.run.scenario import Scenario
 from tests.helpers import ROOT
-from tests.zenoh_helpers import hub_endpoint
+from tests.zenoh_helpers import private_bench
 
 BALANCE = load_toml(ROOT / "configs/scenarios/balance.toml", Scenario)
 
@@ -78,12 +79,8 @@ def test_a_controller_on_can_alone_runs_a_shipped_scenario_to_a_written_summary(
     channel = private_channel("contract")
     controller = ExampleController(channel)
     try:
-        result = run_scenario(
-            BALANCE,
-            controller="external",
-            can=BusConfig(channel=channel),
-            hub_endpoint=hub_endpoint(),
-            out=tmp_path,
+        result = run(
+            BALANCE, private_bench(controller="external", can=BusConfig(channel=channel)), out=tmp_path
         )
     finally:
         controller.close()
@@ -105,13 +102,7 @@ def test_the_rig_waits_for_a_late_controller_and_starts_on_its_boot_up_without_l
     controller = ExampleController(channel, start_after=1.0)
     try:
         t0 = time.monotonic()
-        result = run_scenario(
-            BALANCE,
-            controller="external",
-            can=BusConfig(channel=channel),
-            hub_endpoint=hub_endpoint(),
-            boot_timeout=10.0,
-        )
+        result = run(BALANCE, private_bench(controller="external", can=BusConfig(channel=channel)))
         waited = time.monotonic() - t0
     finally:
         controller.close()
@@ -122,14 +113,11 @@ def test_the_rig_waits_for_a_late_controller_and_starts_on_its_boot_up_without_l
 
 def test_without_a_controller_the_rig_says_what_it_waited_for_and_still_writes_its_folder(tmp_path):
     channel = private_channel("nobody")
-    result = run_scenario(
-        BALANCE,
-        controller="external",
-        can=BusConfig(channel=channel),
-        hub_endpoint=hub_endpoint(),
-        boot_timeout=0.5,
-        out=tmp_path,
+    bench = private_bench(controller="external", can=BusConfig(channel=channel))
+    bench = msgspec.structs.replace(
+        bench, controller=msgspec.structs.replace(bench.controller, boot_timeout=0.5)
     )
+    result = run(BALANCE, bench, out=tmp_path)
     assert not result.passed and result.trace.failure.stage == "start-up"
     assert "the controller's boot-up (CONTROLLER_HEARTBEAT)" in result.trace.failure.error
     assert "examples/balance_controller.py" in result.trace.failure.error
@@ -139,7 +127,7 @@ def test_without_a_controller_the_rig_says_what_it_waited_for_and_still_writes_i
 
 
 def test_a_run_that_breaks_mid_way_keeps_what_ran_and_says_where(tmp_path, monkeypatch):
-    from hil.rig import Rig
+    from hil.run.rig import Rig
 
     real = Rig.tick
 
@@ -149,7 +137,7 @@ def test_a_run_that_breaks_mid_way_keeps_what_ran_and_says_where(tmp_path, monke
         return real(self, *args, **kwargs)
 
     monkeypatch.setattr(Rig, "tick", breaking)
-    result = run_scenario(BALANCE, hub_endpoint=hub_endpoint(), out=tmp_path)
+    result = run(BALANCE, private_bench(), out=tmp_path)
     assert (
         result.trace.failure.stage.startswith("tick 400")
         and "a bug in the tick" in result.trace.failure.error

@@ -22,7 +22,7 @@ def test_runs_as_its_own_process_and_stops_cleanly(sig):
     endpoint = hub_endpoint()
     hub = open_session(role="hub", hub_endpoint=endpoint)
     proc = subprocess.Popen(
-        [SCRIPT, "--can", "virtual", "--hub", endpoint, "--rider", RIDER, "--mode", "ihacs"],
+        [SCRIPT, "--can", "virtual", "--hub", endpoint, "--rider", RIDER, "--law", "ihacs"],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,

@@ -2,18 +2,17 @@
 
 import numpy as np
 
-from hil.rig import ScStep
-from hil.session import RunSpec, run
-from plant.ballbot import RiderIntent
+from hil.run.pipeline import run
+from hil.run.scenario import Intent, Scenario, ScEntry
 from plant.rider import Hold, Ramp
 from tests.helpers import ROOT
-from tests.zenoh_helpers import hub_endpoint
+from tests.zenoh_helpers import private_bench
 
-REF = ROOT / "configs/riders/ref_60kg_180.toml"
+REF = "ref_60kg_180"
 
 
 def closed_loop(**kw):
-    trace = run(RunSpec(hub_endpoint=hub_endpoint(), **kw))
+    trace = run(Scenario(name="closed_loop", **kw), private_bench()).trace
     assert trace.stats.missing_commands == 0 and trace.controller_telemetry_missing == 0
     return trace
 
@@ -28,10 +27,8 @@ def test_balances_from_a_3_degree_tilt():
 
 def test_tracks_half_a_metre_per_second():
     # A rider leaning 15° asks for more than the 0.5 m/s cap: the command speed is the cap.
-    intent = RiderIntent(pitch=[Hold(duration=1.0), Ramp(to=15.0, duration=1.0)])
-    tr = closed_loop(
-        rider=REF, mode="ihacs", duration=8.0, intent=intent, sc_schedule=(ScStep(0.0, "limit", 0.5),)
-    )
+    intent = Intent(pitch=[Hold(duration=1.0), Ramp(to=15.0, duration=1.0)])
+    tr = closed_loop(rider=REF, law="ihacs", duration=8.0, intent=intent, sc=[ScEntry(mode="limit", cap=0.5)])
     steady = tr.t > 5.0
     assert np.allclose(tr.command_speed[steady, 0], 0.5)
     error = abs(tr.velocity[steady, 0].mean() - 0.5) / 0.5
@@ -40,7 +37,7 @@ def test_tracks_half_a_metre_per_second():
 
 
 def test_stops_from_1_4_metres_per_second_within_2_5_seconds():
-    intent = RiderIntent(
+    intent = Intent(
         pitch=[
             Hold(duration=1.0),
             Ramp(to=15.0, duration=1.0),
@@ -50,7 +47,10 @@ def test_stops_from_1_4_metres_per_second_within_2_5_seconds():
     )
     cue = 5.0
     tr = closed_loop(
-        rider=REF, duration=8.5, intent=intent, sc_schedule=(ScStep(0.0, "limit", 1.4), ScStep(cue, "idle"))
+        rider=REF,
+        duration=8.5,
+        intent=intent,
+        sc=[ScEntry(mode="limit", cap=1.4), ScEntry(at=cue, mode="idle")],
     )
     speed = np.abs(tr.velocity[:, 0])
     at_cue = speed[np.searchsorted(tr.t, cue)]
@@ -68,8 +68,8 @@ def test_survives_heavy_stiction(tmp_path):
     )
     path = tmp_path / "sticky.toml"
     path.write_text(robot)
-    intent = RiderIntent(pitch=[Hold(duration=1.0), Ramp(to=10.0, duration=1.0), Ramp(to=0.0, duration=1.0)])
-    tr = closed_loop(rider=REF, robot=path, duration=5.0, intent=intent, initial_tilt_deg=(2.0, 0.0))
+    intent = Intent(pitch=[Hold(duration=1.0), Ramp(to=10.0, duration=1.0), Ramp(to=0.0, duration=1.0)])
+    tr = closed_loop(rider=REF, robot=str(path), duration=5.0, intent=intent, initial_tilt_deg=(2.0, 0.0))
     assert tr.fallen is None
     assert np.abs(np.degrees(tr.tilt[tr.t > 4.5])).max() < 1.0
 

@@ -1,9 +1,9 @@
-"""The coverage judge itself (hil/coverage.py): each class from synthetic outcomes, so a campaign's 0 MISSED
-means what it says."""
+"""The coverage judge itself (hil/suites/coverage.py): each class from synthetic outcomes, so a
+campaign's 0 MISSED means what it says."""
 
 import numpy as np
 
-from hil.coverage import Bounds, Outcome, classify, false_trip
+from hil.suites.coverage import Bounds, Outcome, classify, false_trip
 
 BOUNDS = Bounds()
 T = np.round(np.arange(0.0, 5.0, 0.01), 4).tolist()

@@ -4,6 +4,7 @@ and installed on its own it runs a shipped scenario by short name from a folder 
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import tomllib
@@ -21,7 +22,9 @@ CODE = ("hil", "drivers", "plant", "safety", "controller")
 def test_every_package_and_config_is_listed_for_the_wheel():
     setuptools = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
     on_disk = {
-        ".".join(p.parent.relative_to(ROOT).parts) for root in CODE for p in (ROOT / root).rglob("__init__.py")
+        ".".join(p.parent.relative_to(ROOT).parts)
+        for root in CODE
+        for p in (ROOT / root).rglob("__init__.py")
     }
     assert on_disk | {"pure_hil_configs"} == set(setuptools["packages"])
     patterns = setuptools["package-data"]["pure_hil_configs"]
@@ -44,8 +47,12 @@ def test_short_names_and_source_paths_mean_the_same_file(tmp_path, monkeypatch):
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("wheel")
+    # From a copy: setuptools builds in the source folder (build/) and would leave it behind.
+    source = out / "source"
+    skip = (".git", ".venv", "runs", "build", "dist", "*.egg-info", "__pycache__", ".*_cache", ".hypothesis")
+    shutil.copytree(ROOT, source, ignore=shutil.ignore_patterns(*skip))
     pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q"]
-    subprocess.run([*pip, "wheel", "--no-deps", "-w", str(out), str(ROOT)], check=True, timeout=300)
+    subprocess.run([*pip, "wheel", "--no-deps", "-w", str(out), str(source)], check=True, timeout=300)
     return next(out.glob("pure_hil-*.whl"))
 
 

@@ -6,7 +6,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from hil.truth_balancer import TruthBalancer, linearise_plane
+from hil.run.truth_balancer import TruthBalancer, linearise_plane
 from plant.anthropometry import composite, robot_body_segment, seat_rider
 from plant.ballbot import Plant, RiderIntent, plane_params
 from plant.params import Drive, RobotParams

@@ -6,7 +6,7 @@ import math
 import msgspec
 import pytest
 
-from hil.truth_balancer import TruthBalancer
+from hil.run.truth_balancer import TruthBalancer
 from plant.anthropometry import seat_rider
 from plant.ballbot import Plant, RiderIntent
 from plant.params import RobotParams

@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from drivers.config import load_toml
-from hil.truth_balancer import TruthBalancer
+from hil.run.truth_balancer import TruthBalancer
 from plant.ballbot import Plant, RiderIntent
 from plant.params import RobotParams, SimParams
 from plant.rider import Hold, Ramp

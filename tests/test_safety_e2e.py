@@ -8,16 +8,15 @@ from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
 from drivers.config import load_toml
 from drivers.zenoh_link import ZenohLink, open_session
 from hil.faults.processes import Kill
-from hil.rig import OperatorStep
-from hil.runner import run_scenario
-from hil.scenario import Scenario
-from hil.session import RunSpec, run
+from hil.run.build import RunOptions
+from hil.run.pipeline import run
+from hil.run.scenario import OperatorEntry, Scenario
 from plant.params import RobotParams
 from safety.config import SupervisorConfig
 from safety.machine import State
 from safety.node import SupervisorNode, SupervisorThread
 from tests.helpers import ROOT
-from tests.zenoh_helpers import hub_endpoint
+from tests.zenoh_helpers import hub_endpoint, private_bench
 
 REF = ROOT / "configs/riders/ref_60kg_180.toml"
 CFG = SupervisorConfig()
@@ -41,7 +40,7 @@ def off_since(trace) -> float:
 
 def quiet_run(**kw):
     """The robot standing, the rider sitting still."""
-    return run(RunSpec(rider=REF, hub_endpoint=hub_endpoint(), **kw))
+    return run(Scenario(name="quiet", rider=str(REF), **kw), private_bench()).trace
 
 
 def test_adversarial_rider_is_limited_then_stopped(shipped):
@@ -76,7 +75,7 @@ def test_operator_estop_at_speed_is_a_controlled_stop(shipped):
 
 
 def test_controller_killed_turns_the_drives_off_within_the_watchdog_bound():
-    tr = quiet_run(duration=3.0, faults=(Kill(at=1.5, target="controller"),))
+    tr = quiet_run(duration=3.0, faults=[Kill(at=1.5, target="controller")])
     lost = first(tr, "HEARTBEAT_LOST")
     assert 1.5 < lost.t <= 1.5 + CFG.watchdogs.heartbeat + 2 * TICK
     assert lost.to_state == "ESTOP"
@@ -87,7 +86,7 @@ def test_controller_killed_turns_the_drives_off_within_the_watchdog_bound():
 
 
 def test_supervisor_killed_turns_the_drives_off_within_their_bound():
-    tr = quiet_run(duration=3.0, faults=(Kill(at=1.5, target="supervisor"),))
+    tr = quiet_run(duration=3.0, faults=[Kill(at=1.5, target="supervisor")])
     off = off_since(tr)
     # The last frame was sent at most one period before the kill; the drives wait permission_timeout.
     assert off <= 1.5 + DRIVE.permission_timeout + 2 * TICK
@@ -99,7 +98,11 @@ def test_supervisor_killed_turns_the_drives_off_within_their_bound():
 def test_reset_permits_motion_but_never_causes_it():
     tr = quiet_run(
         duration=5.0,
-        operator=(OperatorStep(1.0, "estop"), OperatorStep(2.0, "reset"), OperatorStep(3.0, "enable")),
+        operator=[
+            OperatorEntry(at=1.0, action="estop"),
+            OperatorEntry(at=2.0, action="reset"),
+            OperatorEntry(at=3.0, action="enable"),
+        ],
     )
     assert transitions(tr) == [
         ("STOPPING", "OPERATOR_ESTOP"),
@@ -129,9 +132,8 @@ def test_external_supervisor_on_the_sync_time_base():
     thread = SupervisorThread(node, sync=True).start()
     scenario = load_toml(ROOT / "configs/scenarios/estop_at_speed.toml", Scenario)
     try:
-        result = run_scenario(
-            scenario, can=bus_config, session=session, hub_endpoint=endpoint, supervisor="external"
-        )
+        bench = private_bench(can=bus_config, supervisor="external", hub=endpoint)
+        result = run(scenario, bench, options=RunOptions(session=session))
     finally:
         thread.stop()
         link.close()

@@ -8,26 +8,26 @@ import numpy as np
 from drivers.config import load_toml
 from drivers.schemas import ScCommand, decode
 from hil.faults import parse_fault
-from hil.runner import run_scenario
-from hil.scenario import OperatorEntry, Scenario
+from hil.run import pipeline
+from hil.run.scenario import OperatorEntry, Scenario
 from safety.config import SupervisorConfig
 from tests.helpers import ROOT
-from tests.zenoh_helpers import hub_endpoint
+from tests.zenoh_helpers import private_bench
 
 BENCH = load_toml(ROOT / "configs/scenarios/bench_smoke.toml", Scenario)
 CFG = SupervisorConfig()
 
 
-def run(faults=(), operator=(), safety=CFG, duration=2.5):
+def run(faults=(), operator=(), safety=None, duration=2.5):
     scenario = msgspec.structs.replace(
         BENCH,
         duration=duration,
         faults=[parse_fault(f) for f in faults],
         operator=list(operator),
-        safety=safety,
+        safety=safety or {},
         criteria=[],
     )
-    return run_scenario(scenario, hub_endpoint=hub_endpoint()).trace
+    return pipeline.run(scenario, private_bench()).trace
 
 
 def causes(trace):
@@ -48,8 +48,7 @@ def test_a_drive_stuck_on_during_an_estop_ends_unpowered_and_at_rest():
     assert not tr.powered[after].any(), "every drive unpowered from the contactor on"
     assert tr.fallen is None and tr.resting[-1]
     # Positive control: without the second path in time the stuck drive stays powered to the end.
-    slow = msgspec.structs.replace(CFG, drives=msgspec.structs.replace(CFG.drives, confirm=100.0))
-    tr = run(STUCK, ESTOP, safety=slow)
+    tr = run(STUCK, ESTOP, safety={"drives": {"confirm": 100.0}})
     assert tr.powered[-1] and tr.stats.contactor_opened == 0
 
 

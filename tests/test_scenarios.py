@@ -13,11 +13,11 @@ from drivers.can_codec import Catalog
 from drivers.config import load_toml
 from drivers.e2e import E2EChecker, E2EStatus, is_protected
 from hil.cli import main
-from hil.runner import run_scenario
-from hil.scenario import Intent, Scenario
+from hil.run.pipeline import run
+from hil.run.scenario import Intent, Scenario
 from plant.rider import Ramp
 from tests.helpers import ROOT
-from tests.zenoh_helpers import hub_endpoint
+from tests.zenoh_helpers import private_bench
 
 SCENARIOS = sorted((ROOT / "configs/scenarios").glob("*.toml"))
 PAPER_TASKS = ("idle_keeping", "speed_limiting")
@@ -29,9 +29,7 @@ def load(name: str) -> Scenario:
 
 @pytest.fixture(scope="module")
 def hacs(shipped):
-    return {
-        task: run_scenario(load(task), controller="hacs", hub_endpoint=hub_endpoint()) for task in PAPER_TASKS
-    }
+    return {task: run(load(task), private_bench(law="hacs")) for task in PAPER_TASKS}
 
 
 def test_the_shipped_scenarios():
@@ -102,7 +100,7 @@ def test_run_folder(shipped):
 DETERMINISM = Scenario(
     name="determinism",
     rider="configs/riders/s16_mwcu_52kg_167.toml",
-    controller="ihacs",
+    law="ihacs",
     duration=2.0,
     seed=7,
     intent=Intent(pitch=[Ramp(to=15.0, duration=1.0)], twist=[Ramp(to=8.0, duration=1.0)]),
@@ -117,8 +115,8 @@ def frames_by_id(path: Path) -> dict[int, list[bytes]]:
 
 
 def test_lockstep_is_deterministic(tmp_path):
-    a = run_scenario(DETERMINISM, out=tmp_path / "a", hub_endpoint=hub_endpoint())
-    b = run_scenario(DETERMINISM, out=tmp_path / "b", hub_endpoint=hub_endpoint())
+    a = run(DETERMINISM, private_bench(), out=tmp_path / "a")
+    b = run(DETERMINISM, private_bench(), out=tmp_path / "b")
     sa, sb = (json.loads((tmp_path / x / "summary.json").read_text()) for x in ("a", "b"))
     for s in (sa, sb):
         del s["timing"]
@@ -126,7 +124,7 @@ def test_lockstep_is_deterministic(tmp_path):
     assert a.metrics["pitch.max_lean_deg"] > 10.0  # the run did something
     logs = frames_by_id(tmp_path / "a" / "can.log"), frames_by_id(tmp_path / "b" / "can.log")
     assert logs[0] == logs[1]
-    c = run_scenario(msgspec.structs.replace(DETERMINISM, seed=8), hub_endpoint=hub_endpoint())
+    c = run(DETERMINISM, private_bench(), seed=8)
     assert c.metrics != a.metrics  # the seed matters (sensor noise)
 
 
@@ -146,21 +144,23 @@ def test_cli_exit_codes(tmp_path, capsys):
     bad = write_scenario(tmp_path, 'name = "typo"\ndurration = 3.0\n')
     assert main(["run", str(bad)]) == 2
     assert "unknown field `durration`" in capsys.readouterr().err
-    assert main(["run", str(ROOT / "configs/scenarios/balance.toml"), "--controller", "external"]) == 2
-    assert "needs a bus shared with another process" in capsys.readouterr().err
+    assert main(["run", "balance", "--controller", "external"]) == 2
+    err = capsys.readouterr().err
+    assert "controller in another process needs a bus shared between processes" in err
+    assert err.count("\n") == 1
 
 
 def test_compare_writes_the_paper_table(tmp_path):
-    from hil.compare import compare, write
+    from hil.suites.compare import compare, write
 
     short = msgspec.structs.replace(load("speed_limiting"), duration=3.0)
     result = compare(
         [short],
         riders=(str(ROOT / "configs/riders/s16_mwcu_52kg_167.toml"),),
         progress=None,
-        hub_endpoint=hub_endpoint(),
+        bench=private_bench(),
     )
-    assert [(r["controller"], r["rider"]) for r in result.runs] == [
+    assert [(r["law"], r["rider"]) for r in result.runs] == [
         ("hacs", "s16_mwcu_52kg_167"),
         ("ihacs", "s16_mwcu_52kg_167"),
     ]
@@ -171,22 +171,22 @@ def test_compare_writes_the_paper_table(tmp_path):
 
 
 def test_replay_reproduces_the_controllers_commands(tmp_path):
-    from hil.replay import replay
+    from hil.suites.replay import replay
 
-    run_scenario(DETERMINISM, out=tmp_path, hub_endpoint=hub_endpoint())
-    result = replay(tmp_path, hub_endpoint=hub_endpoint())
+    run(DETERMINISM, private_bench(), out=tmp_path)
+    result = replay(tmp_path, private_bench())
     assert result.ticks == 800 and result.frames_compared == 800 * 4
     assert result.identical, result.mismatches[:3]
     # Test the test: the same inputs into a controller in the other mode answer differently.
     summary = json.loads((tmp_path / "summary.json").read_text())
-    summary["controller"] = "hacs"
+    summary["law"] = "hacs"
     (tmp_path / "summary.json").write_text(json.dumps(summary))
-    other = replay(tmp_path, hub_endpoint=hub_endpoint(), limit=400)
+    other = replay(tmp_path, private_bench(), limit=400)
     assert other.mismatches and other.mismatches[0].startswith("tick ")
 
 
 def test_criterion_bounds_hold_within_float_rounding_only():
-    from hil.scenario import Criterion
+    from hil.run.scenario import Criterion
 
     one_tick = Criterion(metric="safety_reaction", cause="OPERATOR_ESTOP", after=1.5, max=0.0025)
     assert one_tick.check(1.5025 - 1.5), "0.0025000000000004: one tick, as the bound says"

@@ -15,7 +15,7 @@ import zenoh
 from drivers.keys import Keys
 from drivers.schemas import EstopCommand, ScRequest
 from drivers.zenoh_link import CONFIG_DIR, ZenohConfigError, load_config
-from hil.certs import ROLES, init
+from hil.bench.certs import ROLES, init
 from hil.cli import main
 from safety.config import Identity, RobotGeometry, SupervisorConfig
 from safety.monitors import Monitors
@@ -183,7 +183,7 @@ def test_a_world_readable_key_is_refused(tmp_path):
     os.chmod(folder / "operator.key", 0o644)
     with pytest.raises(ZenohConfigError, match=r"operator.key is readable by group or others \(mode 0644\)"):
         load_config(CLIENT, certs=folder, identity="operator")
-    assert main(["estop", "--zenoh", str(CLIENT), "--certs", str(folder)]) == 2
+    assert main(["estop", "--bench", "secured", "--certs", str(folder)]) == 2
 
 
 def test_placeholders_must_be_filled():

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from hil.truth_balancer import TruthBalancer
+from hil.run.truth_balancer import TruthBalancer
 from plant.ballbot import Plant, RiderIntent
 from plant.params import Encoder, Imu, RobotParams, Tes
 from plant.rider import Ramp, Sine

@@ -7,9 +7,9 @@ import pytest
 
 from drivers.keys import Keys
 from drivers.zenoh_link import open_session
-from hil.service import RigService
+from hil.bench.service import RigService
 from tests.helpers import ROOT
-from tests.zenoh_helpers import hub_endpoint
+from tests.zenoh_helpers import hub_endpoint, private_bench
 
 SHORT = """
 name = "served"
@@ -28,7 +28,7 @@ equals = false
 def service(tmp_path):
     endpoint = hub_endpoint()
     hub = open_session(role="hub", hub_endpoint=endpoint)
-    svc = RigService(hub, out_root=tmp_path, hub_endpoint=endpoint)
+    svc = RigService(hub, private_bench(hub=endpoint), out_root=tmp_path)
     client = open_session(role="member", hub_endpoint=endpoint)
     yield svc, client
     svc.close()
@@ -66,7 +66,7 @@ def test_status_start_intent_stop(service, tmp_path):
 def test_bad_requests_get_clear_errors(service):
     _, client = service
     assert "unknown field `durration`" in ask(client, "start", 'name = "x"\ndurration = 1.0\n')["error"]
-    assert "cannot read" in ask(client, "start", "configs/scenarios/nope.toml")["error"]
+    assert "no such file here or among the shipped configs" in ask(client, "start", "nope")["error"]
     bad = ask(client, "intent", '{"pitch": [{"kind": "wobble"}]}')
     assert not bad["ok"] and "pure/rig/intent payload" in bad["error"]
     assert ask(client, "status")["state"] == "idle"
@@ -89,7 +89,7 @@ def test_live_view_streams_each_run_in_batches(tmp_path):
     endpoint = hub_endpoint()
     hub = open_session(role="hub", hub_endpoint=endpoint)
     live = tmp_path / "live.rrd"
-    svc = RigService(hub, out_root=tmp_path, hub_endpoint=endpoint, view=rr.FileSink(str(live)))
+    svc = RigService(hub, private_bench(hub=endpoint), out_root=tmp_path, view=rr.FileSink(str(live)))
     client = open_session(role="member", hub_endpoint=endpoint)
     try:
         assert ask(client, "start", str(ROOT / "configs/scenarios/bench_smoke.toml"))["ok"]
@@ -158,7 +158,7 @@ def test_fault_cli_lists_injects_and_clears_through_the_service(tmp_path, capsys
 
     endpoint = hub_endpoint()
     hub = open_session(role="hub", hub_endpoint=endpoint)
-    svc = RigService(hub, out_root=tmp_path, hub_endpoint=endpoint)
+    svc = RigService(hub, private_bench(hub=endpoint), out_root=tmp_path)
     try:
         args = ["--hub", endpoint]
         assert main(["fault", "clear", *args]) == 1, "no run to clear faults in"

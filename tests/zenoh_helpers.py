@@ -52,3 +52,12 @@ def own_sockets() -> dict[str, list[tuple[str, int, str]]]:
             state = "LISTEN" if parts[3] == "0A" else parts[3]
             out[proto.rstrip("6")].append((ip, int(port_hex, 16), state))
     return out
+
+
+def private_bench(name: str = "embedded", **overrides):
+    """A shipped bench on a free hub port of its own (tests never take fixed ports), with a command's
+    overrides (can=BusConfig, controller=, law=, supervisor=, clock=)."""
+    from hil.bench.bench import load_bench
+
+    overrides.setdefault("hub", hub_endpoint())
+    return load_bench(name).with_overrides(**overrides)

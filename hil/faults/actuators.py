@@ -11,7 +11,7 @@ from hil.faults.base import FaultSpec, FaultState, NonNegative
 from plant.plane import Wrench
 
 if TYPE_CHECKING:
-    from hil.rig import Rig
+    from hil.run.rig import Rig
 
 Motor = Annotated[int, msgspec.Meta(ge=1, le=3)]
 

@@ -18,7 +18,7 @@ import numpy as np
 from safety.machine import Cause
 
 if TYPE_CHECKING:
-    from hil.rig import Rig
+    from hil.run.rig import Rig
 
 NonNegative = Annotated[float, msgspec.Meta(ge=0)]
 Positive = Annotated[float, msgspec.Meta(gt=0)]

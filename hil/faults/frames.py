@@ -20,7 +20,7 @@ from drivers.e2e import counter_of, is_protected, with_counter
 from hil.faults.base import FaultSpec, FaultState, Positive, Probability
 
 if TYPE_CHECKING:
-    from hil.rig import Rig
+    from hil.run.rig import Rig
 
 Count = Annotated[int, msgspec.Meta(gt=0)]
 RX_MESSAGES = frozenset(

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, ClassVar, Literal
 from hil.faults.base import FaultSpec, FaultState, Positive
 
 if TYPE_CHECKING:
-    from hil.rig import Rig
+    from hil.run.rig import Rig
 
 
 class ProcessFault(FaultSpec, frozen=True, kw_only=True):

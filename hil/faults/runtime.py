@@ -26,7 +26,7 @@ from hil.faults.sensors import Readings, SensorFault
 from hil.faults.topics import TopicFault
 
 if TYPE_CHECKING:
-    from hil.rig import Rig
+    from hil.run.rig import Rig
 
 log = logging.getLogger(__name__)
 

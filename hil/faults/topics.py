@@ -15,7 +15,7 @@ from drivers.schemas import ScRequest, TesWrench, encode
 from hil.faults.base import FaultSpec, FaultState, NonNegative, Positive
 
 if TYPE_CHECKING:
-    from hil.rig import Rig
+    from hil.run.rig import Rig
 
 
 class TopicFault(FaultSpec, frozen=True, kw_only=True):

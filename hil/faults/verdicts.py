@@ -12,10 +12,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hil.faults.base import Expect, FaultSpec
-from hil.scenario import Verdict
+from hil.run.scenario import Verdict
 
 if TYPE_CHECKING:
-    from hil.session import Trace
+    from hil.run.trace import Trace
 
 
 def fault_verdicts(trace: Trace) -> list[Verdict]:

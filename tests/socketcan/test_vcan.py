@@ -60,9 +60,9 @@ def run_bench(
     tmp_path: Path, scenario: Path, actions=(), spawn: bool = False, controller: list[str] | None = None
 ) -> BenchRun:
     """candump, supervisor (--clock sync), controller (--lockstep; `controller`: another command) and the
-    rig (--controller external --supervisor external) as separate processes on vcan0; `spawn`: the rig
-    starts the controller itself (--spawn-controller). `actions`: (sim tick, name, callable(procs)) fired
-    once the rig's SYNC reaches that tick."""
+    rig (--bench vcan --controller external --supervisor external) as separate processes on vcan0; `spawn`:
+    the rig starts the controller itself (--controller spawned). `actions`: (sim tick, name,
+    callable(procs)) fired once the rig's SYNC reaches that tick."""
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
     out, capture = tmp_path / "run", tmp_path / "candump.log"
     logs = {name: tmp_path / f"{name}.log" for name in ("supervisor", "controller", "rig")}
@@ -92,17 +92,15 @@ def run_bench(
 
     try:
         start("candump", ["stdbuf", "-oL", _tool("candump"), "-L", "vcan0"], stdout=capture.open("w"))
-        start(
-            "supervisor", [str(BIN / "pure-hil"), "supervisor", "--can", "socketcan:vcan0", "--clock", "sync"]
-        )
+        start("supervisor", [str(BIN / "pure-hil"), "supervisor", "--bench", "vcan", "--clock", "sync"])
         if not spawn:
             reference = [str(BIN / "pure-controller"), "--can", "socketcan:vcan0", "--rider", RIDER]
-            start("controller", controller or [*reference, "--mode", "hacs", "--lockstep"])
+            start("controller", controller or [*reference, "--law", "hacs", "--lockstep"])
         watcher = threading.Thread(target=watch, daemon=True)
         watcher.start()
-        rig = [str(BIN / "pure-hil"), "run", str(scenario), "--can", "socketcan:vcan0", "--out", str(out)]
+        rig = [str(BIN / "pure-hil"), "run", str(scenario), "--bench", "vcan", "--out", str(out)]
         rig += ["--supervisor", "external", "--clock", "lockstep", "--quiet"]
-        rig += ["--spawn-controller"] if spawn else ["--controller", "external"]
+        rig += ["--controller", "spawned" if spawn else "external"]
         start("rig", rig)
         rig_exit = procs["rig"].wait(timeout=600)
     finally:

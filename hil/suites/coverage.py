@@ -33,7 +33,7 @@ import numpy as np
 from safety.machine import Cause
 
 if TYPE_CHECKING:
-    from hil.runner import RunResult
+    from hil.run.judge import RunResult
 
 OWN_EVIDENCE = frozenset(
     {
@@ -134,7 +134,7 @@ def outcome(result: RunResult) -> Outcome:
     every = max(round(result.scenario.tick_hz / 100.0), 1)
     windows = [w for w in tr.fault_windows if w is not None]
     faults = [f for f, w in zip(tr.faults, tr.fault_windows, strict=True) if w is not None]
-    safety = result.scenario.safety.speed
+    safety = result.safety.speed
     fell = None
     if tr.fallen is not None and len(tr.t):
         fell = float(tr.t[-1])

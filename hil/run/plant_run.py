@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from hil.truth_balancer import TruthBalancer
+from hil.run.truth_balancer import TruthBalancer
 from plant.ballbot import Plant, RiderIntent
 from plant.params import RiderParams, RobotParams, SimParams
 from plant.rider import Hold, Ramp

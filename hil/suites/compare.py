@@ -9,8 +9,9 @@ from pathlib import Path
 
 import msgspec
 
-from hil.runner import run_scenario
-from hil.scenario import Scenario
+from hil.bench.bench import Bench, load_bench
+from hil.run.pipeline import run
+from hil.run.scenario import Scenario
 
 PAPER_RIDERS = (
     "configs/riders/s04_abi_50kg_164.toml",
@@ -25,16 +26,16 @@ COLUMNS = (
     ("pitch.rmse_paper", "RMSE (E-3)", "{:.1f}"),
     ("pitch.rmse", "RMSE (rad/s)", "{:.2f}"),
 )
-CONTROLLERS = ("hacs", "ihacs")
+LAWS = ("hacs", "ihacs")
 
 
 @dataclass(slots=True)
 class Comparison:
     runs: list[dict]
-    """One row per run: scenario, controller, rider, seed, passed, fallen, and the metrics."""
+    """One row per run: scenario, law, rider, seed, passed, fallen, and the metrics."""
 
-    def cell(self, scenario: str, controller: str, metric: str, fmt: str) -> str:
-        values = [r[metric] for r in self.runs if r["scenario"] == scenario and r["controller"] == controller]
+    def cell(self, scenario: str, law: str, metric: str, fmt: str) -> str:
+        values = [r[metric] for r in self.runs if r["scenario"] == scenario and r["law"] == law]
         if not values:
             return "-"
         sd = statistics.stdev(values) if len(values) > 1 else 0.0
@@ -42,12 +43,12 @@ class Comparison:
 
     def table(self) -> str:
         scenarios = list(dict.fromkeys(r["scenario"] for r in self.runs))
-        head = ["metric", *[f"{s} {c.upper()}" for s in scenarios for c in CONTROLLERS]]
+        head = ["metric", *[f"{s} {c.upper()}" for s in scenarios for c in LAWS]]
         rows = [
-            [label, *[self.cell(s, c, key, fmt) for s in scenarios for c in CONTROLLERS]]
+            [label, *[self.cell(s, c, key, fmt) for s in scenarios for c in LAWS]]
             for key, label, fmt in COLUMNS
         ]
-        n = {(r["scenario"], r["controller"]) for r in self.runs}
+        n = {(r["scenario"], r["law"]) for r in self.runs}
         falls = sum(bool(r["fallen"]) for r in self.runs)
         lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         lines += ["| " + " | ".join(row) + " |" for row in rows]
@@ -63,18 +64,20 @@ def compare(
     riders: tuple[str, ...] = PAPER_RIDERS,
     trials: int = 1,
     progress=print,
-    hub_endpoint: str | None = None,
+    bench: Bench | None = None,
 ) -> Comparison:
+    """Every scenario x rider x trial under both laws on `bench` (default embedded), in lockstep."""
+    bench = (bench or load_bench()).with_overrides(clock="lockstep")
     runs = []
     for scenario in scenarios:
         for rider in riders:
             for trial in range(trials):
-                for controller in CONTROLLERS:
-                    s = msgspec.structs.replace(scenario, rider=rider, seed=scenario.seed + trial)
-                    result = run_scenario(s, controller=controller, hub_endpoint=hub_endpoint)
+                for law in LAWS:
+                    s = msgspec.structs.replace(scenario, rider=rider, law=law, seed=scenario.seed + trial)
+                    result = run(s, bench.with_overrides(law="scenario"))
                     row = {
                         "scenario": scenario.name,
-                        "controller": controller,
+                        "law": law,
                         "rider": Path(rider).stem,
                         "seed": s.seed,
                         "passed": result.passed,
@@ -84,7 +87,7 @@ def compare(
                     runs.append(row)
                     if progress:
                         progress(
-                            f"  {scenario.name:<16} {controller:<6} {Path(rider).stem:<20} seed {s.seed}: "
+                            f"  {scenario.name:<16} {law:<6} {Path(rider).stem:<20} seed {s.seed}: "
                             f"max|v| {row['pitch.max_speed']:.2f} m/s, RMSE {row['pitch.rmse']:.2f} rad/s"
                             + (f", FELL: {row['fallen']}" if row["fallen"] else "")
                         )

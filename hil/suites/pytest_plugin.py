@@ -1,13 +1,14 @@
 """pytest plugin (entry point `pytest11`): HIL runs as tests, campaigns as test items.
 
 - Marker `hil`: a test that runs the rig (campaign items carry it; `-m "not hil"` skips them).
-- Fixtures: `hil_scenario` (load a scenario by name or path, with overrides), `hil_rig` (run it on the
-  virtual bus in lockstep, or on the lab's bus with `--hil-can` and `--hil-controller external`).
+- Fixtures: `hil_bench` (the bench of `--hil-bench`, default embedded; `--hil-can` overrides its bus),
+  `hil_scenario` (load a scenario by name or path, with overrides), `hil_rig` (run it on that bench in
+  lockstep: the same pipeline as `pure-hil run`).
 - Campaign files (`*.toml` in a folder named `campaigns`) are collected: one item per case (a long
   campaign's `pytest_select` subset unless `--hil-full`), so `pytest -n auto` (pytest-xdist) spreads them
   over cores and `--junitxml` reports them; a failing case says which verdict failed and what was expected
   instead. A coverage campaign's faulty case is classed against its fault-free twin (run once per process).
-- Assertion helpers: hil/testing.py (`assert_passed`, `assert_supervisor`, `assert_metric`, ...).
+- Assertion helpers: hil/suites/testing.py (`assert_passed`, `assert_supervisor`, `assert_metric`, ...).
 """
 
 from __future__ import annotations
@@ -24,20 +25,25 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     group = parser.getgroup("hil", "PURE hardware-in-the-loop rig")
     group.addoption("--hil-out", default=None, help="write each HIL case's summary.json under this folder")
     group.addoption(
-        "--hil-can",
-        default=None,
-        help="bus for hil_rig runs: INTERFACE:CHANNEL (default: in-process virtual)",
+        "--hil-bench",
+        default="embedded",
+        help="the bench HIL runs and campaign cases run on: a bench file or shipped name (default embedded)",
     )
+    group.addoption("--hil-can", default=None, help="override the bench's bus: INTERFACE:CHANNEL")
     group.addoption(
         "--hil-full",
         action="store_true",
         help="collect every case of a campaign, not its pytest_select subset",
     )
-    group.addoption(
-        "--hil-controller",
-        default=None,
-        choices=("hacs", "ihacs", "external"),
-        help="controller for HIL runs and campaign cases (external: your own, already on --hil-can)",
+
+
+def bench_of(config: pytest.Config):
+    from drivers.can_bus import parse_can_spec
+    from hil.bench.bench import load_bench
+
+    can = config.getoption("--hil-can")
+    return load_bench(config.getoption("--hil-bench")).with_overrides(
+        can=None if can is None else parse_can_spec(can)
     )
 
 
@@ -57,7 +63,7 @@ class HilCaseFailed(Exception):
 
 class CampaignFile(pytest.File):
     def collect(self):
-        from hil.campaign import expand, load_campaign
+        from hil.suites.campaign import expand, load_campaign
 
         campaign = load_campaign(self.path)
         select = None if self.config.getoption("--hil-full") else campaign.pytest_select
@@ -77,18 +83,15 @@ class CampaignItem(pytest.Item):
         self.case = case
 
     def runtest(self) -> None:
-        from hil.campaign import expand, judge, load_campaign, run_case
+        from hil.suites.campaign import expand, judge, load_campaign, run_case
 
         config = self.config
         root = config.getoption("--hil-out")
 
+        bench = bench_of(config)
+
         def run(case):
-            return run_case(
-                case,
-                None if root is None else Path(root) / case.id,
-                config.getoption("--hil-can"),
-                config.getoption("--hil-controller"),
-            )
+            return run_case(case, None if root is None else Path(root) / case.id, bench)
 
         result = run(self.case)
         if self.case.role == "twin":
@@ -114,18 +117,21 @@ class CampaignItem(pytest.Item):
 
 
 @pytest.fixture
+def hil_bench(request: pytest.FixtureRequest):
+    """The bench of this session (`--hil-bench`, `--hil-can`)."""
+    return bench_of(request.config)
+
+
+@pytest.fixture
 def hil_scenario():
-    """`hil_scenario(name_or_path, **overrides)` -> Scenario (a bare name is configs/scenarios/NAME.toml)."""
+    """`hil_scenario(name_or_path, **overrides)` -> Scenario (a short name is a shipped scenario)."""
     from drivers.config import load_toml
     from drivers.resources import find
     from hil.faults import parse_fault
-    from hil.scenario import Scenario
+    from hil.run.scenario import Scenario
 
     def load(name: str | Path, **overrides):
-        path = Path(name)
-        if path.suffix != ".toml":
-            path = Path("configs/scenarios") / f"{name}.toml"
-        scenario = load_toml(find(path, "scenarios"), Scenario)
+        scenario = load_toml(find(name, "scenarios"), Scenario)
         if "faults" in overrides:
             overrides["faults"] = [
                 f if not isinstance(f, dict) else parse_fault(f) for f in overrides["faults"]
@@ -136,27 +142,23 @@ def hil_scenario():
 
 
 class HilRig:
-    """Runs scenarios for a test: lockstep, a private bus and a private zenoh hub per run."""
+    """Runs scenarios for a test on its bench, in lockstep, with a zenoh hub of its own per run."""
 
-    def __init__(self, can: str | None, controller: str | None):
-        self.can, self.controller = can, controller
+    def __init__(self, bench):
+        self.bench = bench
 
     def run(self, scenario, **kwargs):
-        from drivers.can_bus import parse_can_spec
+        """`hil.run.pipeline.run(scenario, bench, **kwargs)` -> RunResult."""
         from drivers.zenoh_link import free_loopback_endpoint
-        from hil.runner import run_scenario
+        from hil.run.pipeline import run
 
-        kwargs.setdefault("clock", "lockstep")
-        kwargs.setdefault("hub_endpoint", free_loopback_endpoint())
-        if self.can:
-            kwargs.setdefault("can", parse_can_spec(self.can))
-        if self.controller:
-            kwargs.setdefault("controller", self.controller)
-        return run_scenario(scenario, **kwargs)
+        bench = self.bench.with_overrides(clock="lockstep")
+        if bench.self_contained and bench.zenoh.mode == "loopback" and bench.zenoh.endpoint is None:
+            bench = bench.with_overrides(hub=free_loopback_endpoint())
+        return run(scenario, bench, **kwargs)
 
 
 @pytest.fixture
-def hil_rig(request: pytest.FixtureRequest) -> HilRig:
-    """A rig for this test: `hil_rig.run(scenario, **run_scenario kwargs)` -> RunResult."""
-    config = request.config
-    return HilRig(config.getoption("--hil-can"), config.getoption("--hil-controller"))
+def hil_rig(hil_bench) -> HilRig:
+    """A rig for this test: `hil_rig.run(scenario, out=..., seed=...)` -> RunResult."""
+    return HilRig(hil_bench)

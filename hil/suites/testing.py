@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import math
 
-from hil.runner import RunResult, measure
-from hil.scenario import Criterion
+from hil.run.judge import RunResult
+from hil.run.measurements import measure
 from safety.machine import Event
 
 
@@ -28,9 +28,8 @@ def assert_passed(result: RunResult) -> None:
 
 
 def metric(result: RunResult, name: str, plane: str = "pitch", after: float = 0.0, cause: str = "") -> float:
-    """A scenario metric (hil/scenario.py UNITS) of the run, measured as a criterion would."""
-    c = Criterion(metric=name, plane=plane, after=after, cause=cause, min=-math.inf)  # type: ignore[arg-type]
-    return measure(result.trace, c, result.ball_radius)
+    """A measurement of the run (hil/run/measurements.py), as a scenario's criterion would take it."""
+    return measure(result.trace, name, plane, after, cause, result.ball_radius)
 
 
 def assert_metric(

@@ -23,7 +23,8 @@ from drivers.can_bus import BusConfig, open_bus, private_channel
 from drivers.can_codec import Catalog
 from drivers.dut import DutSpec, start_dut
 from drivers.resources import find
-from drivers.zenoh_link import ZenohLink, open_hub
+from drivers.zenoh_link import ZenohAccess, ZenohLink
+from hil.bench.bench import Bench, load_bench
 
 CONTROLLER_FRAMES = {"DRIVE1_COMMAND", "DRIVE2_COMMAND", "DRIVE3_COMMAND", "CONTROLLER_HEARTBEAT"}
 
@@ -69,9 +70,10 @@ def _ticks(log: Path, catalog: Catalog) -> list[_Tick]:
     return ticks
 
 
-def replay(
-    run_dir: Path, controller: str = "reference", hub_endpoint: str | None = None, limit: int | None = None
-) -> ReplayResult:
+def replay(run_dir: Path, bench: Bench | None = None, limit: int | None = None) -> ReplayResult:
+    """Feed a run folder's frames and zenoh inputs to a fresh controller (the bench's plugin and config) on
+    a private bus and hub, and compare its answers with the recorded ones."""
+    bench = bench or load_bench()
     summary = json.loads((run_dir / "summary.json").read_text())
     scenario = summary["scenario"]
     catalog = Catalog()
@@ -82,29 +84,26 @@ def replay(
     first_tick = min(inputs) if inputs else 1
     bus_config = BusConfig(channel=private_channel("replay"))
     bus = open_bus(bus_config)
-    session, hub_endpoint = open_hub(endpoint=hub_endpoint, fallback=True)  # nobody else joins a replay
+    access = ZenohAccess(endpoint=bench.zenoh.endpoint if bench.zenoh.mode == "loopback" else None)
+    session, access = access.open_rig(fallback=True)  # nobody else joins a replay
     link = ZenohLink(session, lossless=True)  # a lockstep replay must not lose an input
     dut = None
     result = ReplayResult()
     try:
         dut = start_dut(
-            controller,
+            bench.controller.plugin,
             DutSpec(
                 can=bus_config,
-                zenoh_config=str(find("zenoh/loopback.json5")),
-                hub_endpoint=hub_endpoint,
-                mode=summary["controller"],
-                robot=str(find(scenario["robot"], "robot")),
+                zenoh=access,
+                mode=summary["law"],
+                robot=str(find(bench.controller.robot or scenario["robot"], "robot")),
                 rider=str(find(scenario["rider"], "riders")),
-                controller_config=str(find("controller/default.toml")),
+                controller_config=str(find(bench.controller.config, "controller")),
                 lockstep=True,
                 tick_hz=scenario["tick_hz"],
             ),
         )
-        pub = link.publisher(link.keys.tes_wrench)
-        deadline = time.monotonic() + 10.0
-        while not pub.matching_status.matching and time.monotonic() < deadline:
-            time.sleep(0.01)
+        link.wait_for_subscriber(link.keys.tes_wrench, 10.0)
         heartbeat = catalog["CONTROLLER_HEARTBEAT"]
         booting = True
         """Until its first answer the fresh controller may still send boot-up heartbeats: not compared."""

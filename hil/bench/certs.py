@@ -15,7 +15,7 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-ROLES = ("operator", "sc-agent", "tes", "rig", "controller", "supervisor", "monitor")
+ROLES = ("operator", "sc-agent", "tes", "rig", "controller", "supervisor", "monitor", "fault-injector")
 """Client roles (docs/security.md lists what each may put and read)."""
 ROUTER = "router"
 
@@ -47,6 +47,7 @@ def _issue(
     days: int,
     ca: bool = False,
     server: bool = False,
+    hosts: tuple[str, ...] = ("127.0.0.1",),
 ) -> x509.Certificate:
     now = datetime.datetime.now(datetime.UTC)
     builder = (
@@ -67,14 +68,20 @@ def _issue(
         usage = [ExtendedKeyUsageOID.SERVER_AUTH] if server else [ExtendedKeyUsageOID.CLIENT_AUTH]
         builder = builder.add_extension(x509.ExtendedKeyUsage(usage), critical=False)
     if server:
-        # zenoh verifies the router's name on connect: tls/127.0.0.1 needs the IP in the SAN.
-        alt = [x509.IPAddress(ipaddress.ip_address("127.0.0.1")), x509.DNSName("localhost")]
+        # zenoh verifies the router's name on connect: every address it is reached at must be in the SAN.
+        alt = [x509.IPAddress(ipaddress.ip_address(h)) for h in hosts] + [x509.DNSName("localhost")]
         builder = builder.add_extension(x509.SubjectAlternativeName(alt), critical=False)
     return builder.sign(issuer_key, hashes.SHA256())
 
 
-def init(folder: Path | str, days: int = 365, force: bool = False, roles=ROLES) -> dict[str, Path]:
-    """Write ca.pem/ca.key, router.pem/router.key and <role>.pem/<role>.key; returns the certificate paths."""
+def init(
+    folder: Path | str, days: int = 365, force: bool = False, roles=ROLES, hosts: list[str] | None = None
+) -> dict[str, Path]:
+    """Write ca.pem/ca.key, router.pem/router.key and <role>.pem/<role>.key; returns the certificate paths.
+    `hosts`: the addresses the router is reached at (its certificate names them; default 127.0.0.1)."""
+    names = tuple(hosts or ("127.0.0.1",))
+    for host in names:
+        ipaddress.ip_address(host)  # ValueError names a bad address before anything is written
     folder = Path(folder)
     if folder.exists() and any(folder.iterdir()) and not force:
         raise FileExistsError(f"{folder} is not empty: pass --force to replace its certificates")
@@ -88,7 +95,7 @@ def init(folder: Path | str, days: int = 365, force: bool = False, roles=ROLES) 
     out = {"ca": folder / "ca.pem"}
     for name in (ROUTER, *roles):
         key = ec.generate_private_key(ec.SECP256R1())
-        cert = _issue(name, key, ca_name, ca_key, days, server=name == ROUTER)
+        cert = _issue(name, key, ca_name, ca_key, days, server=name == ROUTER, hosts=names)
         _write_key(folder / f"{name}.key", key)
         (folder / f"{name}.pem").write_bytes(cert.public_bytes(serialization.Encoding.PEM))
         out[name] = folder / f"{name}.pem"

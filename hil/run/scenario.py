@@ -10,11 +10,12 @@ a plane, and bounds; the verdict of each is recorded with the measured value.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import msgspec
 
 from hil.faults import Fault
+from hil.run.measurements import MEASUREMENTS
 from plant.rider import Segment
 from safety.config import SupervisorConfig
 from safety.machine import Cause
@@ -50,36 +51,8 @@ class Intent(_Record):
     twist: list[Segment] = []
 
 
-UNITS = {
-    "max_speed": "m/s",
-    "final_speed": "m/s",
-    "max_tilt_deg": "deg",
-    "max_lean_deg": "deg",
-    "rmse": "rad/s",
-    "rmse_paper": "E-3",
-    "distance": "m",
-    "max_yaw_rate": "rad/s",
-    "stop_time": "s",
-    "fallen": "",
-    "missing_commands": "",
-    "safety_reaction": "s",
-    "drives_off_after": "s",
-    "safety_state": "",
-    "resting": "",
-}
-Metric = Literal[tuple(UNITS)]  # type: ignore[valid-type]
-"""A measurement of a run (hil/runner.py::measure), with its unit in UNITS."""
-
-
-PLANE_METRICS = {
-    "max_speed",
-    "final_speed",
-    "max_tilt_deg",
-    "max_lean_deg",
-    "rmse",
-    "rmse_paper",
-    "stop_time",
-}
+Metric = Literal[tuple(MEASUREMENTS)]  # type: ignore[valid-type]
+"""A measurement of a run (hil/run/measurements.py declares each with its unit)."""
 
 
 CHECK_TOLERANCE = 1e-9
@@ -120,10 +93,10 @@ class Criterion(_Record):
     def label(self) -> str:
         if self.cause:
             return f"{self.metric} [{self.cause}]"
-        return f"{self.metric} [{self.plane}]" if self.metric in PLANE_METRICS else self.metric
+        return f"{self.metric} [{self.plane}]" if MEASUREMENTS[self.metric].per_plane else self.metric
 
     def describe(self) -> str:
-        unit = UNITS[self.metric]
+        unit = MEASUREMENTS[self.metric].unit
         if self.equals is not None:
             return f"== {self.equals}"
         parts = []
@@ -151,7 +124,8 @@ class Scenario(_Record):
     description: str = ""
     robot: str = "configs/robot/pure.toml"
     rider: str = "configs/riders/ref_60kg_180.toml"
-    controller: Literal["hacs", "ihacs", "external"] = "hacs"
+    law: Literal["hacs", "ihacs"] = "hacs"
+    """The reference controller's control law (a bench may run another, or a controller of its own)."""
     clock: Literal["lockstep", "realtime"] = "lockstep"
     duration: Positive = 10.0
     seed: int = 0
@@ -160,8 +134,24 @@ class Scenario(_Record):
     sc: list[ScEntry] = msgspec.field(default_factory=lambda: [ScEntry(mode="free")])
     intent: Intent = Intent()
     operator: list[OperatorEntry] = []
-    safety: SupervisorConfig = SupervisorConfig()
-    """The embedded supervisor's rules (defaults: configs/safety/default.toml, docs/safety.md)."""
+    safety: dict[str, dict[str, Any]] = {}
+    """Overrides of the supervisor's rules for this scenario, by section (`[safety.speed]` ...): on top of
+    the bench's supervisor config (configs/safety/default.toml by default; docs/safety.md)."""
     faults: list[Fault] = []
     """Scheduled faults, each with the reaction it expects (hil/faults, docs/faults.md)."""
     criteria: list[Criterion] = []
+
+    def __post_init__(self) -> None:
+        self.supervisor_config(SupervisorConfig())  # a misspelt rule fails when the scenario loads
+
+    def supervisor_config(self, base: SupervisorConfig) -> SupervisorConfig:
+        """`base` with this scenario's `[safety]` overrides."""
+        merged = msgspec.to_builtins(base)
+        for section, values in self.safety.items():
+            if section not in merged or not isinstance(merged[section], dict):
+                raise ValueError(f"safety.{section}: no such section of the supervisor's rules")
+            merged[section] = {**merged[section], **values}
+        try:
+            return msgspec.convert(merged, SupervisorConfig)
+        except msgspec.ValidationError as exc:
+            raise ValueError(f"safety: {exc}") from None

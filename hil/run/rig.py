@@ -99,8 +99,13 @@ class Rig:
         operator: list[OperatorStep] | tuple[OperatorStep, ...] = (),
         faults: FaultSet | None = None,
         bitrate: int = 1_000_000,
+        agent_link=None,
     ):
+        """agent_link: where the scenario's SC requests and operator actions go out (`sc_agent`, `operator`
+        links under those roles' certificates on a secured bench); None: the rig's own link."""
         self.plant, self.can, self.link = plant, can, link
+        self.sc_link = link if agent_link is None else agent_link.sc_agent
+        self.operator_link = link if agent_link is None else agent_link.operator
         self.keys = link.keys
         self.sc_schedule = sorted(sc_schedule, key=lambda s: s.at)
         self.operator = sorted(operator, key=lambda s: s.at)
@@ -116,9 +121,9 @@ class Rig:
         self.stats = TickStats()
         self.telemetry = link.subscribe(self.keys.controller_telemetry, ControllerTelemetry, capacity=1 << 16)
         keys = self.keys
-        link.declare_publishers(
-            [keys.tes_wrench, keys.sc_request, keys.safety_estop, keys.controller_command, keys.rig_tick]
-        )
+        link.declare_publishers([keys.tes_wrench, keys.rig_tick])
+        self.sc_link.declare_publishers([keys.sc_request])
+        self.operator_link.declare_publishers([keys.safety_estop, keys.controller_command])
         self._seq: Counter[str] = Counter()
         self._sc_last: ScStep | None = None
         self._sc_sent_tick = -SC_REPEAT_EVERY
@@ -149,13 +154,8 @@ class Rig:
 
     def wait_for_subscriber(self, key: str, timeout: float = 10.0) -> bool:
         """Someone subscribes to `key` (the controller: the seat wrench; the supervisor: SC requests)."""
-        deadline = time.monotonic() + timeout
-        pub = self.link.publisher(key)
-        while not pub.matching_status.matching:
-            if time.monotonic() > deadline:
-                return False
-            time.sleep(0.01)
-        return True
+        link = self.sc_link if key == self.keys.sc_request else self.link
+        return link.wait_for_subscriber(key, timeout)
 
     def await_boot(self, timeout: float) -> str:
         """The start-up handshake, before the first SYNC: wait until the controller's boot-up heartbeat
@@ -258,11 +258,11 @@ class Rig:
         if key in (self.keys.tes_wrench, self.keys.sc_command, self.keys.controller_command):
             self.zenoh_inputs.append((k, key, data))
 
-    def _put(self, k: int, key: str, payload: Payload) -> None:
-        self._put_bytes(k, key, encode(payload))
+    def _put(self, k: int, key: str, payload: Payload, link: ZenohLink | None = None) -> None:
+        self._put_bytes(k, key, encode(payload), link)
 
-    def _put_bytes(self, k: int, key: str, data: bytes) -> None:
-        self.link.put_bytes(key, data)
+    def _put_bytes(self, k: int, key: str, data: bytes, link: ZenohLink | None = None) -> None:
+        (link or self.link).put_bytes(key, data)
         self._record(k, key, data)
 
     def _next_seq(self, key: str) -> int:
@@ -298,7 +298,7 @@ class Rig:
             speed_cap=current.cap,
             source="scenario",
         )
-        self._put(k, key, request)
+        self._put(k, key, request, self.sc_link)
         self._sc_last, self._sc_sent_tick = current, k
 
     def _publish_operator(self) -> None:
@@ -310,13 +310,13 @@ class Rig:
             k, t = self.plant.tick, self.plant.t
             if action in ("estop", "reset"):
                 key = self.keys.safety_estop
-                self._put(
-                    k, key, EstopCommand(seq=self._next_seq(key), stamp=t, action=action, source="operator")
-                )
+                command = EstopCommand(seq=self._next_seq(key), stamp=t, action=action, source="operator")
             else:
                 key = self.keys.controller_command
-                cmd = ControllerCommand(seq=self._next_seq(key), stamp=t, action=action, source="operator")
-                self._put(k, key, cmd)
+                command = ControllerCommand(
+                    seq=self._next_seq(key), stamp=t, action=action, source="operator"
+                )
+            self._put(k, key, command, self.operator_link)
 
     # ------------------------------------------------------------------------------------- permission
     def _drain_nowait(self) -> None:

@@ -1,14 +1,14 @@
-"""Campaigns: scenarios x riders x controllers x fault sets x seeds, each combination a lockstep run with a
+"""Campaigns: scenarios x riders x control laws x fault sets x seeds, each combination a lockstep run with a
 verdict.
 
 A campaign file (`configs/campaigns/*.toml`, docs/campaigns.md) names the scenarios, the riders (none: each
-scenario's own), the controllers (none: each scenario's own), the fault sets (each a name, a list of faults
+scenario's own), the control laws (none: each scenario's own), the fault sets (each a name, a list of faults
 with their expected reactions and operator actions; a fault-free baseline unless `baseline = false`) and the
-seeds. With a `[coverage]` table it is a diagnostic coverage campaign (hil/coverage.py): each faulty case is
-classed against its fault-free twin (DETECTED, BENIGN, MISSED, LATE), fault sets need no expectations, and
-every fault-free case, including the `[[fault_free]]` runs, counts a false trip if the supervisor acts.
+seeds. With a `[coverage]` table it is a diagnostic coverage campaign (hil/suites/coverage.py): each faulty
+case is classed against its fault-free twin (DETECTED, BENIGN, MISSED, LATE), fault sets need no expectations,
+and every fault-free case, including the `[[fault_free]]` runs, counts a false trip if the supervisor acts.
 `pure-hil campaign FILE --workers N` runs the cases in parallel processes and writes a report (worst cases
-first) and JUnit XML; the pytest plugin collects the same cases as test items (hil/pytest_plugin.py).
+first) and JUnit XML; the pytest plugin collects the same cases as test items (hil/suites/pytest_plugin.py).
 """
 
 from __future__ import annotations
@@ -30,11 +30,12 @@ import numpy as np
 
 from drivers.config import load_toml
 from drivers.resources import find
-from hil.coverage import Bounds, Classification, Outcome, classify, false_trip, outcome
+from hil.bench.bench import Bench, load_bench
 from hil.faults import Fault
-from hil.scenario import OperatorEntry, Scenario
+from hil.run.scenario import OperatorEntry, Scenario
+from hil.suites.coverage import Bounds, Classification, Outcome, classify, false_trip, outcome
 
-Controller = Literal["hacs", "ihacs", "external"]
+Law = Literal["hacs", "ihacs"]
 
 
 class FaultSetEntry(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -54,7 +55,7 @@ class FaultFree(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only
 
     scenarios: Annotated[list[str], msgspec.Meta(min_length=1)]
     riders: list[str] = []
-    controllers: list[Controller] = []
+    laws: list[Law] = []
     duration: Annotated[float, msgspec.Meta(gt=0)] | None = None
 
 
@@ -64,8 +65,8 @@ class Campaign(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
     scenarios: Annotated[list[str], msgspec.Meta(min_length=1)]
     riders: list[str] = []
     """Rider files; none: each scenario's own rider."""
-    controllers: list[Controller] = []
-    """Controllers; none: each scenario's own."""
+    laws: list[Law] = []
+    """The reference controller's control laws; none: each scenario's own."""
     fault: list[FaultSetEntry] = []
     baseline: bool = True
     """Also run every combination without faults (named `none`)."""
@@ -96,7 +97,7 @@ class Campaign(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
 
 @dataclass(frozen=True, slots=True)
 class Case:
-    """One run of a campaign: a scenario file, a rider and a controller (None: the scenario's), a fault set,
+    """One run of a campaign: a scenario file, a rider and a control law (None: the scenario's), a fault set,
     a seed."""
 
     campaign: str
@@ -106,7 +107,7 @@ class Case:
     seed: int
     scenario_text: bytes
     """The scenario to run, fully resolved (JSON): a worker process needs nothing else."""
-    controller: str | None = None
+    law: str | None = None
     role: Literal["plain", "faulty", "twin", "fault_free"] = "plain"
     """Coverage campaigns: a faulty case, the fault-free twin of faulty cases, or a false-trip run."""
     bounds: Bounds | None = None
@@ -117,26 +118,25 @@ class Case:
     @property
     def id(self) -> str:
         parts = [Path(self.scenario).stem, *([Path(self.rider).stem] if self.rider else [])]
-        parts += [*([self.controller] if self.controller else []), self.faults]
+        parts += [*([self.law] if self.law else []), self.faults]
         return "-".join(parts) + f"-seed{self.seed}"
 
     @property
     def twin_id(self) -> str:
-        """The id of this case's fault-free twin (same scenario, rider, controller, seed and operator)."""
-        return Case(
-            self.campaign, self.scenario, self.rider, self.twin_faults, self.seed, b"", self.controller
-        ).id
+        """The id of this case's fault-free twin (same scenario, rider, law, seed and operator)."""
+        return Case(self.campaign, self.scenario, self.rider, self.twin_faults, self.seed, b"", self.law).id
 
     def build(self) -> Scenario:
         return msgspec.json.decode(self.scenario_text, type=Scenario)
 
 
-def load_campaign(path: Path | str) -> Campaign:
-    return load_toml(path, Campaign)
+def load_campaign(name: Path | str) -> Campaign:
+    """A campaign by path or shipped short name (`smoke`, `diagnostics`)."""
+    return load_toml(find(name, "campaigns"), Campaign)
 
 
 def expand(campaign: Campaign, select: list[str] | None = None) -> list[Case]:
-    """Every case of the campaign, in a stable order (scenario, rider, controller, fault set, seed); with
+    """Every case of the campaign, in a stable order (scenario, rider, law, fault set, seed); with
     `select`, those whose id contains one of its strings (and the twins they are judged against)."""
     sets = [FaultSetEntry(name="none")] if campaign.baseline else []
     coverage = campaign.coverage
@@ -152,7 +152,7 @@ def expand(campaign: Campaign, select: list[str] | None = None) -> list[Case]:
     for scenario_path in campaign.scenarios:
         base = load_toml(find(scenario_path, "scenarios"), Scenario)
         for rider in campaign.riders or [None]:
-            for controller in campaign.controllers or [None]:
+            for law in campaign.laws or [None]:
                 for fault_set in sets:
                     faulty = bool(fault_set.inject)
                     plain_baseline = not (faulty or fault_set.operator) and coverage is None
@@ -160,6 +160,7 @@ def expand(campaign: Campaign, select: list[str] | None = None) -> list[Case]:
                     scenario = msgspec.structs.replace(
                         base,
                         rider=rider or base.rider,
+                        law=law or base.law,
                         duration=campaign.duration or base.duration,
                         faults=[*base.faults, *fault_set.inject],
                         operator=sorted([*base.operator, *fault_set.operator], key=lambda e: e.at),
@@ -177,7 +178,7 @@ def expand(campaign: Campaign, select: list[str] | None = None) -> list[Case]:
                                 fault_set.name,
                                 seed,
                                 text,
-                                controller,
+                                law,
                                 role,
                                 coverage,
                                 twin,
@@ -187,11 +188,12 @@ def expand(campaign: Campaign, select: list[str] | None = None) -> list[Case]:
         for scenario_path in entry.scenarios:
             base = load_toml(find(scenario_path, "scenarios"), Scenario)
             for rider in entry.riders or [None]:
-                for controller in entry.controllers or [None]:
+                for law in entry.laws or [None]:
                     for seed in campaign.seeds:
                         scenario = msgspec.structs.replace(
                             base,
                             rider=rider or base.rider,
+                            law=law or base.law,
                             duration=entry.duration or base.duration,
                             seed=seed,
                             criteria=[],
@@ -205,7 +207,7 @@ def expand(campaign: Campaign, select: list[str] | None = None) -> list[Case]:
                                 name,
                                 seed,
                                 msgspec.json.encode(scenario),
-                                controller,
+                                law,
                                 "fault_free",
                                 coverage,
                             )
@@ -256,26 +258,20 @@ class CaseResult:
         return "\n".join(lines)
 
 
-def run_case(
-    case: Case, out: Path | None = None, can: str | None = None, controller: str | None = None
-) -> CaseResult:
-    """Run one case in this process, lockstep, with its own zenoh hub on a free loopback port; on a private
-    virtual bus unless `can` names the lab's bus (INTERFACE:CHANNEL), with the case's controller unless
-    `controller` says otherwise (`external`: the lab's own, already on that bus)."""
-    from drivers.can_bus import parse_can_spec
+def run_case(case: Case, out: Path | None = None, bench: Bench | None = None) -> CaseResult:
+    """Run one case in this process, lockstep, on `bench` (default: embedded, a private bus and its own
+    zenoh hub on a free loopback port, so cases in parallel never meet)."""
     from drivers.zenoh_link import free_loopback_endpoint
-    from hil.runner import run_scenario, summary
+    from hil.outputs.folder import summary
+    from hil.run.pipeline import run
 
-    controller = controller or case.controller
+    bench = bench or load_bench()
+    if bench.self_contained and bench.zenoh.mode == "loopback" and bench.zenoh.endpoint is None:
+        bench = bench.with_overrides(hub=free_loopback_endpoint())
+    bench = bench.with_overrides(clock="lockstep")
     start = time.monotonic()
     try:
-        result = run_scenario(
-            case.build(),
-            clock="lockstep",
-            hub_endpoint=None if controller == "external" else free_loopback_endpoint(),
-            can=None if can is None else parse_can_spec(can),
-            controller=controller,
-        )
+        result = run(case.build(), bench)
     except Exception as exc:  # a broken case is a result (an error), never the end of the campaign
         detail = "".join(traceback.format_exception_only(type(exc), exc)).strip()
         return CaseResult(
@@ -342,11 +338,13 @@ def run_campaign(
     workers: int = 1,
     out: Path | None = None,
     progress: Callable[[int, int, CaseResult], None] | None = None,
-    can: str | None = None,
-    controller: str | None = None,
+    bench: Bench | None = None,
 ) -> list[CaseResult]:
-    """Every case, `workers` at a time in fresh processes (spawned: no zenoh or bus state is inherited).
-    On a shared bus (`can`) cases run one at a time in this process: they would share the bus."""
+    """Every case on `bench`, `workers` at a time in fresh processes (spawned: no zenoh or bus state is
+    inherited). A bench whose parts are not all in the rig's process, or whose bus is shared, runs them one
+    at a time in this process: they would share the bus and the hub."""
+    bench = bench or load_bench()
+    parallel = bench.self_contained and bench.can.interface == "virtual" and not bench.can.channel
     results: list[CaseResult] = []
     folder = (lambda c: out / c.id) if out is not None else (lambda c: None)
     # Coverage: twins first, so a faulty case is judged the moment it finishes.
@@ -361,21 +359,17 @@ def run_campaign(
         if progress:
             progress(len(results), len(cases), result)
 
-    if workers <= 1 or can is not None:
+    if workers <= 1 or not parallel:
         for case in cases:
-            done(case, run_case(case, folder(case), can, controller))
+            done(case, run_case(case, folder(case), bench))
     else:
         with ProcessPoolExecutor(
             max_workers=workers, mp_context=get_context("spawn"), initializer=_quiet_worker
         ) as pool:
-            futures = {
-                pool.submit(run_case, c, folder(c), None, controller): c for c in cases if c.role != "faulty"
-            }
+            futures = {pool.submit(run_case, c, folder(c), bench): c for c in cases if c.role != "faulty"}
             for future in as_completed(futures):
                 done(futures[future], future.result())
-            futures = {
-                pool.submit(run_case, c, folder(c), None, controller): c for c in cases if c.role == "faulty"
-            }
+            futures = {pool.submit(run_case, c, folder(c), bench): c for c in cases if c.role == "faulty"}
             for future in as_completed(futures):
                 done(futures[future], future.result())
     order = {c.id: i for i, c in enumerate(cases)}

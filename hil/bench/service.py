@@ -22,34 +22,34 @@ from pathlib import Path
 import msgspec
 import zenoh
 
-from drivers.can_bus import BusConfig
 from drivers.config import ConfigError, decode_toml
 from drivers.keys import Keys
-from drivers.resources import find
+from hil.bench.bench import Bench, load_bench
 from hil.faults import FaultSet, parse_fault
-from hil.runner import load_scenario, run_scenario
-from hil.scenario import Intent, Scenario
+from hil.run.build import RunOptions
+from hil.run.pipeline import load_scenario, run
+from hil.run.scenario import Intent, Scenario
 from plant.ballbot import Plant, RiderIntent
+
+NO_FAULTS = "bench {bench} says a person is on the robot (rider_on_board): fault injection is refused"
 
 
 class RigService:
     def __init__(
         self,
         session: zenoh.Session,
-        keys: Keys | None = None,
-        can: BusConfig | None = None,
-        controller: str | None = None,
-        clock: str | None = None,
+        bench: Bench | None = None,
         out_root: Path = Path("runs"),
-        hub_endpoint: str | None = None,
         view=None,
     ):
-        """`view`: a rerun sink (e.g. `rr.GrpcSink(url)` to the operator's own viewer) that receives every
-        run live; None: no live view (the run folder's recording.rrd is always written)."""
-        self.session, self.keys, self.hub_endpoint = session, keys or Keys(), hub_endpoint
+        """`session`: the rig's own (the loopback hub, or its router client); `view`: a rerun sink (e.g.
+        `rr.GrpcSink(url)` to the operator's own viewer) that receives every run live; None: no live view
+        (the run folder's recording.rrd is always written)."""
+        self.session, self.bench = session, bench or load_bench()
+        self.keys = Keys(self.bench.zenoh.prefix)
         self.view_sink = view
         self._view = None
-        self.can, self.controller, self.clock, self.out_root = can, controller, clock, out_root
+        self.out_root = out_root
         self.state = "idle"
         self.scenario: Scenario | None = None
         self.sim_time = 0.0
@@ -103,12 +103,18 @@ class RigService:
         except ConfigError as exc:
             self._reply(query, {"ok": False, "error": str(exc)})
             return
+        if scenario.faults and self.bench.rider_on_board:
+            self._reply(query, {"ok": False, "error": NO_FAULTS.format(bench=self.bench.name)})
+            return
         with self._lock:
             if self.state == "running":
                 self._reply(query, {"ok": False, "error": f"already running {self.scenario.name}"})
                 return
             self.state, self.scenario, self.sim_time = "running", scenario, 0.0
             self._stop.clear()
+            # The run's faults exist before the reply: an injection right after "running" is never lost.
+            self._faults = FaultSet(scenario.faults, scenario.seed)
+            self._faults.on_event = self._fault_event
             out = self.out_root / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}"
             self._worker = threading.Thread(
                 target=self._run, args=(scenario, out), name="rig-run", daemon=True
@@ -120,8 +126,8 @@ class RigService:
         text = text.strip()
         if not text:
             raise ConfigError("pure/rig/start", "expected a scenario file path or its TOML text")
-        if "\n" not in text and text.endswith(".toml"):
-            return load_scenario(find(text, "scenarios"))
+        if "\n" not in text and "=" not in text:
+            return load_scenario(text)  # a path or a shipped scenario's short name
         return decode_toml(text, Scenario, "pure/rig/start payload")
 
     def _stop_run(self, query: zenoh.Query) -> None:
@@ -148,6 +154,9 @@ class RigService:
             spec = parse_fault(obj, "pure/rig/fault/inject payload")
         except (ValueError, json.JSONDecodeError) as exc:
             self._reply(query, {"ok": False, "error": str(exc)})
+            return
+        if self.bench.rider_on_board:
+            self._reply(query, {"ok": False, "error": NO_FAULTS.format(bench=self.bench.name)})
             return
         faults = self._faults
         if self.state != "running" or faults is None:
@@ -185,24 +194,18 @@ class RigService:
 
     def _run(self, scenario: Scenario, out: Path) -> None:
         if self.view_sink is not None:
-            from hil.recording import LiveView
+            from hil.outputs.recording import LiveView
 
             self._view = LiveView(self.view_sink, scenario.name)
             self._view.mark(0.0, f"run {scenario.name} started")
-        self._faults = FaultSet(scenario.faults, scenario.seed)
-        self._faults.on_event = self._fault_event
         try:
-            result = run_scenario(
+            result = run(
                 scenario,
-                controller=self.controller,
-                can=self.can,
-                clock=self.clock,
+                self.bench,
                 out=out,
-                on_tick=self._on_tick,
-                stop=self._stop,
-                session=self.session,
-                hub_endpoint=self.hub_endpoint,
-                fault_set=self._faults,
+                options=RunOptions(
+                    on_tick=self._on_tick, stop=self._stop, session=self.session, fault_set=self._faults
+                ),
             )
             self.last = {
                 "scenario": scenario.name,
@@ -211,6 +214,9 @@ class RigService:
                 "stopped_early": self._stop.is_set(),
                 "out": str(out),
                 "metrics": result.metrics,
+                "failure": None
+                if result.trace.failure is None
+                else msgspec.to_builtins(result.trace.failure),
                 "fault_events": [msgspec.to_builtins(e) for e in result.trace.fault_events],
             }
         except Exception as exc:  # a failed run is reported on status, never kills the service

@@ -1,0 +1,150 @@
+"""The bench file: one description of the bench that every command reads (labgrid's environment file).
+
+    pure-hil run balance --bench vcan            # configs/benches/vcan.toml
+    pure-hil run balance --bench my-bench.toml --can socketcan:can0
+
+A bench says where each part runs and how the parts reach each other: the CAN bus (python-can's terms), the
+controller under test (embedded in the rig's process, spawned by it, or external), the supervisor (the
+same three), zenoh (the loopback hub or the secured router), what a run writes, and whether a person is on
+the robot. A scenario says what happens; a bench says on what. Errors name the file, the field and what was
+expected; `parts.check` then opens every part once and names the one that cannot open (hil/bench/parts.py).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Literal
+
+import msgspec
+
+from drivers.can_bus import BusConfig
+from drivers.config import ConfigError, load_toml
+from drivers.resources import find
+from drivers.zenoh_link import ZenohAccess
+
+Where = Literal["embedded", "spawned", "external"]
+Positive = Annotated[float, msgspec.Meta(gt=0)]
+
+
+class _Part(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    pass
+
+
+class ControllerPart(_Part):
+    where: Where = "embedded"
+    """embedded: a plugin on a thread of the rig's process; spawned: the rig starts `command` (default
+    pure-controller) and stops it after the run; external: the rig waits for one started by someone else."""
+    plugin: str = "reference"
+    """embedded: the entry point in `pure_hil.controllers`."""
+    law: Literal["scenario", "hacs", "ihacs"] = "scenario"
+    """The reference controller's control law: the scenario's, or this one for every run."""
+    config: str = "controller/default.toml"
+    robot: str | None = None
+    """The robot file the controller builds its model from (None: the plant's; another file tests model
+    mismatch)."""
+    command: list[str] = []
+    """spawned: the command line (empty: pure-controller with this bench's bus, zenoh and the scenario's
+    rider, robot and law)."""
+    boot_timeout: Positive | None = None
+    """s the rig waits for the controller's boot-up (None: 10 embedded, 30 spawned, 120 external)."""
+
+
+class SupervisorPart(_Part):
+    where: Where = "embedded"
+    """embedded: in the rig's tick; spawned: the rig starts `pure-hil supervisor` on this bench; external:
+    one runs elsewhere on the bus."""
+    config: str = "safety/default.toml"
+    """Its rules; a scenario's `[safety]` table overrides them for that scenario's runs."""
+
+
+class OutputsPart(_Part):
+    folder: str = "runs"
+    """Where `pure-hil run` puts run folders when no --out is given."""
+    can_log: bool = True
+    recording: bool = True
+    plots: bool = True
+
+
+class Bench(_Part):
+    name: str
+    description: str = ""
+    can: BusConfig = BusConfig(channel="")
+    """python-can's interface, channel, bitrate (channel "" on `virtual`: a private channel per run, so two
+    rigs on one machine never share a bus)."""
+    controller: ControllerPart = ControllerPart()
+    supervisor: SupervisorPart = SupervisorPart()
+    zenoh: ZenohAccess = ZenohAccess()
+    outputs: OutputsPart = OutputsPart()
+    sim: str = "sim/default.toml"
+    """The plant's simulation settings (tick rate and seed come from the scenario)."""
+    clock: Literal["scenario", "lockstep", "realtime"] = "scenario"
+    rider_on_board: bool = False
+    """A person sits on the robot: fault injection is refused outright."""
+
+    def __post_init__(self) -> None:
+        spawned = [part for part in self.separate() if getattr(self, part).where == "spawned"]
+        if spawned and self.can.interface == "virtual":
+            raise ValueError(
+                f"{' and '.join(spawned)}.where = 'spawned' needs a CAN bus shared between processes "
+                "(can.interface = 'socketcan', channel = 'vcan0'), not python-can's in-process 'virtual'"
+            )
+        if self.controller.command and self.controller.where != "spawned":
+            raise ValueError("controller.command is for controller.where = 'spawned'")
+
+    def separate(self) -> list[str]:
+        """The parts not in the rig's process."""
+        return [p for p in ("controller", "supervisor") if getattr(self, p).where != "embedded"]
+
+    @property
+    def self_contained(self) -> bool:
+        """Every part in the rig's process: nobody else has to find its hub."""
+        return self.controller.where == "embedded" and self.supervisor.where == "embedded"
+
+    def with_overrides(
+        self,
+        *,
+        can: BusConfig | None = None,
+        controller: Where | None = None,
+        law: str | None = None,
+        supervisor: Where | None = None,
+        hub: str | None = None,
+        certs: str | None = None,
+        clock: str | None = None,
+    ) -> Bench:
+        """This bench with a command's overrides applied (None: keep the file's). Checked like the file."""
+        parts = msgspec.to_builtins(self)
+        if can is not None:
+            parts["can"] = msgspec.to_builtins(can)
+        for section, key, value in (
+            ("controller", "where", controller),
+            ("controller", "law", law),
+            ("supervisor", "where", supervisor),
+            ("zenoh", "endpoint", hub),
+            ("zenoh", "certs", certs),
+        ):
+            if value is not None:
+                parts[section][key] = value
+        if clock is not None:
+            parts["clock"] = clock
+        try:
+            return msgspec.convert(parts, Bench)
+        except msgspec.ValidationError as exc:
+            raise ConfigError(f"bench {self.name} with the command's options", str(exc)) from exc
+
+
+EMBEDDED = "embedded"
+"""The default bench: everything in one process (configs/benches/embedded.toml)."""
+
+
+def load_bench(name: str | Path = EMBEDDED) -> Bench:
+    """A bench by path or shipped short name (`embedded`, `vcan`, `secured`); a `.json` file is a bench the
+    rig wrote for the processes it spawns (the command's overrides applied)."""
+    path = find(name, "benches")
+    if path.suffix != ".json":
+        return load_toml(path, Bench)
+    try:
+        return msgspec.json.decode(path.read_bytes(), type=Bench)
+    except OSError as exc:
+        raise ConfigError(path, f"cannot read: {exc.strerror or exc}") from exc
+    except msgspec.MsgspecError as exc:
+        raise ConfigError(path, str(exc)) from exc

@@ -1,0 +1,1 @@
+"""A run's folder: summary, CAN log, rerun recording, plots."""

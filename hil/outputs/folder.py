@@ -1,0 +1,197 @@
+"""A run's folder: summary.json (the scenario, the bench, seed, versions, measurements, verdicts, the
+supervisor's record, bus and timing statistics), can.log (candump -L; written during the run by the bus
+recorder), zenoh_inputs.msgpack (what the controller was told over zenoh, for `pure-hil replay`),
+recording.rrd (rerun) and plots.png; and the table `pure-hil run` prints."""
+
+from __future__ import annotations
+
+import math
+import platform
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+
+import msgspec
+import numpy as np
+
+from hil.run.judge import RunResult
+from hil.run.measurements import unavailable
+from hil.run.trace import Trace
+
+
+def versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for dist in (
+        "pure-hil",
+        "numpy",
+        "scipy",
+        "control",
+        "python-can",
+        "cantools",
+        "eclipse-zenoh",
+        "rerun-sdk",
+        "msgspec",
+    ):
+        try:
+            out[dist] = version(dist)
+        except PackageNotFoundError:
+            out[dist] = "?"
+    return out
+
+
+def summary(result: RunResult) -> dict:
+    tr = result.trace
+    t = tr.timing
+    return {
+        "scenario": msgspec.to_builtins(result.scenario),
+        "bench": result.bench,
+        "law": result.law,
+        "clock": result.clock,
+        "seed": result.seed,
+        "versions": versions(),
+        "passed": result.passed,
+        "failure": None if tr.failure is None else {"stage": tr.failure.stage, "error": tr.failure.error},
+        "fallen": tr.fallen,
+        "simulated": round(float(tr.t[-1]), 6) if len(tr.t) else 0.0,
+        "metrics": {k: None if math.isnan(v) else v for k, v in result.metrics.items()},
+        "metrics_unavailable": {k: why for k in result.metrics if (why := unavailable(tr, k))},
+        "verdicts": [msgspec.to_builtins(v) for v in result.verdicts],
+        "rig": {
+            "ticks": tr.stats.ticks,
+            "missing_commands": tr.stats.missing_commands,
+            "late_commands": tr.stats.late_commands,
+            "guards_expired": tr.stats.guards_expired,
+            "controller_states": {str(k): v for k, v in sorted(tr.stats.controller_states.items())},
+            "controller_telemetry_missing": tr.controller_telemetry_missing,
+        },
+        "safety": safety_summary(tr),
+        "faults": [
+            {
+                "number": n,
+                "fault": msgspec.to_builtins(spec),
+                "acted": None if window is None else [round(window[0], 6), round(window[1], 6)],
+            }
+            for n, (spec, window) in enumerate(zip(tr.faults, tr.fault_windows, strict=True))
+        ],
+        "fault_events": [msgspec.to_builtins(e) for e in tr.fault_events],
+        "bus": tr.bus,
+        "timing": {
+            "wall_time": round(t.wall_time, 3),
+            "speed": round(t.speed, 2),
+            "overruns": t.overruns,
+            "jitter_us": t.jitter_us,
+            "policy": t.realtime_policy,
+        },
+    }
+
+
+def safety_summary(tr: Trace) -> dict:
+    """The supervisor's record, each event with the plant's truth at that moment (the referee's view)."""
+    truth_speed = np.hypot(tr.velocity[:, 0], tr.velocity[:, 1])
+    events = []
+    for e in tr.safety_events:
+        i = min(int(np.searchsorted(tr.t, e.t - 1e-9)), len(tr.t) - 1)
+        events.append(
+            {
+                **msgspec.to_builtins(e),
+                "truth": {
+                    "speed": round(float(truth_speed[i]), 6),
+                    "tilt_deg": round(float(np.degrees(np.abs(tr.tilt[i]).max())), 6),
+                },
+            }
+        )
+    error = np.abs(tr.safety_speed - truth_speed)
+    names = ("NORMAL", "LIMITING", "STOPPING", "ESTOP")
+    final = int(tr.safety_state[-1]) if len(tr.safety_state) else -1
+    return {
+        "final_state": names[final] if 0 <= final < len(names) else "none",
+        "events": events,
+        "speed_estimate_error_max": None if np.isnan(error).all() else round(float(np.nanmax(error)), 6),
+        "drives_refused_commands": tr.stats.refused_commands,
+        "drives_permission_lost": tr.stats.permission_lost,
+        "contactor_opened": tr.stats.contactor_opened,
+        "fence_misses": tr.fence_misses,
+        "identity_rejected": tr.identity_rejected,
+        "sc_arbitration": tr.sc_arbitration,
+        "diagnostics": tr.diagnostics,
+        "ended_resting": bool(len(tr.resting) and tr.resting[-1]),
+        "drives_off_at": _drives_off_at(tr),
+    }
+
+
+def _drives_off_at(tr: Trace) -> float | None:
+    """The time from which every drive stayed off to the end of the run (None: on at the end)."""
+    if not len(tr.powered) or tr.powered[-1]:
+        return None
+    on = np.nonzero(tr.powered)[0]
+    return round(float(tr.t[on[-1] + 1 if len(on) else 0]), 6)
+
+
+def write_outputs(result: RunResult, out: Path, recording: bool = True, plots: bool = True) -> dict[str, str]:
+    """The run folder: summary.json first and always, then each other output on its own (one that fails
+    is named in the summary, and the rest are still written). Returns the failed outputs and why."""
+    summary_file = out / "summary.json"
+
+    def write_summary(failed: dict[str, str]) -> None:
+        data = {**summary(result), "outputs_failed": failed}
+        summary_file.write_bytes(msgspec.json.format(msgspec.json.encode(data), indent=2))
+
+    write_summary({})
+    failed: dict[str, str] = {}
+    for name, write in _outputs(result, out, recording, plots):
+        try:
+            write()
+        except Exception as exc:  # one output failing must not lose the others or the summary
+            failed[name] = f"{type(exc).__name__}: {exc}"
+    if failed:
+        write_summary(failed)
+    return failed
+
+
+def _outputs(result: RunResult, out: Path, recording: bool, plots: bool):
+    """(file, writer) of the run folder besides summary.json and can.log (the recorder writes that one)."""
+    tr = result.trace
+    yield (
+        "zenoh_inputs.msgpack",
+        lambda: (out / "zenoh_inputs.msgpack").write_bytes(msgspec.msgpack.encode(tr.zenoh_inputs)),
+    )
+    if not len(tr.t):
+        return  # nothing ran: no recording, no plots
+    # Imported here: matplotlib and rerun cost seconds of start-up (a minute on an emulated CPU), and a
+    # run without a folder never needs them.
+    from hil.outputs.plots import write_plots
+    from hil.outputs.recording import write_rrd
+
+    caps = [e.cap for e in result.scenario.sc if e.mode == "limit"]
+    title = f"{result.scenario.name} ({result.law}, {result.clock})"
+    if recording:
+        yield "recording.rrd", lambda: write_rrd(out / "recording.rrd", tr, result.scenario.name)
+    if plots:
+        yield "plots.png", lambda: write_plots(out / "plots.png", tr, title, caps[0] if caps else None)
+
+
+def format_table(result: RunResult) -> str:
+    rows = [
+        (
+            v.criterion,
+            "unavailable" if v.note.startswith("unavailable") else f"{v.value:.3f} {v.units}".strip(),
+            v.limit,
+            "PASS" if v.passed else "FAIL",
+        )
+        for v in result.verdicts
+    ]
+    head = ("criterion", "measured", "limit", "verdict")
+    widths = [max(len(r[i]) for r in [head, *rows]) for i in range(4)]
+    lines = ["  ".join(h.ljust(w) for h, w in zip(head, widths, strict=True))]
+    lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in rows]
+    lines += [f"  {v.criterion}: {v.note}" for v in result.verdicts if not v.passed and v.note]
+    tr = result.trace
+    if tr.failure is not None:
+        lines.append(f"the run failed at {tr.failure.stage}: {tr.failure.error}")
+    lines.append(
+        f"{result.scenario.name}: {tr.t[-1] if len(tr.t) else 0:.2f} s simulated "
+        f"({result.law}, {result.clock}) in {tr.timing.wall_time:.1f} s wall "
+        f"({tr.timing.speed:.1f}x real time); " + ("PASSED" if result.passed else "FAILED")
+    )
+    if math.isfinite(tr.timing.speed) and tr.fallen:
+        lines.append(f"the robot fell: {tr.fallen}")
+    return "\n".join(lines)

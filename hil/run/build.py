@@ -1,0 +1,280 @@
+"""Build a run from a bench and a scenario: the plant, the bus, zenoh, the supervisor and the controller
+where the bench puts them, every resource entered in one ExitStack (closed in reverse on any exit, a
+failure included), then the start-up handshake before the first SYNC (docs/contract.md, Start-up)."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+from collections import Counter
+from collections.abc import Callable
+from contextlib import ExitStack
+from dataclasses import dataclass
+from pathlib import Path
+
+import msgspec
+import zenoh
+
+from drivers.can_bus import BusConfig, BusRecorder, CanNode, open_bus, private_channel
+from drivers.config import load_toml
+from drivers.dut import DutSpec, start_dut
+from drivers.keys import Keys
+from drivers.resources import find
+from drivers.schemas import SafetyState
+from drivers.zenoh_link import ZenohAccess, ZenohLink
+from hil.bench.bench import Bench
+from hil.faults import FaultError, FaultSet
+from hil.run.rig import OperatorStep, Rig, ScStep
+from hil.run.scenario import Scenario
+from hil.run.trace import ControllerUnavailable
+from plant.ballbot import Plant, RiderIntent
+from plant.params import RiderParams, RobotParams, SimParams
+from safety.config import RobotGeometry, SupervisorConfig
+from safety.node import SupervisorNode
+
+
+@dataclass(slots=True)
+class RunOptions:
+    """What a program adds to a bench and a scenario (nothing of it belongs in a file)."""
+
+    progress: Callable[[float, float], None] | None = None
+    """Called with (simulated time, duration) about every 0.5 s of wall time."""
+    on_tick: Callable[[Plant], None] | None = None
+    """Called after every tick with the plant (the service applies live rider intent there)."""
+    stop: threading.Event | None = None
+    """Set it to end the run early (the service's stop)."""
+    session: zenoh.Session | None = None
+    """The rig's zenoh session, owned by the caller (the long-running service keeps one)."""
+    fault_set: FaultSet | None = None
+    """The run's faults, kept by a caller that injects more live (the service)."""
+    stop_on_fall: bool = True
+
+
+@dataclass(slots=True)
+class Built:
+    rig: Rig
+    plant: Plant
+    bus: BusConfig
+    law: str
+    clock: str
+    duration: float
+    dut: object | None
+    """The embedded controller's handle (process faults stop or pause it); None: in another process."""
+
+
+BOOT_TIMEOUT = {"embedded": 10.0, "spawned": 30.0, "external": 120.0}
+"""s the rig waits for the controller's boot-up by default (a spawned process imports numpy and scipy)."""
+ZENOH_GRACE = 2.0
+"""s the rig waits after the controller's boot-up for it to subscribe to the seat wrench; a controller on
+CAN alone never does, and the run starts without it."""
+
+
+def law_of(bench: Bench, scenario: Scenario) -> str:
+    if bench.controller.where == "external":
+        return "external"
+    return scenario.law if bench.controller.law == "scenario" else bench.controller.law
+
+
+def clock_of(bench: Bench, scenario: Scenario) -> str:
+    return scenario.clock if bench.clock == "scenario" else bench.clock
+
+
+def supervisor_config(bench: Bench, scenario: Scenario) -> SupervisorConfig:
+    """The bench's supervisor rules with the scenario's `[safety]` overrides."""
+    return scenario.supervisor_config(load_toml(find(bench.supervisor.config, "safety"), SupervisorConfig))
+
+
+def build(
+    bench: Bench, scenario: Scenario, seed: int, options: RunOptions, can_log: Path | None, stack: ExitStack
+) -> Built:
+    robot_path, rider_path = find(scenario.robot, "robot"), find(scenario.rider, "riders")
+    sim = msgspec.structs.replace(
+        load_toml(find(bench.sim, "sim"), SimParams), tick_hz=scenario.tick_hz, seed=seed
+    )
+    intent = RiderIntent(list(scenario.intent.pitch), list(scenario.intent.roll), list(scenario.intent.twist))
+    tilt = tuple(math.radians(a) for a in scenario.initial_tilt_deg)
+    plant = Plant(load_toml(robot_path, RobotParams), load_toml(rider_path, RiderParams), sim, intent, tilt)
+    law, clock = law_of(bench, scenario), clock_of(bench, scenario)
+    lockstep = clock == "lockstep"
+    safety = supervisor_config(bench, scenario)
+    faults = options.fault_set if options.fault_set is not None else FaultSet(scenario.faults, seed)
+    if faults and bench.rider_on_board:
+        raise FaultError(f"bench {bench.name} says a person is on the robot (rider_on_board): no faults")
+
+    bus_config = (
+        bench.can if bench.can.channel else msgspec.structs.replace(bench.can, channel=private_channel())
+    )
+    bus = open_bus(bus_config)
+    stack.callback(bus.shutdown)
+    keys = Keys(bench.zenoh.prefix)
+    if options.session is not None:
+        session, zenoh_access = options.session, bench.zenoh
+    else:
+        session, zenoh_access = bench.zenoh.open_rig(fallback=bench.self_contained)
+        stack.callback(session.close)
+    puts: Counter[str] = Counter()  # every put of this process, whatever its session: the fence counts them
+    link = ZenohLink(session, keys, lossless=lockstep, puts=puts)
+    stack.callback(link.close)
+    agent_link = _agent_link(zenoh_access, keys, lockstep, puts, stack)
+    if can_log is not None:
+        stack.callback(BusRecorder(bus_config, can_log).stop)
+
+    supervisor = None
+    if bench.supervisor.where == "embedded":
+        supervisor_bus = open_bus(bus_config)
+        stack.callback(supervisor_bus.shutdown)
+        supervisor_link = link
+        if zenoh_access.mode == "router":  # its own certificate: the rig may not put the supervisor's keys
+            supervisor_session = zenoh_access.open("supervisor")
+            stack.callback(supervisor_session.close)
+            supervisor_link = ZenohLink(supervisor_session, keys, lossless=lockstep, puts=puts)
+            stack.callback(supervisor_link.close)
+        supervisor = SupervisorNode(
+            CanNode(supervisor_bus, name="supervisor"),
+            supervisor_link,
+            safety,
+            load_toml(robot_path, RobotGeometry),
+            tick_hz=sim.tick_hz,
+        )
+    rig = Rig(
+        plant,
+        CanNode(bus, name="rig"),
+        link,
+        tuple(ScStep(e.at, e.mode, e.cap) for e in scenario.sc),
+        supervisor=supervisor,
+        operator=tuple(OperatorStep(e.at, e.action) for e in scenario.operator),
+        faults=faults,
+        bitrate=bus_config.bitrate,
+        agent_link=agent_link,
+    )
+    if supervisor is None:  # a supervisor in another process: its transitions as it announces them
+        rig.safety_states = link.subscribe(keys.safety_state, SafetyState, capacity=1 << 14)
+
+    work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="pure-hil-run-")))
+    effective = msgspec.structs.replace(bench, can=bus_config, zenoh=zenoh_access)
+    if bench.supervisor.where == "spawned":
+        command = [*_pure_hil(), "supervisor", "--bench", str(write_bench(effective, work / "bench.json"))]
+        command += ["--robot", str(robot_path), "--tick-hz", f"{sim.tick_hz:g}"]
+        command += ["--clock", "sync" if lockstep else "wall", "--safety", json.dumps(scenario.safety)]
+        _spawn(command, "supervisor", stack)
+    dut = None
+    controller = bench.controller
+    if controller.where == "embedded":
+        dut = start_dut(
+            controller.plugin,
+            DutSpec(
+                can=bus_config,
+                zenoh=zenoh_access,
+                mode=law,  # type: ignore[arg-type]
+                robot=str(find(controller.robot or robot_path, "robot")),
+                rider=str(rider_path),
+                controller_config=str(find(controller.config, "controller")),
+                lockstep=lockstep,
+                tick_hz=sim.tick_hz,
+            ),
+        )
+        stack.callback(dut.stop)
+    elif controller.where == "spawned":
+        command = list(controller.command) or [
+            *_pure_hil(),
+            "controller",
+            "--bench",
+            str(write_bench(effective, work / "bench.json")),
+            "--rider",
+            str(rider_path),
+            "--robot",
+            str(find(controller.robot or robot_path, "robot")),
+            "--law",
+            law,
+            *(["--lockstep"] if lockstep else []),
+        ]
+        _spawn(command, "controller", stack)
+    rig.dut = dut
+    faults.attach(rig)
+    return Built(rig, plant, bus_config, law, clock, scenario.duration, dut)
+
+
+@dataclass(frozen=True, slots=True)
+class AgentLinks:
+    """The sessions the rig's scenario speaks through as the SC agent and the operator (secured bench)."""
+
+    sc_agent: ZenohLink
+    operator: ZenohLink
+
+
+def _agent_link(
+    access: ZenohAccess, keys: Keys, lockstep: bool, puts: Counter[str], stack: ExitStack
+) -> AgentLinks | None:
+    """On the secured bench the scenario's SC requests and operator actions go out under the certificates
+    of those roles (the rig's own may not put them); on loopback through the rig's session (None)."""
+    if access.mode != "router":
+        return None
+    links = {}
+    for role in ("sc-agent", "operator"):
+        session = access.open(role)
+        stack.callback(session.close)
+        links[role] = ZenohLink(session, keys, lossless=lockstep, puts=puts)
+        stack.callback(links[role].close)
+    return AgentLinks(links["sc-agent"], links["operator"])
+
+
+def write_bench(bench: Bench, path: Path) -> Path:
+    """The bench as the rig runs it (its overrides applied), for the processes it spawns."""
+    if not path.exists():
+        path.write_bytes(msgspec.json.encode(bench))
+    return path
+
+
+def _pure_hil() -> list[str]:
+    script = Path(sys.executable).with_name("pure-hil")
+    return [str(script)] if script.exists() else [sys.executable, "-m", "hil.cli"]
+
+
+def _spawn(command: list[str], name: str, stack: ExitStack) -> None:
+    if shutil.which(command[0]) is None and not Path(command[0]).exists():
+        raise FileNotFoundError(f"{name} command not found: {command[0]}")
+    proc = subprocess.Popen(command)
+    stack.callback(_stop, proc)
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)  # it closes its bus and zenoh session
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def start_up(built: Built, bench: Bench) -> None:
+    """The start-up handshake before the first SYNC (docs/contract.md): the supervisor's first frame (the
+    embedded one sends it now, at t = 0), the controller's boot-up heartbeat, then its zenoh subscriptions
+    if it has any. Raises ControllerUnavailable saying what did not come and what to check."""
+    rig = built.rig
+    if rig.supervisor is not None:
+        rig.supervisor.update(0.0)
+    where = bench.controller.where
+    timeout = bench.controller.boot_timeout or BOOT_TIMEOUT[where]
+    missing = rig.await_boot(timeout)
+    if missing:
+        bus = f"{built.bus.interface}:{built.bus.channel}"
+        hint = {
+            "external": "start it on this bus (docs/contract.md, Start-up), e.g. "
+            f"python examples/balance_controller.py --can {bus}",
+            "spawned": "the spawned process did not come up: its output above says why",
+            "embedded": "the embedded controller did not start",
+        }[where]
+        raise ControllerUnavailable(f"waited {timeout:g} s on {bus} for {missing}: {hint}")
+    rig.wait_for_subscriber(rig.keys.tes_wrench, ZENOH_GRACE)
+    if rig.supervisor is None and not rig.wait_for_subscriber(rig.keys.sc_request, 10.0):
+        raise ControllerUnavailable(
+            f"no supervisor on {built.bus.interface}:{built.bus.channel} reads pure/sc/request"
+        )
+    rig.apply_permission()

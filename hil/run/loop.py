@@ -1,0 +1,123 @@
+"""The run's tick loop: tick after tick under the scenario's clock, the plant's truth and the supervisor's
+view recorded beside each other (hil/run/trace.py)."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from hil.run.build import Built, RunOptions
+from hil.run.clock import LockstepClock, RealtimeClock
+from hil.run.rig import Rig
+from hil.run.trace import Failure, Trace, reason
+from safety.machine import Event
+
+
+def tick_loop(built: Built, options: RunOptions) -> Trace:
+    """Tick to the end of the scenario (or a fall, or the caller's stop) and return what happened. An
+    exception in a tick ends the run there with a `Failure` naming the tick; the ticks before it are kept."""
+    rig, plant = built.rig, built.plant
+    ticks = round(built.duration / plant.dt)
+    lockstep = built.clock == "lockstep"
+    clock = LockstepClock(plant.dt, rig.command_guard) if lockstep else RealtimeClock(plant.dt)
+    rows = np.full((ticks, 19), np.nan)
+    supervisor = rig.supervisor  # its record outlives a kill
+    n = 0
+    next_report = time.monotonic() + 0.5
+    failure = None
+    clock.start()
+    while n < ticks:
+        try:
+            rig.tick(clock.command_deadline(), lockstep)
+        except Exception as exc:  # a bug or a broken bus mid-run: keep what ran, say where it stopped
+            failure = Failure(f"tick {plant.tick} (t = {plant.t:.4f} s)", reason(exc))
+            break
+        tr = plant.truth()
+        rows[n] = (
+            tr.t,
+            *tr.velocity,
+            *tr.tilt,
+            *tr.lean,
+            *tr.position,
+            tr.yaw_rate,
+            *tr.ball_rate,
+            *tr.motor_torque,
+            rig.safety_state,
+            _supervisor_speed(rig),
+            tr.powered,
+            tr.resting,
+        )
+        n += 1
+        if options.stop_on_fall and tr.fallen:
+            break
+        if options.on_tick is not None:
+            options.on_tick(plant)
+        if options.stop is not None and options.stop.is_set():
+            break
+        if options.progress is not None and time.monotonic() > next_report:
+            options.progress(tr.t, built.duration)
+            next_report = time.monotonic() + 0.5
+        clock.wait_next()
+    clock.stop()
+    rig.faults.finish(plant.t)
+    timing = clock.stats()
+    rows = rows[:n]
+    command = np.full((n, 2), np.nan)
+    tilt_cmd = np.full((n, 2), np.nan)
+    first_tick = plant.tick - n + 1
+    for _ in range(50 if n else 0):  # the last telemetry samples may still be in flight
+        for sample in rig.telemetry.drain():
+            i = sample.seq - first_tick
+            if 0 <= i < n:
+                command[i], tilt_cmd[i] = sample.command_speed, sample.tilt_command
+        if not np.isnan(command[-1, 0]) or not rig.telemetry.wait(0.02):
+            break
+    return Trace(
+        t=rows[:, 0],
+        velocity=rows[:, 1:3],
+        tilt=rows[:, 3:5],
+        lean=rows[:, 5:7],
+        position=rows[:, 7:9],
+        yaw_rate=rows[:, 9],
+        ball_rate=rows[:, 10:12],
+        command_speed=command,
+        tilt_command=tilt_cmd,
+        fallen=plant.fallen,
+        stats=rig.stats,
+        controller_telemetry_missing=int(np.isnan(command[:, 0]).sum()),
+        timing=timing,
+        bus=rig.can.stats.as_dict(),
+        motor_torque=rows[:, 12:15],
+        zenoh_inputs=rig.zenoh_inputs,
+        safety_state=rows[:, 15].astype(int),
+        safety_speed=rows[:, 16],
+        powered=rows[:, 17].astype(bool),
+        resting=rows[:, 18].astype(bool),
+        safety_events=_announced_events(rig) if supervisor is None else list(supervisor.events),
+        fence_misses=0 if supervisor is None else supervisor.fence_misses,
+        identity_rejected={} if supervisor is None else dict(supervisor.monitors.rejected_identity),
+        diagnostics={} if supervisor is None else supervisor.monitors.margins(),
+        sc_arbitration={} if supervisor is None else supervisor.monitors.sc.summary(),
+        faults=list(rig.faults.specs),
+        fault_events=list(rig.faults.events),
+        fault_windows=[rig.faults.window(n, plant.t) for n in range(len(rig.faults.specs))],
+        failure=failure,
+    )
+
+
+def _announced_events(rig: Rig) -> list[Event]:
+    """An external supervisor's transitions, from its pure/safety/state announcements."""
+    events, previous = [], "NORMAL"
+    for s in rig.safety_states.drain() if rig.safety_states is not None else ():
+        if s.state != previous:
+            events.append(Event(s.since, "transition", previous, s.state, s.reason.split(" ")[0]))
+            previous = s.state
+    return events
+
+
+def _supervisor_speed(rig: Rig) -> float:
+    observed = None if rig.supervisor is None else rig.supervisor.observation
+    speed = None if observed is None else observed.speed
+    return math.nan if speed is None else speed

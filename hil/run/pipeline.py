@@ -1,0 +1,103 @@
+"""One run, one pipeline: build (every resource in one ExitStack) -> tick loop -> judge -> write.
+
+    result = run(load_scenario("balance"), load_bench("embedded"), out=Path("runs/balance"))
+
+Every command that runs a scenario (run, compare, campaign, serve, the pytest plugin) comes through here.
+It never raises for a run that failed: the result's trace says where (`failure`) and keeps the ticks done so
+far, and the run folder is written all the same.
+"""
+
+from __future__ import annotations
+
+from contextlib import ExitStack
+from pathlib import Path
+
+from drivers.config import load_toml
+from drivers.resources import find
+from hil.bench.bench import Bench, load_bench
+from hil.outputs.folder import write_outputs
+from hil.run.build import RunOptions, build, clock_of, law_of, start_up, supervisor_config
+from hil.run.judge import RunResult, judge
+from hil.run.loop import tick_loop
+from hil.run.scenario import Scenario
+from hil.run.trace import CONFIG_ERRORS, ControllerUnavailable, Failure, Trace, reason
+from plant.params import RobotParams
+from safety.config import SupervisorConfig
+
+
+def run(
+    scenario: Scenario,
+    bench: Bench | None = None,
+    *,
+    out: Path | None = None,
+    seed: int | None = None,
+    options: RunOptions | None = None,
+) -> RunResult:
+    """Run `scenario` on `bench` (default: the embedded bench), judge it and, with `out`, write its folder."""
+    bench = bench or load_bench()
+    options = options or RunOptions()
+    seed = scenario.seed if seed is None else seed
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+    can_log = out / "can.log" if out is not None and bench.outputs.can_log else None
+    trace = execute(bench, scenario, seed, options, can_log)
+    result = RunResult(
+        scenario,
+        law_of(bench, scenario),
+        clock_of(bench, scenario),
+        seed,
+        trace,
+        {},
+        ball_radius=_ball_radius(scenario),
+        safety=_safety(bench, scenario),
+        bench=describe(bench),
+    )
+    judge(result)
+    if out is not None:
+        write_outputs(result, out, bench.outputs.recording, bench.outputs.plots)
+    return result
+
+
+def execute(bench: Bench, scenario: Scenario, seed: int, options: RunOptions, can_log: Path | None) -> Trace:
+    """Build, hand-shake and tick; a failure before the first tick is an empty trace saying why."""
+    stage = "build"
+    try:
+        with ExitStack() as stack:  # every resource of the run, closed in reverse on any exit
+            built = build(bench, scenario, seed, options, can_log, stack)
+            stage = "start-up"
+            start_up(built, bench)
+            return tick_loop(built, options)
+    except Exception as exc:  # nothing ran: keep the reason
+        stage = "start-up" if isinstance(exc, ControllerUnavailable) else stage
+        return Trace.empty(Failure(stage, reason(exc), isinstance(exc, CONFIG_ERRORS)))
+
+
+def describe(bench: Bench) -> dict:
+    """The bench as a run's summary reports it: where each part ran and how they met."""
+    return {
+        "name": bench.name,
+        "can": f"{bench.can.interface}:{bench.can.channel or '(private)'}",
+        "controller": bench.controller.where,
+        "supervisor": bench.supervisor.where,
+        "zenoh": bench.zenoh.mode,
+        "rider_on_board": bench.rider_on_board,
+    }
+
+
+def load_scenario(name: str | Path) -> Scenario:
+    """A scenario by path or shipped short name."""
+    return load_toml(find(name, "scenarios"), Scenario)
+
+
+def _ball_radius(scenario: Scenario) -> float:
+    try:
+        return load_toml(find(scenario.robot, "robot"), RobotParams).ball.radius
+    except CONFIG_ERRORS:
+        return float("nan")  # the trace already says why the run failed
+
+
+def _safety(bench: Bench, scenario: Scenario) -> SupervisorConfig:
+    try:
+        return supervisor_config(bench, scenario)
+    except CONFIG_ERRORS:
+        return SupervisorConfig()  # the trace already says why the run failed
