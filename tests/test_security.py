@@ -157,6 +157,60 @@ def test_positive_control_without_the_acl_the_leak_is_seen(certs):
         assert b.delivered("tes", key) == 6, "this test can see a leak"
 
 
+RIG_QUERIES = ("status", "start", "stop", "intent", "fault/inject", "fault/clear")
+
+
+def asked_through(bench: Bench, roles: tuple[str, ...]) -> dict[str, set[str]]:
+    """Which of the rig service's queryables each role's query reaches (and gets a reply from), all asked
+    at once: a denied query just times out."""
+    rig = bench.client("rig")
+    reached: list[str] = []
+    queryables = [
+        rig.declare_queryable(
+            KEYS.rig(name), lambda q: (reached.append(str(q.key_expr)), q.reply(q.key_expr, b"ok"))
+        )
+        for name in RIG_QUERIES
+    ]
+    clients = {role: bench.client(role) for role in roles}
+    try:
+        time.sleep(0.3)  # the queryables' declarations reach the router
+        pending = {
+            (role, name): session.get(KEYS.rig(name), timeout=1.0)
+            for role, session in clients.items()
+            for name in RIG_QUERIES
+        }
+        answered = {role: set() for role in roles}
+        for (role, name), replies in pending.items():
+            if any(r.ok is not None for r in replies):
+                answered[role].add(name)
+    finally:
+        for q in queryables:
+            q.undeclare()
+        for session in (*clients.values(), rig):
+            session.close()
+    assert sum(map(len, answered.values())) == len(reached), "every reply came from a query that reached"
+    return answered
+
+
+def test_least_privilege_monitor_reads_operator_runs_fault_injector_injects(bench):
+    answered = asked_through(bench, ("monitor", "operator", "fault-injector", "tes"))
+    assert answered == {
+        "monitor": {"status"},
+        "operator": {"status", "start", "stop", "intent"},
+        "fault-injector": {"status", "fault/inject", "fault/clear"},
+        "tes": set(),
+    }
+
+
+def test_positive_control_without_the_acl_the_monitor_could_start_and_inject(certs):
+    b = Bench(certs, acl=False)
+    try:
+        answered = asked_through(b, ("monitor",))
+    finally:
+        b.close()
+    assert answered == {"monitor": set(RIG_QUERIES)}, "this test can see a query get through"
+
+
 def test_router_and_clients_stay_on_loopback(bench):
     operator = bench.client("operator")
     try:

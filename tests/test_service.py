@@ -3,6 +3,7 @@
 import json
 import time
 
+import msgspec
 import pytest
 
 from drivers.keys import Keys
@@ -142,6 +143,30 @@ def test_live_fault_injection_lands_in_the_event_log_and_the_recording(service, 
     rrd = tmp_path / last["out"].split("/")[-1] / "recording.rrd"
     rows = sum(c.num_rows for c in RrdReader(str(rrd)).stream() if c.entity_path == "/events/faults")
     assert rows == 4, "every fault event in the rerun recording"
+
+
+def test_a_bench_with_a_rider_on_board_refuses_every_fault(tmp_path):
+    # The same requests the test above has accepted on the default bench (the positive control).
+    endpoint = hub_endpoint()
+    hub = open_session(role="hub", hub_endpoint=endpoint)
+    bench = msgspec.structs.replace(private_bench(hub=endpoint), rider_on_board=True)
+    svc = RigService(hub, bench, out_root=tmp_path)
+    client = open_session(role="member", hub_endpoint=endpoint)
+    try:
+        faulted = SHORT + '[[faults]]\nkind = "zenoh.wrench_dropout"\nat = 1.0\n'
+        refused = ask(client, "start", faulted)
+        assert not refused["ok"] and "rider_on_board" in refused["error"]
+        assert ask(client, "status")["state"] == "idle"
+        assert ask(client, "start", SHORT)["ok"]
+        live = ask(client, "fault/inject", '{"kind": "sensor.bias", "channel": "imu.rate_z", "offset": 0.01}')
+        assert not live["ok"] and "a person is on the robot" in live["error"]
+        assert ask(client, "stop")["stopping"] is True
+        assert svc.wait_idle(30)
+        assert ask(client, "status")["last"]["fault_events"] == []
+    finally:
+        svc.close()
+        client.close()
+        hub.close()
 
 
 def test_fault_cli_lists_injects_and_clears_through_the_service(tmp_path, capsys):
