@@ -1,6 +1,7 @@
 """`pure-hil serve`: the rig as a service, driven over zenoh queryables on loopback."""
 
 import json
+import os
 import time
 
 import msgspec
@@ -214,3 +215,33 @@ def test_fault_cli_lists_injects_and_clears_through_the_service(tmp_path, capsys
         hub.close()
     events = [(e["kind"], e["action"]) for e in svc.last["fault_events"]]
     assert events[0] == ("can.drop", "inject") and events[-1][1] in ("clear", "end")
+
+
+def os_threads() -> int:
+    """Every thread of this process, native ones (zenoh's, rerun's) included."""
+    return len(os.listdir("/proc/self/task"))
+
+
+def test_many_runs_in_a_row_keep_the_thread_count_flat(service):
+    svc, client = service
+    short = SHORT.replace("duration = 6.0", "duration = 0.25")
+    counts = []
+    for _ in range(20):
+        assert ask(client, "start", short)["ok"]
+        assert svc.wait_idle(30)
+        assert ask(client, "status")["last"]["passed"]
+        counts.append(os_threads())
+    assert counts[-1] - counts[1] <= 2, f"threads after each run: {counts}"
+
+
+def test_positive_control_a_recording_stream_per_run_leaks_threads_this_count_sees(tmp_path):
+    import rerun as rr
+
+    before = os_threads()
+    for i in range(3):
+        rec = rr.RecordingStream(f"pure_hil_leak_{i}")
+        rec.set_sinks(rr.FileSink(str(tmp_path / f"{i}.rrd")))
+        rec.flush()
+        rec.disconnect()
+        del rec
+    assert os_threads() - before >= 3, "rerun-io/rerun#2116: the threads of a dropped stream live on"

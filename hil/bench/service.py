@@ -49,6 +49,9 @@ class RigService:
         self.keys = Keys(self.bench.zenoh.prefix)
         self.view_sink = view
         self._view = None
+        self._views: dict[str, object] = {}
+        """One live recording per scenario name, kept for the service's life: rerun never drops a stream
+        created from Python (rerun-io/rerun#2116), so a stream per run would leak its threads."""
         self.out_root = out_root
         self.state = "idle"
         self.scenario: Scenario | None = None
@@ -196,7 +199,9 @@ class RigService:
         if self.view_sink is not None:
             from hil.outputs.recording import LiveView
 
-            self._view = LiveView(self.view_sink, scenario.name)
+            if scenario.name not in self._views:
+                self._views[scenario.name] = LiveView(self.view_sink, scenario.name)
+            self._view = self._views[scenario.name]
             self._view.mark(0.0, f"run {scenario.name} started")
         try:
             result = run(
@@ -224,7 +229,7 @@ class RigService:
         finally:
             if self._view is not None:
                 self._view.mark(self.sim_time, f"run {scenario.name} ended: {self.last}")
-                self._view.close()
+                self._view.flush()
                 self._view = None
             self.state = "idle"
 
@@ -245,3 +250,5 @@ class RigService:
         self.wait_idle(10.0)
         for q in self._queryables:
             q.undeclare()
+        for view in self._views.values():
+            view.close()

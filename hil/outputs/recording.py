@@ -1,5 +1,5 @@
 """The run's rerun recording: states, commands and the rider on a simulated-time timeline, written to a
-file in column batches (one `send_columns` per signal group for the whole run, never one call per tick).
+file in column batches (one chunk per signal group for the whole run, never one call per tick).
 
 File sink only: no viewer is spawned and nothing is served (network rule); CI=1 keeps rerun's analytics off.
 """
@@ -7,6 +7,7 @@ File sink only: no viewer is spawned and nothing is served (network rule); CI=1 
 from __future__ import annotations
 
 import os
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,7 @@ import numpy as np
 os.environ.setdefault("CI", "1")  # rerun's analytics are off in CI mode; the SDK alone never phones home
 
 import rerun as rr
+from rerun.chunk import Chunk, ChunkStore
 
 SIGNALS = {
     # entity path: (trace attribute, series names)
@@ -29,48 +31,49 @@ DEGREES = {"tilt/chassis", "tilt/command", "rider/lean"}
 
 
 def write_rrd(path: Path, trace, name: str = "pure-hil") -> None:
-    rec = rr.RecordingStream(f"pure_hil_{name}")
-    rec.set_sinks(rr.FileSink(str(path)))
-    rec.set_log_time_enabled(False)
-    times = rr.TimeColumn("sim_time", duration=np.asarray(trace.t, float))
+    """The whole run as chunks, one per signal group, written straight to `path`. No RecordingStream: a
+    Python-created stream is never dropped and keeps its batcher threads for the life of the process
+    (rerun-io/rerun#2116), which a service running for weeks cannot afford."""
+    times = [rr.TimeColumn("sim_time", duration=np.asarray(trace.t, float))]
+    chunks = []
+
+    def series(entity: str, names: list[str], values) -> None:
+        labels = rr.SeriesLines.columns(names=names).partition([len(names)])
+        chunks.append(Chunk.from_columns(entity, indexes=[], columns=labels))
+        scalars = rr.Scalars.columns(scalars=np.asarray(values, float))
+        chunks.append(Chunk.from_columns(entity, indexes=times, columns=scalars))
+
     for entity, (attr, names) in SIGNALS.items():
         values = np.asarray(getattr(trace, attr), float)
-        if entity in DEGREES:
-            values = np.degrees(values)
-        rec.log(entity, rr.SeriesLines(names=names), static=True)
-        rec.send_columns(entity, indexes=[times], columns=rr.Scalars.columns(scalars=values))
-    rec.log("yaw_rate", rr.SeriesLines(names=["yaw rate"]), static=True)
-    rec.send_columns(
-        "yaw_rate", indexes=[times], columns=rr.Scalars.columns(scalars=np.asarray(trace.yaw_rate))
-    )
-    rec.log("safety/state", rr.SeriesLines(names=["supervisor state (0 normal .. 3 e-stop)"]), static=True)
-    rec.send_columns(
-        "safety/state",
-        indexes=[times],
-        columns=rr.Scalars.columns(scalars=np.asarray(trace.safety_state, float)),
-    )
-    rec.log("safety/speed_estimate", rr.SeriesLines(names=["supervisor's speed estimate"]), static=True)
-    rec.send_columns(
-        "safety/speed_estimate",
-        indexes=[times],
-        columns=rr.Scalars.columns(scalars=np.asarray(trace.safety_speed, float)),
-    )
+        series(entity, names, np.degrees(values) if entity in DEGREES else values)
+    series("yaw_rate", ["yaw rate"], trace.yaw_rate)
+    series("safety/state", ["supervisor state (0 normal .. 3 e-stop)"], trace.safety_state)
+    series("safety/speed_estimate", ["supervisor's speed estimate"], trace.safety_speed)
+
+    def text_log(entity: str, rows: list[tuple[float, str, str]]) -> None:
+        if rows:
+            t, text, level = zip(*rows, strict=True)
+            index = [rr.TimeColumn("sim_time", duration=np.asarray(t, float))]
+            chunks.append(
+                Chunk.from_columns(entity, indexes=index, columns=rr.TextLog.columns(text=text, level=level))
+            )
+
+    events = []
     for e in trace.safety_events:
-        rec.set_time("sim_time", duration=float(e.t))
         level = "WARN" if e.to_state in ("STOPPING", "ESTOP") or e.kind != "transition" else "INFO"
         text = f"supervisor {e.kind}: {e.from_state} -> {e.to_state} ({e.cause}) {e.detail}".strip()
-        rec.log("events", rr.TextLog(text, level=level))
-    for f in getattr(trace, "fault_events", ()):
-        rec.set_time("sim_time", duration=float(f.t))
-        rec.log(
-            "events/faults",
-            rr.TextLog(f"fault {f.fault} {f.action}: {f.kind} {f.detail}".strip(), level="WARN"),
-        )
+        events.append((float(e.t), text, level))
     if trace.fallen:
-        rec.set_time("sim_time", duration=float(trace.t[-1]))
-        rec.log("events", rr.TextLog(f"fell: {trace.fallen}", level="ERROR"))
-    rec.flush()
-    rec.disconnect()
+        events.append((float(trace.t[-1]), f"fell: {trace.fallen}", "ERROR"))
+    text_log("events", events)
+    faults = getattr(trace, "fault_events", ())
+    text_log(
+        "events/faults",
+        [(float(f.t), f"fault {f.fault} {f.action}: {f.kind} {f.detail}".strip(), "WARN") for f in faults],
+    )
+    ChunkStore.from_chunks(chunks).write_rrd(
+        path, application_id=f"pure_hil_{name}", recording_id=uuid.uuid4().hex
+    )
 
 
 LIVE = {
@@ -105,13 +108,18 @@ class LiveView:
         for entity, (_, read) in LIVE.items():
             self._rows[entity].append(read(truth))
         if len(self._t) >= self.every:
-            self.flush()
+            self._send_rows()
 
     def mark(self, t: float, text: str, level: str = "INFO") -> None:
         self.rec.set_time("sim_time", duration=t)
         self.rec.log("events", rr.TextLog(text, level=level))
 
     def flush(self) -> None:
+        """Everything so far to the sink (the end of a run; the stream stays open for the next)."""
+        self._send_rows()
+        self.rec.flush()
+
+    def _send_rows(self) -> None:
         if not self._t:
             return
         times = rr.TimeColumn("sim_time", duration=np.asarray(self._t, float))
@@ -124,5 +132,4 @@ class LiveView:
 
     def close(self) -> None:
         self.flush()
-        self.rec.flush()
         self.rec.disconnect()
