@@ -16,6 +16,7 @@ import time
 
 from controller.core import Controller, Fault, Output, ScInput, State, Wrench
 from drivers.can_bus import CanNode, Received
+from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, MessageName
 from drivers.keys import Keys
 from drivers.schemas import ControllerCommand, ControllerTelemetry, ScCommand, TesWrench
 from drivers.zenoh_link import Fence, ZenohLink
@@ -23,8 +24,7 @@ from drivers.zenoh_link import Fence, ZenohLink
 log = logging.getLogger(__name__)
 
 TICK_MODULO = 1 << 16
-DRIVE_COMMANDS = ("DRIVE1_COMMAND", "DRIVE2_COMMAND", "DRIVE3_COMMAND")
-FEEDBACK = {"DRIVE1_FEEDBACK": 0, "DRIVE2_FEEDBACK": 1, "DRIVE3_FEEDBACK": 2}
+FEEDBACK = {name: motor for motor, name in enumerate(DRIVE_FEEDBACK)}
 SEAT_FLAGGED = frozenset({"WRENCH_IMPLAUSIBLE"})
 """SUPERVISOR_ESTOP.Reason values that say the seat's wrench is not a rider's: the controller stops using it
 (as if the seat were silent) until the supervisor is back in NORMAL, instead of balancing on a phantom lean
@@ -58,7 +58,7 @@ class ControllerNode:
         fence_reads.append(self.tes)
         self.estop = False
         self.seat_flagged = False
-        reasons = can.catalog["SUPERVISOR_ESTOP"].values("Reason")
+        reasons = can.catalog[MessageName.SUPERVISOR_ESTOP].values("Reason")
         self._seat_flags = frozenset(code for code, name in reasons.items() if name in SEAT_FLAGGED)
         self.tick: int | None = None
         self.late = 0
@@ -70,7 +70,7 @@ class ControllerNode:
 
     # ------------------------------------------------------------------------------------------ frames
     def handle(self, rx: Received) -> None:
-        if rx.name == "SYNC":
+        if rx.name == MessageName.SYNC:
             self.on_sync(int(rx.signals["Tick"]))
             return
         if not rx.ok:
@@ -79,11 +79,11 @@ class ControllerNode:
         est = self.controller.estimator
         if rx.name in FEEDBACK:
             est.drive(FEEDBACK[rx.name], int(s["Position"]), s["Velocity"], t)
-        elif rx.name == "IMU_ATTITUDE" and s["Valid"]:
+        elif rx.name == MessageName.IMU_ATTITUDE and s["Valid"]:
             est.imu_attitude(s["Roll"], s["Pitch"], s["Yaw"], t)
-        elif rx.name == "IMU_RATE" and s["Valid"]:
+        elif rx.name == MessageName.IMU_RATE and s["Valid"]:
             est.imu_rate(s["RateX"], s["RateY"], s["RateZ"], t)
-        elif rx.name == "SUPERVISOR_ESTOP":
+        elif rx.name == MessageName.SUPERVISOR_ESTOP:
             self.estop = bool(s["Estop"])
             if int(s["Reason"]) in self._seat_flags:
                 self.seat_flagged = True
@@ -111,11 +111,11 @@ class ControllerNode:
             log.exception("controller step failed at tick %d: drives disabled", self.tick)
             self.controller.state, self.controller.fault = State.FAULT, Fault.INTERNAL
             out = Output((0.0, 0.0, 0.0), False, State.FAULT, Fault.INTERNAL)
-        for name, torque in zip(DRIVE_COMMANDS, out.motor_torque, strict=True):
+        for name, torque in zip(DRIVE_COMMAND, out.motor_torque, strict=True):
             self.can.send(name, {"Torque": torque, "Tick": raw_tick, "Enable": int(out.enable)})
         mode = self.controller.config.mode
         self.can.send(
-            "CONTROLLER_HEARTBEAT",
+            MessageName.CONTROLLER_HEARTBEAT,
             {"State": int(out.state), "Mode": int(mode == "ihacs"), "FaultCode": int(out.fault)},
         )
         self.link.put(
@@ -160,7 +160,7 @@ class ControllerNode:
         declared, so a rig that starts on it finds them)."""
         mode = self.controller.config.mode
         boot = {"State": int(State.INIT), "Mode": int(mode == "ihacs"), "FaultCode": 0}
-        self.can.send("CONTROLLER_HEARTBEAT", boot)
+        self.can.send(MessageName.CONTROLLER_HEARTBEAT, boot)
 
     def run(self, stop: threading.Event, poll: float = 0.1, paused: threading.Event | None = None) -> None:
         """Receive until `stop` is set (recv blocks at most `poll` seconds, so stopping is prompt); while

@@ -3,13 +3,14 @@
 cantools is the reference; its per-frame cost (2-5 µs encode, 1.4 µs decode, measured) is too much for a
 400 Hz tick that handles a dozen frames, so each message gets a codec compiled from the cantools signal
 definitions (start bit, length, sign, scale, offset, range): one integer shift/mask per signal, no
-hand-written offsets. `tests/test_can_codec.py` proves them identical to cantools on random signals.
+hand-written offsets. `tests/test_can.py` proves them identical to cantools on random signals.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from enum import StrEnum
 from pathlib import Path
 
 import cantools
@@ -17,6 +18,34 @@ import cantools
 from drivers.resources import SHIPPED
 
 DEFAULT_DBC = SHIPPED / "can" / "pure.dbc"
+
+
+class MessageName(StrEnum):
+    """The DBC's message names, spelled once. Code outside drivers/ names a message only through these
+    (tests/test_boundaries.py); tests/test_can.py checks they are exactly the DBC's messages."""
+
+    SYNC = "SYNC"
+    SUPERVISOR_ESTOP = "SUPERVISOR_ESTOP"
+    OPERATOR_ESTOP = "OPERATOR_ESTOP"
+    CONTROLLER_HEARTBEAT = "CONTROLLER_HEARTBEAT"
+    DRIVE1_COMMAND = "DRIVE1_COMMAND"
+    DRIVE2_COMMAND = "DRIVE2_COMMAND"
+    DRIVE3_COMMAND = "DRIVE3_COMMAND"
+    DRIVE1_FEEDBACK = "DRIVE1_FEEDBACK"
+    DRIVE2_FEEDBACK = "DRIVE2_FEEDBACK"
+    DRIVE3_FEEDBACK = "DRIVE3_FEEDBACK"
+    DRIVE1_TORQUE = "DRIVE1_TORQUE"
+    DRIVE2_TORQUE = "DRIVE2_TORQUE"
+    DRIVE3_TORQUE = "DRIVE3_TORQUE"
+    IMU_ATTITUDE = "IMU_ATTITUDE"
+    IMU_RATE = "IMU_RATE"
+    IMU_ACCEL = "IMU_ACCEL"
+
+
+DRIVE_COMMAND = (MessageName.DRIVE1_COMMAND, MessageName.DRIVE2_COMMAND, MessageName.DRIVE3_COMMAND)
+DRIVE_FEEDBACK = (MessageName.DRIVE1_FEEDBACK, MessageName.DRIVE2_FEEDBACK, MessageName.DRIVE3_FEEDBACK)
+DRIVE_TORQUE = (MessageName.DRIVE1_TORQUE, MessageName.DRIVE2_TORQUE, MessageName.DRIVE3_TORQUE)
+"""Each drive's messages, in motor order (motor 1 first)."""
 
 
 class CanCodecError(ValueError):

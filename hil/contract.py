@@ -15,7 +15,7 @@ from pathlib import Path
 
 import msgspec
 
-from drivers.can_codec import Catalog
+from drivers.can_codec import Catalog, MessageName
 from drivers.config import load_toml
 from drivers.schemas import (
     ControllerCommand,
@@ -66,7 +66,7 @@ def signal_table(catalog: Catalog | None = None) -> str:
     for codec in sorted(catalog, key=lambda c: c.frame_id):
         m = codec.message
         rate = f"{1000 / codec.cycle_time_ms:g} Hz" if codec.cycle_time_ms else period
-        if m.name == "OPERATOR_ESTOP":
+        if m.name == MessageName.OPERATOR_ESTOP:
             rate = "event"
         head = [m.name, f"0x{m.frame_id:03X}", ", ".join(m.senders), rate]
         for i, s in enumerate(m.signals):

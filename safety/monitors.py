@@ -20,6 +20,7 @@ from collections import Counter, deque
 import numpy as np
 
 from drivers.can_bus import Received
+from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MessageName
 from drivers.e2e import COUNTER, COUNTER_MODULO, CRC, E2EStatus
 from drivers.schemas import EstopCommand, ScRequest, TesWrench
 from safety.arbiter import ScArbiter
@@ -38,13 +39,14 @@ from safety.diagnostics import (
 )
 from safety.machine import STREAMS, Cause, DriveReport, Finding, Observation, Request
 
-DRIVE_FEEDBACK = {"DRIVE1_FEEDBACK": 0, "DRIVE2_FEEDBACK": 1, "DRIVE3_FEEDBACK": 2}
-DRIVE_COMMANDS = {"DRIVE1_COMMAND": 0, "DRIVE2_COMMAND": 1, "DRIVE3_COMMAND": 2}
-DRIVE_TORQUE = {"DRIVE1_TORQUE": 0, "DRIVE2_TORQUE": 1, "DRIVE3_TORQUE": 2}
+MOTOR = {
+    name: motor for names in (DRIVE_FEEDBACK, DRIVE_COMMAND, DRIVE_TORQUE) for motor, name in enumerate(names)
+}
+"""Which motor (0, 1, 2) a drive's message is about."""
 IMU_CHANNELS = {
-    "IMU_ATTITUDE": ("Roll", "Pitch", "Yaw"),
-    "IMU_RATE": ("RateX", "RateY", "RateZ"),
-    "IMU_ACCEL": ("AccX", "AccY", "AccZ"),
+    MessageName.IMU_ATTITUDE: ("Roll", "Pitch", "Yaw"),
+    MessageName.IMU_RATE: ("RateX", "RateY", "RateZ"),
+    MessageName.IMU_ACCEL: ("AccX", "AccY", "AccZ"),
 }
 REPLAY_CHECKED = (*DRIVE_FEEDBACK, *DRIVE_TORQUE, *IMU_CHANNELS)
 """Sensor streams checked for a replay from one counter period back."""
@@ -191,19 +193,19 @@ class Monitors:
                 else None
             )
         if name in DRIVE_FEEDBACK:
-            self.drives[DRIVE_FEEDBACK[name]].feedback(s, t, lost)
+            self.drives[MOTOR[name]].feedback(s, t, lost)
             self.last["drives"] = min(d.seen for d in self.drives)
-        elif name in DRIVE_COMMANDS:
+        elif name in DRIVE_COMMAND:
             self.torque_peak = max(self.torque_peak, abs(float(s["Torque"])))
-            self.drives[DRIVE_COMMANDS[name]].commanded(s, t)
+            self.drives[MOTOR[name]].commanded(s, t)
         elif name in DRIVE_TORQUE:
-            self.drives[DRIVE_TORQUE[name]].measured(float(s["Torque"]))
+            self.drives[MOTOR[name]].measured(float(s["Torque"]))
         elif name in IMU_CHANNELS and s["Valid"]:
             self._imu_frame(name, s, t)
-        elif name == "CONTROLLER_HEARTBEAT":
+        elif name == MessageName.CONTROLLER_HEARTBEAT:
             self.controller_state = int(s["State"])
             self.last["heartbeat"] = t
-        elif name == "OPERATOR_ESTOP":
+        elif name == MessageName.OPERATOR_ESTOP:
             self.button = bool(s["Request"])
 
     def _imu_frame(self, name: str, s, t: float) -> None:
@@ -211,12 +213,12 @@ class Monitors:
         for i, signal in enumerate(signals):
             values[i] = float(s[signal])
         self._imu_seen[name] = t
-        self.last["imu"] = min(self._imu_seen["IMU_ATTITUDE"], self._imu_seen["IMU_RATE"])
-        rates, attitude = self.imu["IMU_RATE"], self.imu["IMU_ATTITUDE"]
+        self.last["imu"] = min(self._imu_seen[MessageName.IMU_ATTITUDE], self._imu_seen[MessageName.IMU_RATE])
+        rates, attitude = self.imu[MessageName.IMU_RATE], self.imu[MessageName.IMU_ATTITUDE]
         # What says each channel must have moved since its previous frame (evidence for the stuck check).
-        if name == "IMU_ATTITUDE":  # the body rates
+        if name == MessageName.IMU_ATTITUDE:  # the body rates
             evidence = [abs(r) * self.period for r in rates]
-        elif name == "IMU_RATE":  # the attitude they drive; the yaw rate the encoders determine
+        elif name == MessageName.IMU_RATE:  # the attitude they drive; the yaw rate the encoders determine
             encoder_yaw = self.yaw.encoders([d.velocity for d in self.drives])
             evidence = [
                 abs(attitude[0] - self._attitude_at_rate[0]),
@@ -248,13 +250,13 @@ class Monitors:
         if (w.seq, w.stamp) != self._wrench_id:
             self._wrench_id = (w.seq, w.stamp)
             self.last["wrench"] = t
-            attitude = self.imu["IMU_ATTITUDE"]
-            vertical = world_acceleration(self.imu["IMU_ACCEL"], attitude[0], attitude[1])[2]
+            attitude = self.imu[MessageName.IMU_ATTITUDE]
+            vertical = world_acceleration(self.imu[MessageName.IMU_ACCEL], attitude[0], attitude[1])[2]
             self._found["seat"] = self.seat.sample(
                 w.force,
                 w.moment,
                 w.cop,
-                vertical if self._imu_seen["IMU_ACCEL"] > -math.inf else G0,
+                vertical if self._imu_seen[MessageName.IMU_ACCEL] > -math.inf else G0,
                 self._imu_motion,
             )
             self._imu_motion = 0.0
@@ -295,7 +297,7 @@ class Monitors:
     def speed(self) -> float | None:
         if not (math.isfinite(self.last["drives"]) and math.isfinite(self.last["imu"])):
             return None
-        rate = self.imu["IMU_RATE"]
+        rate = self.imu[MessageName.IMU_RATE]
         rel = self._relative()
         nominal = self.radius * math.hypot(float(rel[1]) + rate[1], float(rel[0]) + rate[0])
         if not self.degraded:
@@ -309,9 +311,9 @@ class Monitors:
         return max(estimates)
 
     def tilt(self) -> float | None:
-        if not math.isfinite(self._imu_seen["IMU_ATTITUDE"]):
+        if not math.isfinite(self._imu_seen[MessageName.IMU_ATTITUDE]):
             return None
-        attitude = self.imu["IMU_ATTITUDE"]
+        attitude = self.imu[MessageName.IMU_ATTITUDE]
         return max(abs(attitude[0]), abs(attitude[1]))
 
     def _cross_checks(self, t: float) -> list[Finding]:
@@ -324,8 +326,8 @@ class Monitors:
             return []
         if not dt:
             return []
-        roll, pitch, _ = self.imu["IMU_ATTITUDE"]
-        rate = self.imu["IMU_RATE"]
+        roll, pitch, _ = self.imu[MessageName.IMU_ATTITUDE]
+        rate = self.imu[MessageName.IMU_RATE]
         velocities = [d.velocity for d in self.drives]
         found = [self.yaw.update(velocities, rate[2], dt)]
         coupling = (abs(rate[0]) + abs(rate[1]) + abs(rate[2])) * math.tan(max(abs(roll), abs(pitch)))
@@ -335,7 +337,7 @@ class Monitors:
         forward = self.radius * (float(rel[1]) + rate[1])
         left = -self.radius * (float(rel[0]) + rate[0])
         h = self.imu_height
-        ax, ay, _ = world_acceleration(self.imu["IMU_ACCEL"], roll, pitch)
+        ax, ay, _ = world_acceleration(self.imu[MessageName.IMU_ACCEL], roll, pitch)
         found.append(self.trend[0].update(forward + h * math.cos(pitch) * rate[1], ax, dt))
         found.append(self.trend[1].update(left - h * math.cos(roll) * rate[0], ay, dt))
         return [f for f in found if f is not None]

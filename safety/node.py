@@ -19,6 +19,7 @@ import time
 from collections.abc import Callable
 
 from drivers.can_bus import CanNode, Received
+from drivers.can_codec import MessageName
 from drivers.schemas import EstopCommand, SafetyState, ScCommand, ScRequest, TesWrench, encode
 from drivers.zenoh_link import Fence, ZenohLink
 from safety.config import RobotGeometry, SupervisorConfig
@@ -70,7 +71,7 @@ class SupervisorNode:
 
     # ---------------------------------------------------------------------------------------- inputs
     def frame(self, rx: Received, t: float) -> None:
-        if rx.name == "SYNC":
+        if rx.name == MessageName.SYNC:
             raw = int(rx.signals["Tick"])
             self.tick = raw if self.tick is None else self.tick + (raw - self.tick) % TICK_MODULO
             return
@@ -156,7 +157,7 @@ class SupervisorNode:
 
     def _send_frame(self, state: State, cause, contactor_closed: bool) -> None:
         self.can.send(
-            "SUPERVISOR_ESTOP",
+            MessageName.SUPERVISOR_ESTOP,
             {
                 "Estop": int(state is State.ESTOP),
                 "Contactor": int(contactor_closed),
@@ -203,7 +204,7 @@ class SupervisorNode:
             if rx is None:
                 continue
             self.frame(rx, self._stamp(0.0))
-            if rx.name == "SYNC":
+            if rx.name == MessageName.SYNC:
                 self.update(self._stamp(0.0))
 
 

@@ -1,6 +1,7 @@
 """The one-way import rules of docs/architecture.md, checked by parsing every module's imports."""
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -64,3 +65,64 @@ def test_checker_sees_a_violation():
     roots = imported_roots(source, "controller")
     assert {"plant", "hil", "controller"} <= roots
     assert roots & OURS - {"controller"} - ALLOWED["controller"] == {"plant", "hil"}
+
+
+def _message_names() -> set[str]:
+    from drivers.can_codec import Catalog
+
+    return {codec.name for codec in Catalog()}
+
+
+def _spelled_names(source: str, names: set[str]) -> list[tuple[int, str]]:
+    """Where code (not a docstring) spells a CAN message name: a string literal, or an f-string whose
+    fixed parts with anything in its holes could be one (f"DRIVE{i}_COMMAND")."""
+    tree = ast.parse(source)
+    skip = {  # docstrings are prose; the fixed parts of an f-string are judged with it
+        id(node.body[0].value)
+        for node in ast.walk(tree)
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+        and node.body
+        and isinstance(node.body[0], ast.Expr)
+        and isinstance(node.body[0].value, ast.Constant)
+    }
+    found = []
+    for node in ast.walk(tree):
+        fixed = [p.value for p in getattr(node, "values", ()) if isinstance(p, ast.Constant)]
+        if isinstance(node, ast.JoinedStr) and any(re.search("[A-Z]{3}", str(part)) for part in fixed):
+            pattern = "".join(
+                re.escape(part.value) if isinstance(part, ast.Constant) else ".+" for part in node.values
+            )
+            found += [(node.lineno, n) for n in names if re.fullmatch(pattern, n)]
+        if isinstance(node, ast.JoinedStr):
+            skip.update(id(part) for part in node.values)
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in skip:
+            found += [(node.lineno, node.value)] if node.value in names else []
+    return found
+
+
+def test_can_message_names_are_spelled_only_in_drivers():
+    names = _message_names()
+    bad = [
+        f"{path.relative_to(ROOT)}:{line} spells {name!r}: use drivers.can_codec.MessageName"
+        for package in sorted(OURS - {"drivers"})
+        for path in modules(package)
+        for line, name in _spelled_names(path.read_text(), names)
+    ]
+    assert not bad, "\n".join(bad)
+
+
+def test_positive_control_the_name_check_sees_each_way_of_spelling_a_name():
+    names = _message_names()
+    source = '''"""SYNC in a docstring is prose."""
+a = "SYNC"
+b = {"DRIVE1_COMMAND": 0}
+c = [f"DRIVE{i}_TORQUE" for i in (1, 2, 3)]
+d = "SYNCHRONISED"
+'''
+    assert sorted(_spelled_names(source, names)) == [
+        (2, "SYNC"),
+        (3, "DRIVE1_COMMAND"),
+        (4, "DRIVE1_TORQUE"),
+        (4, "DRIVE2_TORQUE"),
+        (4, "DRIVE3_TORQUE"),
+    ]

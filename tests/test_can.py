@@ -266,3 +266,11 @@ def test_private_channels_never_end_in_digits():
     names = {private_channel("x") for _ in range(200)}
     assert len(names) == 200 and not any(n[-1].isdigit() for n in names)
     assert can.util.channel2int(private_channel()) is None
+
+
+def test_message_names_are_exactly_the_dbcs():
+    from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MessageName
+
+    assert {m.value for m in MessageName} == {codec.name for codec in Catalog()}
+    for kind, group in (("COMMAND", DRIVE_COMMAND), ("FEEDBACK", DRIVE_FEEDBACK), ("TORQUE", DRIVE_TORQUE)):
+        assert [str(m) for m in group] == [f"DRIVE{i}_{kind}" for i in (1, 2, 3)]

@@ -16,6 +16,7 @@ import can
 import msgspec
 
 from drivers.bus_load import frame_bits
+from drivers.can_codec import DRIVE_COMMAND, MessageName
 from drivers.e2e import counter_of, is_protected, with_counter
 from hil.faults.base import FaultSpec, FaultState, Positive, Probability
 
@@ -23,9 +24,7 @@ if TYPE_CHECKING:
     from hil.run.rig import Rig
 
 Count = Annotated[int, msgspec.Meta(gt=0)]
-RX_MESSAGES = frozenset(
-    ["DRIVE1_COMMAND", "DRIVE2_COMMAND", "DRIVE3_COMMAND", "SUPERVISOR_ESTOP", "CONTROLLER_HEARTBEAT"]
-)
+RX_MESSAGES = frozenset([*DRIVE_COMMAND, MessageName.SUPERVISOR_ESTOP, MessageName.CONTROLLER_HEARTBEAT])
 """Messages the rig receives (as the drives); the rest of the catalog the rig sends (or nobody does)."""
 
 

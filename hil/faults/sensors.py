@@ -21,6 +21,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar, Literal
 
+from drivers.can_codec import DRIVE_FEEDBACK, DRIVE_TORQUE, MessageName
 from hil.faults.base import FaultSpec, FaultState, Positive, Probability
 from plant.params import Encoder
 from plant.sensors import DriveFeedback, ImuSample, TesSample, counts_from_angle
@@ -29,20 +30,20 @@ if TYPE_CHECKING:
     from plant.ballbot import Plant
 
 _IMU = {
-    "imu.roll": ("IMU_ATTITUDE", "rad"),
-    "imu.pitch": ("IMU_ATTITUDE", "rad"),
-    "imu.yaw": ("IMU_ATTITUDE", "rad"),
-    "imu.rate_x": ("IMU_RATE", "rad/s"),
-    "imu.rate_y": ("IMU_RATE", "rad/s"),
-    "imu.rate_z": ("IMU_RATE", "rad/s"),
-    "imu.accel_x": ("IMU_ACCEL", "m/s²"),
-    "imu.accel_y": ("IMU_ACCEL", "m/s²"),
-    "imu.accel_z": ("IMU_ACCEL", "m/s²"),
+    "imu.roll": (MessageName.IMU_ATTITUDE, "rad"),
+    "imu.pitch": (MessageName.IMU_ATTITUDE, "rad"),
+    "imu.yaw": (MessageName.IMU_ATTITUDE, "rad"),
+    "imu.rate_x": (MessageName.IMU_RATE, "rad/s"),
+    "imu.rate_y": (MessageName.IMU_RATE, "rad/s"),
+    "imu.rate_z": (MessageName.IMU_RATE, "rad/s"),
+    "imu.accel_x": (MessageName.IMU_ACCEL, "m/s²"),
+    "imu.accel_y": (MessageName.IMU_ACCEL, "m/s²"),
+    "imu.accel_z": (MessageName.IMU_ACCEL, "m/s²"),
 }
 CHANNELS: dict[str, tuple[str, str]] = {
-    **{f"encoder{i}": (f"DRIVE{i}_FEEDBACK", "rad") for i in (1, 2, 3)},
-    **{f"drive{i}.velocity": (f"DRIVE{i}_FEEDBACK", "rad/s") for i in (1, 2, 3)},
-    **{f"drive{i}.torque": (f"DRIVE{i}_TORQUE", "Nm") for i in (1, 2, 3)},
+    **{f"encoder{i}": (name, "rad") for i, name in enumerate(DRIVE_FEEDBACK, 1)},
+    **{f"drive{i}.velocity": (name, "rad/s") for i, name in enumerate(DRIVE_FEEDBACK, 1)},
+    **{f"drive{i}.torque": (name, "Nm") for i, name in enumerate(DRIVE_TORQUE, 1)},
     **_IMU,
     **{f"tes.cell{i}": ("tes", "N") for i in range(1, 7)},
 }

@@ -25,6 +25,7 @@ from collections import Counter, deque
 from dataclasses import dataclass, field
 
 from drivers.can_bus import CanNode, Received
+from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MessageName
 from drivers.schemas import (
     ControllerCommand,
     ControllerTelemetry,
@@ -41,9 +42,7 @@ from plant.drives import DriveState
 from safety.node import SupervisorNode
 
 TICK_MODULO = 1 << 16
-COMMANDS = {"DRIVE1_COMMAND": 0, "DRIVE2_COMMAND": 1, "DRIVE3_COMMAND": 2}
-FEEDBACK = ("DRIVE1_FEEDBACK", "DRIVE2_FEEDBACK", "DRIVE3_FEEDBACK")
-TORQUE = ("DRIVE1_TORQUE", "DRIVE2_TORQUE", "DRIVE3_TORQUE")
+COMMANDS = {name: motor for motor, name in enumerate(DRIVE_COMMAND)}
 TORQUE_EVERY = 4  # DRIVEn_TORQUE at 100 Hz on a 400 Hz tick (the DBC's GenMsgCycleTime)
 SC_REPEAT_EVERY = 40  # ticks between repeats of an unchanged SC request (keeps it fresh for the supervisor)
 
@@ -179,8 +178,8 @@ class Rig:
             if rx is None:
                 continue
             self._other_frame(rx)
-            controller = controller or rx.name == "CONTROLLER_HEARTBEAT"
-            supervisor = supervisor or (rx.name == "SUPERVISOR_ESTOP" and rx.ok)
+            controller = controller or rx.name == MessageName.CONTROLLER_HEARTBEAT
+            supervisor = supervisor or (rx.name == MessageName.SUPERVISOR_ESTOP and rx.ok)
 
     def tick(self, deadline: float | None = None, lockstep: bool = True) -> None:
         """One tick; wait for the controller's answer until `deadline` (time.monotonic()).
@@ -203,7 +202,7 @@ class Rig:
             self.link.put_fence(k, plant.t)
         self._send_sensors(k, feedback, imu, silent)
         faults.flush(plant.t)
-        self.can.send("SYNC", {"Tick": k % TICK_MODULO})
+        self.can.send(MessageName.SYNC, {"Tick": k % TICK_MODULO})
         if deadline is None:
             deadline = time.monotonic() + self.command_guard
         if self._silent:
@@ -228,7 +227,7 @@ class Rig:
 
     def _send_sensors(self, k: int, feedback, imu, silent: set[str]) -> None:
         plant, send = self.plant, self.can.send
-        for name, fb, motor in zip(FEEDBACK, feedback, plant.drives.motors, strict=True):
+        for name, fb, motor in zip(DRIVE_FEEDBACK, feedback, plant.drives.motors, strict=True):
             if silent and name in silent:
                 continue
             send(
@@ -242,13 +241,16 @@ class Rig:
                 },
             )
         if k % TORQUE_EVERY == 0:
-            for name, fb in zip(TORQUE, feedback, strict=True):
+            for name, fb in zip(DRIVE_TORQUE, feedback, strict=True):
                 if not (silent and name in silent):
                     send(name, {"Torque": fb.torque})
         frames = (
-            ("IMU_ATTITUDE", {"Roll": imu.attitude[0], "Pitch": imu.attitude[1], "Yaw": imu.attitude[2]}),
-            ("IMU_RATE", {"RateX": imu.rate[0], "RateY": imu.rate[1], "RateZ": imu.rate[2]}),
-            ("IMU_ACCEL", {"AccX": imu.accel[0], "AccY": imu.accel[1], "AccZ": imu.accel[2]}),
+            (
+                MessageName.IMU_ATTITUDE,
+                {"Roll": imu.attitude[0], "Pitch": imu.attitude[1], "Yaw": imu.attitude[2]},
+            ),
+            (MessageName.IMU_RATE, {"RateX": imu.rate[0], "RateY": imu.rate[1], "RateZ": imu.rate[2]}),
+            (MessageName.IMU_ACCEL, {"AccX": imu.accel[0], "AccY": imu.accel[1], "AccZ": imu.accel[2]}),
         )
         for name, signals in frames:
             if not (silent and name in silent):
@@ -324,9 +326,9 @@ class Rig:
             self._other_frame(rx)
 
     def _other_frame(self, rx: Received) -> None:
-        if rx.name == "CONTROLLER_HEARTBEAT":
+        if rx.name == MessageName.CONTROLLER_HEARTBEAT:
             self.stats.controller_states[int(rx.signals["State"])] += 1
-        elif rx.name == "SUPERVISOR_ESTOP" and rx.ok:
+        elif rx.name == MessageName.SUPERVISOR_ESTOP and rx.ok:
             self._permission_seen = self.plant.t
             self._estop_asserted = bool(rx.signals["Estop"])
             self._contactor_commanded = bool(rx.signals["Contactor"])
@@ -374,7 +376,7 @@ class Rig:
                 continue
             if rx.name not in COMMANDS:
                 self._other_frame(rx)
-                if rx.name == "CONTROLLER_HEARTBEAT":
+                if rx.name == MessageName.CONTROLLER_HEARTBEAT:
                     spoke = True
                     if heard and lockstep:
                         break

@@ -193,7 +193,7 @@ class Classification:
         return self.label in ("DETECTED", "BENIGN")
 
 
-OPERATOR_CAUSES = frozenset({"OPERATOR_ESTOP", "BUTTON_ESTOP", "RESET"})
+OPERATOR_CAUSES = frozenset(c.name for c in (Cause.OPERATOR_ESTOP, Cause.BUTTON_ESTOP, Cause.RESET))
 """What an operator does to the supervisor: never a trip of its own."""
 
 

@@ -20,13 +20,13 @@ import can
 import msgspec
 
 from drivers.can_bus import BusConfig, open_bus, private_channel
-from drivers.can_codec import Catalog
+from drivers.can_codec import DRIVE_COMMAND, Catalog, MessageName
 from drivers.dut import DutSpec, start_dut
 from drivers.resources import find
 from drivers.zenoh_link import ZenohAccess, ZenohLink
 from hil.bench.bench import Bench, load_bench
 
-CONTROLLER_FRAMES = {"DRIVE1_COMMAND", "DRIVE2_COMMAND", "DRIVE3_COMMAND", "CONTROLLER_HEARTBEAT"}
+CONTROLLER_FRAMES = {*DRIVE_COMMAND, MessageName.CONTROLLER_HEARTBEAT}
 
 
 @dataclass(slots=True)
@@ -59,12 +59,12 @@ def _ticks(log: Path, catalog: Catalog) -> list[_Tick]:
             if synced:
                 current.expected.append((msg.arbitration_id, bytes(msg.data)))
             continue
-        synced = synced or name == "SYNC"
+        synced = synced or name == MessageName.SYNC
         if answering:  # the first rig frame after the controller's answer starts the next tick
             ticks.append(current)
             current, answering = _Tick(), False
         current.rig_frames.append(msg)
-        answering = name == "SYNC"
+        answering = name == MessageName.SYNC
     if answering:
         ticks.append(current)
     return ticks
@@ -104,7 +104,7 @@ def replay(run_dir: Path, bench: Bench | None = None, limit: int | None = None) 
             ),
         )
         link.wait_for_subscriber(link.keys.tes_wrench, 10.0)
-        heartbeat = catalog["CONTROLLER_HEARTBEAT"]
+        heartbeat = catalog[MessageName.CONTROLLER_HEARTBEAT]
         booting = True
         """Until its first answer the fresh controller may still send boot-up heartbeats: not compared."""
         for i, tick in enumerate(ticks):
