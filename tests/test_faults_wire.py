@@ -514,3 +514,18 @@ def test_the_docs_list_every_fault_of_the_catalog():
     text = (ROOT / "docs/faults.md").read_text()
     missing = [kind for kind in CATALOG if f"`{kind}`" not in text]
     assert not missing, f"docs/faults.md does not list {missing}"
+
+
+@pytest.mark.parametrize(("at", "duration", "first", "end"), [(0.3, 0.1, 120, 160), (0.7, 0.0025, 280, 281)])
+def test_fault_times_become_ticks_once_and_act_on_exactly_those_ticks(session, at, duration, first, end):
+    # 0.7 * 400 = 280.00000000000006 and 0.3 + 0.1 = 0.4000000000000001: times compared as floats tick by
+    # tick would need a tolerance; as ticks they need none.
+    fault = {"kind": "sensor.off", "channel": "imu.rate_z", "at": at, "duration": duration}
+    bench = Bench(session, [fault])
+    try:
+        assert bench.rig.faults.specs[0].ticks(400.0) == (first, end)
+        bench.run(end + 5)
+        events = [(e.action, round(e.t / DT)) for e in bench.rig.faults.events]
+    finally:
+        bench.close()
+    assert events == [("start", first), ("end", end)]

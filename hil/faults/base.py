@@ -90,8 +90,11 @@ class FaultSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only
     def kind(self) -> str:
         return type(self).__struct_config__.tag  # type: ignore[return-value]
 
-    def window(self, t: float) -> bool:
-        return self.at - 1e-9 <= t and (self.duration is None or t < self.at + self.duration - 1e-9)
+    def ticks(self, tick_hz: float, now: int = 0) -> tuple[int, int | None]:
+        """The ticks it is active in, [first, end) (end None: to the run's end), `at` counted from tick
+        `now`: times become ticks once, when the fault is scheduled, so no tolerance is ever needed."""
+        first = now + round(self.at * tick_hz)
+        return first, None if self.duration is None else first + max(1, round(self.duration * tick_hz))
 
     def describe(self) -> str:
         """`kind` and the parameters that differ from their defaults, for logs and reports."""
@@ -125,6 +128,9 @@ class FaultState:
     """One fault's life in a run: its random stream and whatever its hooks keep between ticks."""
 
     rng: np.random.Generator
+    first_tick: int = 0
+    end_tick: int | None = None
+    """Active in ticks [first_tick, end_tick) (FaultSpec.ticks); None: to the end of the run."""
     active: bool = False
     started: float | None = None
     ended: float | None = None

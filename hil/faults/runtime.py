@@ -34,6 +34,8 @@ log = logging.getLogger(__name__)
 class FaultSet:
     def __init__(self, faults: Iterable[FaultSpec] = (), seed: int = 0):
         self.seed = seed
+        self.tick_hz = 400.0
+        """Set by attach() from the rig's plant: the rate scheduled times become ticks at."""
         self.specs: list[FaultSpec] = []
         self.states: list[FaultState] = []
         self.events: list[FaultEvent] = []
@@ -55,17 +57,24 @@ class FaultSet:
     def attach(self, rig: Rig) -> None:
         """Check every fault against the rig it will act on (unknown messages, missing processes)."""
         self.rig = rig
+        self.tick_hz = rig.plant.sim.tick_hz
         for n, spec in enumerate(self.specs):
             try:
                 spec.validate(rig)
             except ValueError as exc:
                 raise FaultError(f"fault {n} ({spec.describe()}): {exc}") from None
+            self._schedule(n)
 
     def _add(self, spec: FaultSpec) -> int:
         n = len(self.specs)
         self.specs.append(spec)
         self.states.append(FaultState(np.random.default_rng([self.seed, n])))
+        self._schedule(n)
         return n
+
+    def _schedule(self, n: int, now: int = 0) -> None:
+        state = self.states[n]
+        state.first_tick, state.end_tick = self.specs[n].ticks(self.tick_hz, now)
 
     # ----------------------------------------------------------------------------------- live use
     def inject(self, spec: FaultSpec) -> None:
@@ -81,7 +90,7 @@ class FaultSet:
         with self._lock:
             self._requests.append(("clear", fault))
 
-    def _take_requests(self, t: float) -> None:
+    def _take_requests(self, k: int, t: float) -> None:
         with self._lock:
             requests, self._requests = self._requests, []
         for action, arg in requests:
@@ -93,6 +102,7 @@ class FaultSet:
                     log.error("live fault %s refused: %s", spec.describe(), exc)
                     continue
                 n = self._add(spec)
+                self._schedule(n, now=k)
                 self._log(t, n, "inject", spec.describe())
             else:
                 targets = range(len(self.specs)) if arg is None else [arg]
@@ -102,15 +112,16 @@ class FaultSet:
                         self._log(t, n, "clear", "")
 
     # -------------------------------------------------------------------------------------- ticks
-    def update(self, t: float) -> None:
-        """Start and end faults for the tick at time t."""
+    def update(self, k: int, t: float) -> None:
+        """Start and end faults for tick k (at time t)."""
         if self._requests:
-            self._take_requests(t)
+            self._take_requests(k, t)
         rig = self.rig
         active = []
         changed = False
         for n, (spec, state) in enumerate(zip(self.specs, self.states, strict=True)):
-            on = n not in self._cleared and spec.window(t) and state.remaining != 0
+            within = state.first_tick <= k and (state.end_tick is None or k < state.end_tick)
+            on = within and n not in self._cleared and state.remaining != 0
             if on and not state.active:
                 state.active, state.started = True, t
                 if isinstance(spec, CanFault):
@@ -155,11 +166,11 @@ class FaultSet:
             self.on_event(self.events[-1])
         log.warning("fault %d %s at t=%.3f: %s", n, action, t, detail or spec.kind)
 
-    def finish(self, t: float) -> None:
-        """End of the run: requests already acknowledged are logged, every fault still active ends (held
-        frames are sent, processes resume)."""
+    def finish(self, k: int, t: float) -> None:
+        """End of the run (tick k, time t): requests already acknowledged are logged, every fault still
+        active ends (held frames are sent, processes resume)."""
         if self._requests:
-            self._take_requests(t)
+            self._take_requests(k, t)
         for n in self._active:
             state = self.states[n]
             state.active, state.ended = False, t

@@ -61,7 +61,7 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
             next_report = time.monotonic() + 0.5
         clock.wait_next()
     clock.stop()
-    rig.faults.finish(plant.t)
+    rig.faults.finish(plant.tick, plant.t)
     timing = clock.stats()
     rows = rows[:n]
     command = np.full((n, 2), np.nan)

@@ -49,19 +49,19 @@ SC_REPEAT_EVERY = 40  # ticks between repeats of an unchanged SC request (keeps 
 
 @dataclass(frozen=True, slots=True)
 class ScStep:
-    """From time `at` (s) on, the shared controller asks for `mode` (free, idle, limit) with `cap` (m/s)."""
+    """From `tick` on, the shared controller asks for `mode` (free, idle, limit) with `cap` (m/s)."""
 
-    at: float
+    tick: int
     mode: str
     cap: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
 class OperatorStep:
-    """At time `at` (s) the operator acts: estop or reset (pure/safety/estop), enable or disable the
-    controller (pure/controller/command)."""
+    """At `tick` the operator acts: estop or reset (pure/safety/estop), enable or disable the controller
+    (pure/controller/command)."""
 
-    at: float
+    tick: int
     action: str
 
 
@@ -92,7 +92,7 @@ class Rig:
         plant: Plant,
         can: CanNode,
         link: ZenohLink,
-        sc_schedule: list[ScStep] | tuple[ScStep, ...] = (ScStep(0.0, "free"),),
+        sc_schedule: list[ScStep] | tuple[ScStep, ...] = (ScStep(0, "free"),),
         command_guard: float = 1.0,
         supervisor: SupervisorNode | None = None,
         operator: list[OperatorStep] | tuple[OperatorStep, ...] = (),
@@ -106,8 +106,8 @@ class Rig:
         self.sc_link = link if agent_link is None else agent_link.sc_agent
         self.operator_link = link if agent_link is None else agent_link.operator
         self.keys = link.keys
-        self.sc_schedule = sorted(sc_schedule, key=lambda s: s.at)
-        self.operator = sorted(operator, key=lambda s: s.at)
+        self.sc_schedule = sorted(sc_schedule, key=lambda s: s.tick)
+        self.operator = sorted(operator, key=lambda s: s.tick)
         self.command_guard = command_guard
         self.supervisor = supervisor
         """In-process supervisor, updated every tick; None: a supervisor elsewhere on the bus."""
@@ -190,7 +190,7 @@ class Rig:
         plant, faults = self.plant, self.faults
         plant.step()
         k = plant.tick
-        faults.update(plant.t)
+        faults.update(k, plant.t)
         feedback, imu, tes, silent = self._sample()
         # zenoh first: its delivery to the controller overlaps with sending the CAN frames.
         self._publish_sc_request(k)
@@ -286,7 +286,7 @@ class Rig:
     def _publish_sc_request(self, k: int) -> None:
         current = None
         for step in self.sc_schedule:
-            if step.at <= self.plant.t + 1e-12:
+            if step.tick <= k:
                 current = step
         if current is None:
             return
@@ -304,12 +304,10 @@ class Rig:
         self._sc_last, self._sc_sent_tick = current, k
 
     def _publish_operator(self) -> None:
-        while (
-            self._operator_next < len(self.operator) and self.operator[self._operator_next].at <= self.plant.t
-        ):
+        k, t = self.plant.tick, self.plant.t
+        while self._operator_next < len(self.operator) and self.operator[self._operator_next].tick <= k:
             action = self.operator[self._operator_next].action
             self._operator_next += 1
-            k, t = self.plant.tick, self.plant.t
             if action in ("estop", "reset"):
                 key = self.keys.safety_estop
                 command = EstopCommand(seq=self._next_seq(key), stamp=t, action=action, source="operator")

@@ -144,6 +144,11 @@ class Scenario(_Record):
     def __post_init__(self) -> None:
         self.supervisor_config(SupervisorConfig())  # a misspelt rule fails when the scenario loads
 
+    def tick_of(self, t: float) -> int:
+        """The tick a scheduled time (s) falls on: times become ticks once, when the run is built, and the
+        rig compares ticks, never floats."""
+        return round(t * self.tick_hz)
+
     def supervisor_config(self, base: SupervisorConfig) -> SupervisorConfig:
         """`base` with this scenario's `[safety]` overrides."""
         merged = msgspec.to_builtins(base)
