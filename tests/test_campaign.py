@@ -3,6 +3,7 @@ test of the tests: a fault the supervisor does not catch makes the verdict fail,
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -149,6 +150,8 @@ def test_cli_runs_a_campaign_on_workers_and_fails_on_a_missed_reaction(missed_ca
             str(missed_campaign),
             "--workers",
             "2",
+            "--law",
+            "ihacs",  # the scenario's own is hacs: the option must reach the workers
             "--out",
             str(out),
         ],
@@ -164,7 +167,8 @@ def test_cli_runs_a_campaign_on_workers_and_fails_on_a_missed_reaction(missed_ca
     assert "| PASS | blind-none-seed0" in text
     suite = ET.parse(out / "junit.xml").getroot()
     assert (suite.get("tests"), suite.get("failures"), suite.get("errors")) == ("2", "1", "0")
-    assert (out / "blind-none-seed0" / "summary.json").exists()
+    for case in ("blind-none-seed0", "blind-seat_silent-seed0"):
+        assert json.loads((out / case / "summary.json").read_text())["law"] == "ihacs"
 
 
 # pytest in a subprocess: in-process runs would drop and re-import native (PyO3) modules, which fails.
