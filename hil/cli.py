@@ -293,6 +293,11 @@ def _supervisor(args: argparse.Namespace) -> int:
     bus.shutdown()
     for e in node.events:
         print(f"  t={e.t:9.3f}  {e.kind:<14} {e.from_state} -> {e.to_state} ({e.cause}) {e.detail}")
+    # What it missed on the bus (a reader that falls behind loses frames silently on vcan: docs/bench.md).
+    bus_stats = node.can.stats.as_dict()
+    print(
+        f"  bus: lost {bus_stats['lost_frames']}, E2E {bus_stats['e2e']}, malformed {bus_stats['malformed']}"
+    )
     return 0
 
 
