@@ -319,18 +319,16 @@ def controller_command(bench, rider: str, robot: str, law: str, lockstep: bool) 
 
 
 def _controller(args: argparse.Namespace) -> int:
-    """The reference controller as its own process on this bench (the rig never imports a controller)."""
-    import subprocess
-
+    """The reference controller as its own process on this bench (the rig never imports a controller).
+    This process becomes pure-controller (exec), so a signal to it (the rig stopping what it spawned)
+    reaches the controller itself: a wrapper would exit and leave the controller running on the bus."""
     bench = bench_from(args)
     law = args.law or (bench.controller.law if bench.controller.law != "scenario" else "hacs")
     command = controller_command(
         bench, args.rider, args.robot or bench.controller.robot or "pure", law, args.lockstep
     )
-    try:
-        return subprocess.call(command)
-    except KeyboardInterrupt:
-        return 0
+    sys.stdout.flush()
+    os.execvp(command[0], command)
 
 
 # -------------------------------------------------------------------------------------------- operators

@@ -49,3 +49,44 @@ def test_bad_config_exits_2(tmp_path):
     )
     assert proc.returncode == 2
     assert str(bad) in proc.stderr and "$.lqr.q_tilt" in proc.stderr
+
+
+def _children(pid: int) -> list[int]:
+    kids = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+            except OSError:
+                continue
+            if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+                kids.append(int(entry.name))
+    return kids
+
+
+def test_pure_hil_controller_becomes_the_controller_so_a_signal_stops_it():
+    # The rig stops a spawned controller with SIGINT to the process it started: a wrapper that ran the
+    # controller as its child would exit and leave the controller running on the bus.
+    endpoint = hub_endpoint()
+    hub = open_session(role="hub", hub_endpoint=endpoint)
+    argv = [str(Path(sys.executable).with_name("pure-hil")), "controller", "--can", "virtual:exec-check"]
+    proc = subprocess.Popen(
+        [*argv, "--hub", endpoint, "--rider", RIDER],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        assert wait_matching(ZenohLink(hub).publisher(Keys().tes_wrench), timeout=30.0)
+        cmdline = Path(f"/proc/{proc.pid}/cmdline").read_bytes().split(b"\0")
+        assert Path(cmdline[0].decode()).name == "pure-controller" or b"pure-controller" in cmdline[1], (
+            cmdline
+        )
+        assert _children(proc.pid) == [], "no controller process under a wrapper"
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=15)
+        assert proc.returncode == 0 and "stopped" in out, out
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        hub.close()

@@ -118,6 +118,19 @@ def run_bench(
     return BenchRun(rig_exit, out, capture, texts, fired)
 
 
+def _running(name: str) -> list[str]:
+    """Command lines of this machine's processes that mention `name`."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        try:
+            cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except (OSError, ValueError):
+            continue
+        if entry.name.isdigit() and name in cmdline:
+            found.append(cmdline)
+    return found
+
+
 def frames(path: Path) -> list[tuple[int, bytes]]:
     return [(m.arbitration_id, bytes(m.data)) for m in can.LogReader(str(path)) if not m.is_error_frame]
 
@@ -196,6 +209,7 @@ def test_cansend_estop_trips_the_supervisor_and_the_drives(tmp_path):
     action = (300, "cansend e-stop", lambda p: subprocess.run(cansend, check=True))
     run = run_bench(tmp_path, _scenario(tmp_path, 2.0), [action], spawn=True)
     assert run.actions and run.rig_exit == 0, run.logs["rig"]
+    assert not _running("pure-controller"), "the controller the rig spawned is gone after the run"
     s = run.summary["safety"]
     steps = [(e["to_state"], e["cause"]) for e in s["events"]]
     assert steps[:2] == [("STOPPING", "BUTTON_ESTOP"), ("ESTOP", "BUTTON_ESTOP")], steps
