@@ -33,7 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="pure-controller", description="The reference PURE controller (device under test)"
     )
-    p.add_argument("--can", default="virtual", help="INTERFACE[:CHANNEL], e.g. socketcan:vcan0")
+    p.add_argument("--can", default="pure_shared", help="INTERFACE[:CHANNEL], e.g. socketcan:vcan0")
     p.add_argument("--zenoh", default=str(LOOPBACK), help="zenoh config file (loopback by default)")
     p.add_argument("--hub", default=None, help="override the config's hub endpoint, e.g. tcp/127.0.0.1:7447")
     p.add_argument("--certs", default=None, help="certificate folder on a secured bench (bench-client.json5)")

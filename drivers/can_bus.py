@@ -28,8 +28,10 @@ from drivers.e2e import E2EChecker, E2EEvent, E2EProtector, E2EStatus, is_protec
 log = logging.getLogger(__name__)
 
 FORBIDDEN_INTERFACES = {
-    "udp_multicast": "it sends multicast UDP off this machine; use 'virtual' or 'socketcan'"
+    "udp_multicast": "it sends multicast UDP off this machine; use 'pure_shared' or 'socketcan'"
 }
+IN_PROCESS_INTERFACES = frozenset({"pure_shared", "virtual"})
+"""Buses that exist only inside one Python process (drivers/shared_bus.py; python-can's `virtual`)."""
 
 
 class BusConfigError(ValueError):
@@ -39,12 +41,17 @@ class BusConfigError(ValueError):
 class BusConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
     """A bus in python-can's terms (`can.Bus(interface=..., channel=..., bitrate=..., **kwargs)`)."""
 
-    interface: str = "virtual"
+    interface: str = "pure_shared"
     channel: str = "pure"
     bitrate: int = 1_000_000
     kwargs: dict[str, Any] = {}
     max_load: float = 0.70
     """Refuse a tick rate whose worst-case bus load exceeds this fraction of the bitrate."""
+
+    @property
+    def in_process(self) -> bool:
+        """Only nodes in this Python process can join the bus."""
+        return self.interface in IN_PROCESS_INTERFACES
 
     def __post_init__(self) -> None:
         if self.interface in FORBIDDEN_INTERFACES:
@@ -56,13 +63,13 @@ class BusConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only
 
 
 def private_channel(prefix: str = "pure") -> str:
-    """A fresh in-process `virtual` channel name. It never ends in digits: python-can's log writers (BLF)
+    """A fresh in-process channel name. It never ends in digits: python-can's log writers (BLF)
     read trailing digits as a channel number and fail on one above 65535."""
     return f"{prefix}-{uuid.uuid4().hex[:12]}-vbus"
 
 
 def parse_can_spec(spec: str, base: BusConfig | None = None) -> BusConfig:
-    """`virtual`, `virtual:NAME`, `socketcan:vcan0`, `pcan:PCAN_USBBUS1`, ... -> BusConfig."""
+    """`pure_shared`, `pure_shared:NAME`, `socketcan:vcan0`, `pcan:PCAN_USBBUS1`, ... -> BusConfig."""
     interface, _, channel = spec.partition(":")
     if not interface:
         raise BusConfigError(f"bad CAN spec {spec!r}: expected INTERFACE[:CHANNEL], e.g. socketcan:vcan0")
@@ -80,7 +87,7 @@ class BusUnavailable(BusConfigError):
 _WHY = {
     errno.EAFNOSUPPORT: (
         "this kernel has no SocketCAN",
-        "load it (modprobe can-raw vcan) or use a machine with CAN; without CAN use --can virtual",
+        "load it (modprobe can-raw vcan) or use a machine with CAN; without CAN use --can pure_shared",
     ),
     errno.ENODEV: ("no such interface", "create it: ip link add dev {ch} type vcan && ip link set {ch} up"),
     errno.ENETDOWN: ("the interface is down", "ip link set {ch} up"),
@@ -249,26 +256,31 @@ class CanNode:
 
 
 class BusRecorder:
-    """Tee everything on a channel into a python-can logger, from a monitor bus of its own (like candump)."""
+    """Tee everything on a channel into a python-can logger, from a monitor bus of its own (like candump),
+    written by whoever calls `poll()` (the rig, once per tick: no thread woken for every frame). The writer
+    streams to disk as the run goes."""
 
     def __init__(self, config: BusConfig, path: Path | str):
         self.path = Path(path)
         self.bus = open_bus(config)
         self.writer = can.Logger(str(self.path))
         self.frames = 0
-        self.notifier = can.Notifier(self.bus, [self.writer, self._count], timeout=0.1)
 
-    def _count(self, _msg: can.Message) -> None:
-        self.frames += 1
+    def poll(self) -> None:
+        """Write every frame queued so far."""
+        while (msg := self.bus.recv(0.0)) is not None:
+            self.writer.on_message_received(msg)
+            self.frames += 1
 
     def stop(self, settle: float = 0.05) -> None:
-        # The notifier drops whatever is still queued when it stops: wait until the traffic has settled.
+        # Frames may still be on their way (from other processes): write until the traffic has settled.
         deadline = time.monotonic() + 2.0
         seen = -1
         while seen != self.frames and time.monotonic() < deadline:
             seen = self.frames
             time.sleep(settle)
-        self.notifier.stop()  # also stops (flushes and closes) the writer
+            self.poll()
+        self.writer.stop()  # flushes and closes the file
         self.bus.shutdown()
 
     def __enter__(self) -> BusRecorder:

@@ -155,7 +155,7 @@ def _campaign(args: argparse.Namespace) -> int:
         for line in r.message().splitlines() if not r.passed else ():
             print(f"        {line}", flush=True)
 
-    if args.workers > 1 and not (bench.self_contained and bench.can.interface == "virtual"):
+    if args.workers > 1 and not (bench.self_contained and bench.can.in_process):
         print(
             f"pure-hil campaign: on bench {bench.name} cases run one at a time (a shared bus)",
             file=sys.stderr,
@@ -259,7 +259,7 @@ def _supervisor(args: argparse.Namespace) -> int:
     from safety.node import SupervisorNode, SupervisorThread
 
     bench = bench_from(args)
-    if bench.can.interface == "virtual":
+    if bench.can.in_process:
         print(
             "pure-hil supervisor: needs a bus shared with other processes (e.g. --can socketcan:vcan0)",
             file=sys.stderr,

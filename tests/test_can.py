@@ -20,7 +20,6 @@ from drivers.can_bus import (
 )
 from drivers.can_codec import Catalog
 from drivers.e2e import E2EStatus, crc8, is_protected
-from tests.helpers import wait_for
 
 CATALOG = Catalog()
 DB = CATALOG.database
@@ -229,7 +228,8 @@ def test_recorder_tees_all_traffic_into_python_can_logs(pair, tmp_path, suffix):
             tx.bus.send(m)
         for _ in sent:
             assert rx.bus.recv(1.0) is not None
-        assert wait_for(lambda: recorder.frames == len(sent))
+        recorder.poll()
+        assert recorder.frames == len(sent)
     logged = [m for m in can.LogReader(str(path)) if not m.is_error_frame]
     assert [(m.arbitration_id, bytes(m.data)) for m in logged] == [
         (m.arbitration_id, bytes(m.data)) for m in sent

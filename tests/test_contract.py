@@ -35,11 +35,11 @@ def example():
 
 
 class ExampleController:
-    """The example on a thread, on an in-process virtual bus (its own python-can handle)."""
+    """The example on a thread, on the rig's in-process bus (its own python-can handle)."""
 
     def __init__(self, channel: str, start_after: float = 0.0):
         ex = example()
-        self.bus = can.Bus(interface="virtual", channel=channel)
+        self.bus = can.Bus(interface="pure_shared", channel=channel)
         self.controller = ex.BalanceController(ex.Wire(self.bus, ex.DBC))
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._run, args=(start_after,), daemon=True)

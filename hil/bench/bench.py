@@ -69,8 +69,8 @@ class Bench(_Part):
     name: str
     description: str = ""
     can: BusConfig = BusConfig(channel="")
-    """python-can's interface, channel, bitrate (channel "" on `virtual`: a private channel per run, so two
-    rigs on one machine never share a bus)."""
+    """python-can's interface, channel, bitrate (channel "" on an in-process bus: a private channel per
+    run, so two rigs on one machine never share a bus)."""
     controller: ControllerPart = ControllerPart()
     supervisor: SupervisorPart = SupervisorPart()
     zenoh: ZenohAccess = ZenohAccess()
@@ -83,10 +83,10 @@ class Bench(_Part):
 
     def __post_init__(self) -> None:
         spawned = [part for part in self.separate() if getattr(self, part).where == "spawned"]
-        if spawned and self.can.interface == "virtual":
+        if spawned and self.can.in_process:
             raise ValueError(
                 f"{' and '.join(spawned)}.where = 'spawned' needs a CAN bus shared between processes "
-                "(can.interface = 'socketcan', channel = 'vcan0'), not python-can's in-process 'virtual'"
+                f"(can.interface = 'socketcan', channel = 'vcan0'), not the in-process {self.can.interface!r}"
             )
         if self.controller.command and self.controller.where != "spawned":
             raise ValueError("controller.command is for controller.where = 'spawned'")

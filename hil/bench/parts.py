@@ -22,13 +22,13 @@ class BenchUnavailable(RuntimeError):
 
 def check(bench: Bench) -> None:
     """Raise BenchUnavailable (or the bus's BusUnavailable) for the first part that cannot open."""
-    if bench.can.interface == "virtual" and bench.separate():
-        # (In one Python process a test may run its own controller on the virtual bus; a command cannot.)
+    if bench.can.in_process and bench.separate():
+        # (In one Python process a test may run its own controller on an in-process bus; a command cannot.)
         raise BenchUnavailable(
             f"bench {bench.name}: {' and '.join(bench.separate())} in another process needs a bus shared "
-            "between processes, e.g. --can socketcan:vcan0 (python-can's 'virtual' is in-process only)"
+            f"between processes, e.g. --can socketcan:vcan0 ({bench.can.interface!r} is in-process only)"
         )
-    if bench.can.interface != "virtual":
+    if not bench.can.in_process:
         open_bus(bench.can).shutdown()  # BusUnavailable says which bus, why, and what to do
     controller = bench.controller
     if controller.where == "embedded" and controller.plugin not in {

@@ -344,7 +344,7 @@ def run_campaign(
     inherited). A bench whose parts are not all in the rig's process, or whose bus is shared, runs them one
     at a time in this process: they would share the bus and the hub."""
     bench = bench or load_bench()
-    parallel = bench.self_contained and bench.can.interface == "virtual" and not bench.can.channel
+    parallel = bench.self_contained and bench.can.in_process and not bench.can.channel
     results: list[CaseResult] = []
     folder = (lambda c: out / c.id) if out is not None else (lambda c: None)
     # Coverage: twins first, so a faulty case is judged the moment it finishes.
