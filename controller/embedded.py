@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import threading
+
 import msgspec
 
 from controller.config import ControllerConfig, RiderInfo, RobotModel
@@ -24,6 +26,9 @@ def build_controller(spec: DutSpec) -> Controller:
 
 
 class EmbeddedController:
+    """The reference controller in the rig's process: on a thread of its own, or (`spec.driven`) handled
+    from the rig's thread through `poll()` after every SYNC."""
+
     def __init__(self, spec: DutSpec):
         self.bus = open_bus(spec.can)
         self.session = spec.zenoh.open("controller")
@@ -31,21 +36,30 @@ class EmbeddedController:
         self.node = ControllerNode(
             build_controller(spec), CanNode(self.bus, name="controller"), self.link, lockstep=spec.lockstep
         )
-        self.thread = ControllerThread(self.node).start()
+        self.thread = None if spec.driven else ControllerThread(self.node).start()
+        self.paused = self.thread.paused if self.thread is not None else threading.Event()
         self._stopped = False
+        if spec.driven:
+            self.node.boot()  # the rig's start-up handshake waits for it before the first SYNC
+
+    def poll(self) -> None:
+        """Driven: take in what is queued and answer any SYNC among it (nothing while hung or stopped)."""
+        if self.thread is None and not self._stopped and not self.paused.is_set():
+            self.node.poll()
 
     def pause(self) -> None:
         """Hang: stop handling frames (they queue up on the bus) until `resume` (a fault-injection hook)."""
-        self.thread.paused.set()
+        self.paused.set()
 
     def resume(self) -> None:
-        self.thread.paused.clear()
+        self.paused.clear()
 
     def stop(self) -> None:
         if self._stopped:
             return
         self._stopped = True
-        self.thread.stop()
+        if self.thread is not None:
+            self.thread.stop()
         self.link.close()
         self.session.close()
         self.bus.shutdown()

@@ -162,6 +162,12 @@ class ControllerNode:
         boot = {"State": int(State.INIT), "Mode": int(mode == "ihacs"), "FaultCode": 0}
         self.can.send(MessageName.CONTROLLER_HEARTBEAT, boot)
 
+    def poll(self) -> None:
+        """Handle every frame already queued, without waiting (a lockstep rig that drives the node from its
+        own thread calls this right after each SYNC: no thread hand-off per tick)."""
+        while (rx := self.can.recv(timeout=0.0)) is not None:
+            self.handle(rx)
+
     def run(self, stop: threading.Event, poll: float = 0.1, paused: threading.Event | None = None) -> None:
         """Receive until `stop` is set (recv blocks at most `poll` seconds, so stopping is prompt); while
         `paused` is set, take nothing in (a hung controller, for fault injection)."""

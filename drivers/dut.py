@@ -30,10 +30,17 @@ class DutSpec(msgspec.Struct, frozen=True, kw_only=True):
     controller_config: str | None = None
     lockstep: bool = True
     tick_hz: float = 400.0
+    driven: bool = False
+    """The rig asks to drive the controller from its own thread (lockstep, in-process): no thread of the
+    controller's own; the rig calls the handle's `poll()` right after every SYNC, and the controller answers
+    any SYNC it finds queued before returning. A plugin that cannot be driven ignores it and offers no
+    `poll()`: the rig then waits for its answer on the bus as for any other."""
 
 
 class DutHandle(Protocol):
     def stop(self) -> None: ...
+
+    # Optional: pause() / resume() (a hang fault), poll() (driven, see DutSpec.driven).
 
 
 class DutNotFound(LookupError):

@@ -20,8 +20,10 @@ import logging
 import socket
 import stat
 import threading
+import time
 from collections import Counter, deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Generic, Literal, TypeVar
 
@@ -189,6 +191,35 @@ def open_hub(
 BENCH_CLIENT = CONFIG_DIR / "bench-client.json5"
 
 
+class LentSession:
+    """The rig's hub session lent to another node of the same process (the embedded controller on a
+    loopback bench): its puts and subscriptions never leave the process (zenoh delivers inside one session
+    at once, no loopback TCP hop and no wake-up per sample); closing it is its owner's business."""
+
+    def __init__(self, session: zenoh.Session):
+        self._session = session
+
+    def __getattr__(self, name: str):
+        return getattr(self._session, name)
+
+    def close(self) -> None:
+        pass
+
+
+_lent: dict[str | None, zenoh.Session] = {}
+
+
+@contextmanager
+def lend(session: zenoh.Session, endpoint: str | None) -> Iterator[None]:
+    """While inside, nodes of this process that join the loopback hub at `endpoint` share `session`."""
+    _lent[endpoint] = session
+    try:
+        yield
+    finally:
+        if _lent.get(endpoint) is session:
+            del _lent[endpoint]
+
+
 class ZenohAccess(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """How every process of a bench joins its zenoh: `loopback` (the rig is the hub on 127.0.0.1, the others
     join it) or `router` (every process a client of the secured bench router, identified by its role's
@@ -214,6 +245,9 @@ class ZenohAccess(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
         """A session for one process of the bench in `role` (its certificate on a router; on loopback every
         role but the rig's hub is a member)."""
         if self.mode == "loopback":
+            hub = _lent.get(self.endpoint)
+            if hub is not None:
+                return LentSession(hub)  # type: ignore[return-value]
             return open_session(self.config_path, "member", self.endpoint)
         if self.certs is None:
             raise ZenohConfigError("zenoh mode router needs the certificate folder (--certs DIR)")
@@ -233,47 +267,60 @@ class ZenohAccess(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
 P = TypeVar("P", bound=Payload)
 
 
-class Subscription(Generic[P]):
-    """Samples land in a bounded buffer from zenoh's callback (never blocking it; the oldest drop when
-    full); the consumer decodes them on its own thread with `drain()` (all new) or `latest()`, and can
-    block in `wait()` until something arrives."""
+POLL = 20e-6
+"""s between looks while waiting for samples: zenoh fills a subscription's channel from its own threads
+without taking the GIL, so a wait looks again instead of being woken by a Python callback."""
 
-    def __init__(
-        self,
-        session: zenoh.Session,
-        key: str,
-        payload_type: type[P],
-        capacity: int = 256,
-        arrived: threading.Condition | None = None,
-    ):
+
+def poll_until(ready: Callable[[], object], timeout: float) -> bool:
+    """Look until `ready()` is true (True) or `timeout` seconds have passed (False)."""
+    deadline = time.monotonic() + timeout
+    while not ready():
+        if time.monotonic() >= deadline:
+            return bool(ready())
+        time.sleep(POLL)
+    return True
+
+
+class Subscription(Generic[P]):
+    """Samples land in a zenoh ring channel (filled by zenoh's threads without the GIL; the oldest drop
+    when full); the consumer takes and decodes them on its own thread with `drain()` (all new) or
+    `latest()`, and can wait in `wait()` until something arrives."""
+
+    def __init__(self, session: zenoh.Session, key: str, payload_type: type[P], capacity: int = 256):
         self.key, self.type = key, payload_type
         self._buffer: deque[bytes] = deque(maxlen=capacity)
-        self._arrived = arrived or threading.Condition(threading.RLock())
-        """Notified on every sample (shared by a link's subscriptions, so one wait can watch them all)."""
-        self.received = 0
-        """Samples that arrived, decodable or not (a lockstep fence counts them)."""
-        self._sub = session.declare_subscriber(key, self._on_sample)
+        self._received = 0
+        self._sub = session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
         self.accepted = 0
         self.rejected: Counter[str] = Counter()
         self.last_rejection = ""
         self._latest: P | None = None
 
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        data = sample.payload.to_bytes()
-        with self._arrived:
-            self._buffer.append(data)
-            self.received += 1
-            self._arrived.notify_all()
+    def _take(self) -> None:
+        while (sample := self._sub.try_recv()) is not None:
+            self._buffer.append(sample.payload.to_bytes())
+            self._received += 1
+
+    @property
+    def received(self) -> int:
+        """Samples that arrived so far, decodable or not (a lockstep fence counts them)."""
+        self._take()
+        return self._received
 
     def wait(self, timeout: float) -> bool:
-        """Block until at least one undrained sample is buffered (True) or the timeout passes (False)."""
-        with self._arrived:
-            return self._arrived.wait_for(lambda: self._buffer, timeout)
+        """Wait until at least one undrained sample is here (True) or the timeout passes (False)."""
+
+        def arrived() -> bool:
+            self._take()
+            return bool(self._buffer)
+
+        return poll_until(arrived, timeout)
 
     def drain(self) -> list[P]:
-        with self._arrived:
-            pending = list(self._buffer)
-            self._buffer.clear()
+        self._take()
+        pending = list(self._buffer)
+        self._buffer.clear()
         out: list[P] = []
         for data in pending:
             try:
@@ -319,7 +366,6 @@ class ZenohLink:
         self._congestion = zenoh.CongestionControl.BLOCK if lossless else zenoh.CongestionControl.DROP
         self._publishers: dict[str, zenoh.Publisher] = {}
         self._subscriptions: list[Subscription] = []
-        self.arrived = threading.Condition(threading.RLock())
         self.puts: Counter[str] = Counter() if puts is None else puts
         """Payloads put on each key by this link (and the links sharing its counter)."""
 
@@ -357,15 +403,13 @@ class ZenohLink:
         self.publisher(self.keys.rig_tick).put(encode(RigTick(seq=tick, stamp=stamp, puts=dict(self.puts))))
 
     def subscribe(self, key: str, payload_type: type[P], capacity: int = 256) -> Subscription[P]:
-        sub = Subscription(self.session, key, payload_type, capacity, self.arrived)
+        sub = Subscription(self.session, key, payload_type, capacity)
         self._subscriptions.append(sub)
         return sub
 
-    def wait_for(self, ready, timeout: float) -> bool:
-        """Block until `ready()` is true (re-checked on every sample to any subscription of this link) or
-        the timeout passes; returns ready()."""
-        with self.arrived:
-            return self.arrived.wait_for(ready, timeout)
+    def wait_for(self, ready: Callable[[], object], timeout: float) -> bool:
+        """Wait until `ready()` is true or the timeout passes; returns ready()."""
+        return poll_until(ready, timeout)
 
     def close(self) -> None:
         for sub in self._subscriptions:

@@ -2,6 +2,9 @@
 the operator's e-stop, drives off when the controller or the supervisor dies, and a reset that permits
 motion without causing it. The plant's truth is the referee; the supervisor never sees it."""
 
+import time
+
+import msgspec
 import numpy as np
 
 from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
@@ -10,6 +13,7 @@ from drivers.zenoh_link import ZenohLink, open_session
 from hil.faults.processes import Kill
 from hil.run.build import RunOptions
 from hil.run.pipeline import run
+from hil.run.rig import Rig
 from hil.run.scenario import OperatorEntry, Scenario
 from plant.params import RobotParams
 from safety.config import SupervisorConfig
@@ -120,25 +124,52 @@ def test_reset_permits_motion_but_never_causes_it():
     assert np.abs(tr.velocity[tr.t > 4.0]).max() < 0.1
 
 
-def test_external_supervisor_on_the_sync_time_base():
-    """The rig without its embedded supervisor, one on the same bus instead (as `pure-hil supervisor
-    --clock sync` runs beside a lockstep rig): the same controlled stop, its transitions as announced."""
+def external_supervisor_run(scenario: Scenario, stall_at: int | None = None):
+    """A lockstep run with the supervisor on a thread of its own on the SYNC time base; `stall_at`: at that
+    SYNC tick it stalls for 0.2 s of wall time (a supervisor slower than the loop, not a dead one)."""
     endpoint = hub_endpoint()
     session = open_session(role="hub", hub_endpoint=endpoint)
     link = ZenohLink(session)
     bus_config = BusConfig(channel=private_channel("ext"))
     bus = open_bus(bus_config)
     node = SupervisorNode(CanNode(bus, name="supervisor"), link)
+    if stall_at is not None:
+        update = node.update
+
+        def stalling_update(t, fence=None):
+            if node.tick == stall_at:
+                time.sleep(0.2)
+            return update(t, fence)
+
+        node.update = stalling_update
     thread = SupervisorThread(node, sync=True).start()
-    scenario = load_toml(ROOT / "configs/scenarios/estop_at_speed.toml", Scenario)
     try:
         bench = private_bench(can=bus_config, supervisor="external", hub=endpoint)
-        result = run(scenario, bench, options=RunOptions(session=session))
+        return run(scenario, bench, options=RunOptions(session=session))
     finally:
         thread.stop()
         link.close()
         session.close()
         bus.shutdown()
+
+
+def test_a_lockstep_rig_waits_for_a_slow_supervisor_instead_of_taking_it_for_dead(monkeypatch):
+    """0.2 s of wall time is many ticks of a lockstep loop: the rig waits for the supervisor's next frame
+    once the last is half the permission timeout old, so the drives never lose their permission."""
+    scenario = msgspec.structs.replace(
+        load_toml(ROOT / "configs/scenarios/balance.toml", Scenario), duration=1.5
+    )
+    result = external_supervisor_run(scenario, stall_at=200)
+    assert result.trace.stats.permission_lost == 0
+    assert transitions(result.trace) == []  # and the supervisor saw nothing wrong either
+    monkeypatch.setattr(Rig, "_await_supervisor", lambda self, guard: None)  # control: no waiting
+    assert external_supervisor_run(scenario, stall_at=200).trace.stats.permission_lost >= 1
+
+
+def test_external_supervisor_on_the_sync_time_base():
+    """The rig without its embedded supervisor, one on the same bus instead (as `pure-hil supervisor
+    --clock sync` runs beside a lockstep rig): the same controlled stop, its transitions as announced."""
+    result = external_supervisor_run(load_toml(ROOT / "configs/scenarios/estop_at_speed.toml", Scenario))
     tr = result.trace
     assert transitions(tr) == [("STOPPING", "OPERATOR_ESTOP"), ("ESTOP", "OPERATOR_ESTOP")]
     assert abs(first(tr, "OPERATOR_ESTOP").t - 4.0) < 0.01

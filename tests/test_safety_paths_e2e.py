@@ -93,6 +93,7 @@ def test_faulty_runs_never_wait_out_the_guard_tick_after_tick():
         {"kind": "zenoh.malformed", "at": 1.0},
         {"kind": "can.drop", "message": "DRIVE1_COMMAND", "at": 1.0},
         {"kind": "process.kill", "target": "controller", "at": 1.0},
+        {"kind": "process.hang", "at": 1.0, "duration": 0.5},
         {"kind": "zenoh.wrench_dropout", "at": 1.0},
     ):
         tr = run([fault])

@@ -24,9 +24,12 @@ from drivers.schemas import (
 from drivers.zenoh_link import (
     CONFIG_DIR,
     LOOPBACK,
+    LentSession,
+    ZenohAccess,
     ZenohConfigError,
     ZenohLink,
     check_config,
+    lend,
     load_config,
     open_session,
 )
@@ -166,6 +169,33 @@ def test_members_reach_each_other_through_the_hub(hub_and_member):
     finally:
         a.session.close()
         b.session.close()
+
+
+def test_a_lent_hub_is_shared_in_process_and_never_closed_by_the_borrower():
+    endpoint = hub_endpoint()
+    hub = open_session(role="hub", hub_endpoint=endpoint)
+    access = ZenohAccess(endpoint=endpoint)
+    key = Keys().tes_wrench
+    try:
+        with lend(hub, endpoint):
+            borrowed = access.open("controller")
+            assert isinstance(borrowed, LentSession)
+            sub = ZenohLink(borrowed).subscribe(key, TesWrench)
+            ZenohLink(hub).put(key, SAMPLES[0])
+            assert sub.received == 1  # inside one session: delivered by the put itself, no wait
+            assert sub.drain() == [SAMPLES[0]]
+            borrowed.close()  # the borrower's close leaves the owner's session open
+            ZenohLink(hub).put(key, SAMPLES[0])
+            assert wait_for(lambda: sub.received == 2)
+            sub.close()
+        outside = access.open("controller")  # control: once the loan ends, a session of its own
+        try:
+            assert not isinstance(outside, LentSession)
+            assert wait_for(lambda: list(outside.info.routers_zid()) or list(outside.info.peers_zid()))
+        finally:
+            outside.close()
+    finally:
+        hub.close()
 
 
 def test_latest_and_all_new(hub_and_member):

@@ -80,6 +80,7 @@ def summary(result: RunResult) -> dict:
             "overruns": t.overruns,
             "jitter_us": t.jitter_us,
             "policy": t.realtime_policy,
+            "first_tick_at": t.started,
         },
     }
 
@@ -150,10 +151,11 @@ def write_outputs(result: RunResult, out: Path, recording: bool = True, plots: b
 def _outputs(result: RunResult, out: Path, recording: bool, plots: bool):
     """(file, writer) of the run folder besides summary.json and can.log (the recorder writes that one)."""
     tr = result.trace
-    yield (
-        "zenoh_inputs.msgpack",
-        lambda: (out / "zenoh_inputs.msgpack").write_bytes(msgspec.msgpack.encode(tr.zenoh_inputs)),
-    )
+    if tr.zenoh_inputs is not None:  # None: the run streamed it there already
+        yield (
+            "zenoh_inputs.msgpack",
+            lambda: (out / "zenoh_inputs.msgpack").write_bytes(msgspec.msgpack.encode(tr.zenoh_inputs)),
+        )
     if not len(tr.t):
         return  # nothing ran: no recording, no plots
     # Imported here: matplotlib and rerun cost seconds of start-up (a minute on an emulated CPU), and a

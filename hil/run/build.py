@@ -27,9 +27,10 @@ from drivers.dut import DutSpec, start_dut
 from drivers.keys import Keys
 from drivers.resources import find
 from drivers.schemas import SafetyState
-from drivers.zenoh_link import ZenohAccess, ZenohLink
+from drivers.zenoh_link import ZenohAccess, ZenohLink, lend
 from hil.bench.bench import Bench
 from hil.faults import FaultError, FaultSet
+from hil.outputs.inputs_log import InputsLog
 from hil.run.rig import OperatorStep, Rig, ScStep
 from hil.run.scenario import Scenario
 from hil.run.trace import ControllerUnavailable
@@ -91,8 +92,9 @@ def supervisor_config(bench: Bench, scenario: Scenario) -> SupervisorConfig:
 
 
 def build(
-    bench: Bench, scenario: Scenario, seed: int, options: RunOptions, can_log: Path | None, stack: ExitStack
+    bench: Bench, scenario: Scenario, seed: int, options: RunOptions, out: Path | None, stack: ExitStack
 ) -> Built:
+    """out: the run folder, where the CAN log and the zenoh inputs stream during the run (None: none)."""
     robot_path, rider_path = find(scenario.robot, "robot"), find(scenario.rider, "riders")
     sim = msgspec.structs.replace(
         load_toml(find(bench.sim, "sim"), SimParams), tick_hz=scenario.tick_hz, seed=seed
@@ -118,12 +120,16 @@ def build(
     else:
         session, zenoh_access = bench.zenoh.open_rig(fallback=bench.self_contained)
         stack.callback(session.close)
+    if zenoh_access.mode == "loopback":
+        stack.enter_context(lend(session, zenoh_access.endpoint))  # the embedded controller joins it
     puts: Counter[str] = Counter()  # every put of this process, whatever its session: the fence counts them
     link = ZenohLink(session, keys, lossless=lockstep, puts=puts)
     stack.callback(link.close)
     agent_link = _agent_link(zenoh_access, keys, lockstep, puts, stack)
-    if can_log is not None:
-        stack.callback(BusRecorder(bus_config, can_log).stop)
+    recorder = None
+    if out is not None and bench.outputs.can_log:
+        recorder = BusRecorder(bus_config, out / "can.log")
+        stack.callback(recorder.stop)
 
     supervisor = None
     if bench.supervisor.where == "embedded":
@@ -177,6 +183,7 @@ def build(
                 controller_config=str(find(controller.config, "controller")),
                 lockstep=lockstep,
                 tick_hz=sim.tick_hz,
+                driven=lockstep,
             ),
         )
         stack.callback(dut.stop)
@@ -195,7 +202,12 @@ def build(
             *(["--lockstep"] if lockstep else []),
         ]
         _spawn(command, "controller", stack)
+    if out is not None:
+        rig.inputs = InputsLog(out / "zenoh_inputs.msgpack")
+        stack.callback(rig.inputs.close)
     rig.dut = dut
+    rig.recorder = recorder
+    rig.poll_dut = getattr(dut, "poll", None) if lockstep else None
     faults.attach(rig)
     return Built(rig, plant, bus_config, law, clock, scenario.duration, dut)
 

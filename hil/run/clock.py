@@ -6,8 +6,13 @@ from __future__ import annotations
 
 import gc
 import os
+import threading
 import time
 from dataclasses import dataclass
+
+JITTER_BINS = 20_000
+"""Period jitter is counted in 1 us bins up to 20 ms (the last bin takes everything beyond; the maximum is
+kept exactly): memory does not grow with a run's length."""
 
 SPIN = 0.0002
 """Sleep until this long before the deadline, then busy-wait: removes timer slack and wake-up latency."""
@@ -22,6 +27,8 @@ class TimingStats:
     jitter_us: dict[str, float] | None = None
     """Period jitter |period − nominal| percentiles (real time only)."""
     realtime_policy: str = ""
+    started: float = 0.0
+    """time.time() when the first tick started (a process's start-up ends there)."""
 
     @property
     def speed(self) -> float:
@@ -35,12 +42,18 @@ class LockstepClock:
     def __init__(self, period: float, command_guard: float = 1.0):
         self.period, self.command_guard = period, command_guard
         self.ticks = 0
+        self.started = 0.0
 
     def start(self) -> None:
-        self._t0 = time.perf_counter()
+        self._t0, self.started = time.perf_counter(), time.time()
 
     def wait_next(self) -> None:
         self.ticks += 1
+        # With a driven controller the loop never blocks: another Python thread of this process (a supervisor
+        # beside the rig, the service's handlers) would wait for the interpreter's 5 ms switch interval, ticks
+        # behind. Yield the GIL once a tick then (sleep(0) costs ~50 us of timer slack: only when needed).
+        if threading.active_count() > 1:
+            time.sleep(0)
 
     def stop(self) -> None:
         pass
@@ -50,7 +63,9 @@ class LockstepClock:
         return time.monotonic() + self.command_guard
 
     def stats(self) -> TimingStats:
-        return TimingStats(self.ticks, time.perf_counter() - self._t0, self.ticks * self.period)
+        return TimingStats(
+            self.ticks, time.perf_counter() - self._t0, self.ticks * self.period, started=self.started
+        )
 
 
 class RealtimeClock:
@@ -59,8 +74,9 @@ class RealtimeClock:
     def __init__(self, period: float, fifo: bool = False, cpu: int | None = None, margin: float = 0.0003):
         self.period, self.fifo, self.cpu, self.margin = period, fifo, cpu, margin
         self.ticks = 0
+        self.started = 0.0
         self.overruns = 0
-        self._wakes: list[float] = []
+        self.jitter = JitterHistogram(period)
         self.policy = "SCHED_OTHER"
 
     def start(self) -> None:
@@ -78,7 +94,7 @@ class RealtimeClock:
                 self.policy = self.policy.replace("SCHED_OTHER", "SCHED_FIFO")
             except OSError:
                 self.policy += " (SCHED_FIFO refused)"
-        self._t0 = time.perf_counter()
+        self._t0, self.started = time.perf_counter(), time.time()
         self._next = self._t0
 
     def wait_next(self) -> None:
@@ -94,7 +110,7 @@ class RealtimeClock:
                 time.sleep(self._next - now - SPIN)
             while time.perf_counter() < self._next:
                 pass
-        self._wakes.append(time.perf_counter())
+        self.jitter.wake(time.perf_counter())
         self.ticks += 1
 
     def stop(self) -> None:
@@ -105,19 +121,44 @@ class RealtimeClock:
         return time.monotonic() + max(self._next + self.period - time.perf_counter() - self.margin, 0.0)
 
     def stats(self) -> TimingStats:
-        import numpy as np
-
-        jitter = None
-        if len(self._wakes) > 2:
-            periods = np.diff(np.asarray(self._wakes))
-            dev = np.sort(np.abs(periods - self.period)) * 1e6
-            pick = lambda q: float(dev[min(len(dev) - 1, int(q * len(dev)))])  # noqa: E731
-            jitter = {"p50": pick(0.5), "p99": pick(0.99), "p99.9": pick(0.999), "max": float(dev[-1])}
         return TimingStats(
             self.ticks,
             time.perf_counter() - self._t0,
             self.ticks * self.period,
             self.overruns,
-            jitter,
+            self.jitter.percentiles(),
             self.policy,
+            self.started,
         )
+
+
+class JitterHistogram:
+    """|period - nominal| of successive wake-ups, in 1 us bins (JITTER_BINS)."""
+
+    def __init__(self, period: float):
+        self.period = period
+        self.counts = [0] * JITTER_BINS
+        self.max_us = 0.0
+        self._last: float | None = None
+
+    def wake(self, now: float) -> None:
+        if self._last is not None:
+            dev_us = abs(now - self._last - self.period) * 1e6
+            self.counts[min(int(dev_us), JITTER_BINS - 1)] += 1
+            self.max_us = max(self.max_us, dev_us)
+        self._last = now
+
+    def percentiles(self) -> dict[str, float] | None:
+        """p50, p99, p99.9 (the upper edge of their 1 us bin, never above the maximum) and the maximum."""
+        total = sum(self.counts)
+        if total < 2:
+            return None
+        out, seen, bins = {}, 0, iter(enumerate(self.counts))
+        for name, q in (("p50", 0.5), ("p99", 0.99), ("p99.9", 0.999)):
+            rank = min(int(q * total), total - 1)  # as the sorted-array pick it replaces
+            while seen <= rank:
+                edge, count = next(bins)
+                seen += count
+            out[name] = min(edge + 1.0, self.max_us)
+        out["max"] = self.max_us
+        return out

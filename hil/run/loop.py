@@ -14,6 +14,9 @@ from hil.run.rig import Rig
 from hil.run.trace import Failure, Trace, reason
 from safety.machine import Event
 
+TELEMETRY_EVERY = 64
+"""Ticks between takes of the controller's telemetry during a run."""
+
 
 def tick_loop(built: Built, options: RunOptions) -> Trace:
     """Tick to the end of the scenario (or a fall, or the caller's stop) and return what happened. An
@@ -23,6 +26,16 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
     lockstep = built.clock == "lockstep"
     clock = LockstepClock(plant.dt, rig.command_guard) if lockstep else RealtimeClock(plant.dt)
     rows = np.full((ticks, 19), np.nan)
+    command = np.full((ticks, 2), np.nan)
+    tilt_cmd = np.full((ticks, 2), np.nan)
+    first_tick = plant.tick + 1
+
+    def take_telemetry() -> None:
+        for sample in rig.telemetry.drain():
+            i = sample.seq - first_tick
+            if 0 <= i < ticks:
+                command[i], tilt_cmd[i] = sample.command_speed, sample.tilt_command
+
     supervisor = rig.supervisor  # its record outlives a kill
     n = 0
     next_report = time.monotonic() + 0.5
@@ -50,6 +63,8 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
             tr.resting,
         )
         n += 1
+        if n % TELEMETRY_EVERY == 0:  # long before the subscription's ring could overflow
+            take_telemetry()
         if options.stop_on_fall and tr.fallen:
             break
         if options.on_tick is not None:
@@ -63,15 +78,9 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
     clock.stop()
     rig.faults.finish(plant.tick, plant.t)
     timing = clock.stats()
-    rows = rows[:n]
-    command = np.full((n, 2), np.nan)
-    tilt_cmd = np.full((n, 2), np.nan)
-    first_tick = plant.tick - n + 1
+    rows, command, tilt_cmd = rows[:n], command[:n], tilt_cmd[:n]
     for _ in range(50 if n else 0):  # the last telemetry samples may still be in flight
-        for sample in rig.telemetry.drain():
-            i = sample.seq - first_tick
-            if 0 <= i < n:
-                command[i], tilt_cmd[i] = sample.command_speed, sample.tilt_command
+        take_telemetry()
         if not np.isnan(command[-1, 0]) or not rig.telemetry.wait(0.02):
             break
     return Trace(
@@ -90,7 +99,7 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
         timing=timing,
         bus=rig.can.stats.as_dict(),
         motor_torque=rows[:, 12:15],
-        zenoh_inputs=rig.zenoh_inputs,
+        zenoh_inputs=rig.inputs.entries if rig.inputs.path is None else None,
         safety_state=rows[:, 15].astype(int),
         safety_speed=rows[:, 16],
         powered=rows[:, 17].astype(bool),

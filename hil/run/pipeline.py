@@ -39,8 +39,7 @@ def run(
     seed = scenario.seed if seed is None else seed
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
-    can_log = out / "can.log" if out is not None and bench.outputs.can_log else None
-    trace = execute(bench, scenario, seed, options, can_log)
+    trace = execute(bench, scenario, seed, options, out)
     result = RunResult(
         scenario,
         law_of(bench, scenario),
@@ -58,12 +57,12 @@ def run(
     return result
 
 
-def execute(bench: Bench, scenario: Scenario, seed: int, options: RunOptions, can_log: Path | None) -> Trace:
+def execute(bench: Bench, scenario: Scenario, seed: int, options: RunOptions, out: Path | None) -> Trace:
     """Build, hand-shake and tick; a failure before the first tick is an empty trace saying why."""
     stage = "build"
     try:
         with ExitStack() as stack:  # every resource of the run, closed in reverse on any exit
-            built = build(bench, scenario, seed, options, can_log, stack)
+            built = build(bench, scenario, seed, options, out, stack)
             stage = "start-up"
             start_up(built, bench)
             return tick_loop(built, options)

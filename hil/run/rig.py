@@ -7,14 +7,15 @@ One tick k:
   4. the rig publishes the SC request of the schedule, any operator action due and the seat wrench (in
      lockstep then pure/rig/tick k with its put counts: the fence, drivers/zenoh_link.py `Fence`),
      sends drive feedback and IMU frames, then SYNC(k);
-  5. it waits for the three drive commands tagged k and hands them to the drives; in lockstep the tick
+  5. it waits for the three drive commands tagged k (a driven in-process controller answers them from
+     the rig's thread first) and hands them to the drives; in lockstep the tick
      is over when the controller's heartbeat follows its commands (a command lost on the way is counted
      missing, not waited for), and a controller that stayed silent for a whole wall-clock guard is not
      waited for again until it is heard from;
   6. the supervisor (in-process) updates from the same traffic; its SUPERVISOR_ESTOP frame is the drives'
      permission to run (they turn off when it asserts e-stop or goes silent) and commands the main
      contactor in their power feed (it opens on Contactor = 0 or a longer silence);
-  7. the recorder keeps the tick.
+  7. the recorder keeps the tick (the CAN log written from this thread; the trace row by the loop).
 """
 
 from __future__ import annotations
@@ -22,9 +23,10 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter, deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from drivers.can_bus import CanNode, Received
+from drivers.can_bus import BusRecorder, CanNode, Received
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MessageName
 from drivers.schemas import (
     ControllerCommand,
@@ -37,6 +39,7 @@ from drivers.schemas import (
 )
 from drivers.zenoh_link import ZenohLink
 from hil.faults import FaultSet
+from hil.outputs.inputs_log import InputsLog
 from plant.ballbot import Plant
 from plant.drives import DriveState
 from safety.node import SupervisorNode
@@ -44,6 +47,8 @@ from safety.node import SupervisorNode
 TICK_MODULO = 1 << 16
 COMMANDS = {name: motor for motor, name in enumerate(DRIVE_COMMAND)}
 TORQUE_EVERY = 4  # DRIVEn_TORQUE at 100 Hz on a 400 Hz tick (the DBC's GenMsgCycleTime)
+TELEMETRY_CAPACITY = 1 << 12
+"""Controller telemetry samples buffered between the loop's takes (hil/run/loop.py TELEMETRY_EVERY)."""
 SC_REPEAT_EVERY = 40  # ticks between repeats of an unchanged SC request (keeps it fresh for the supervisor)
 
 
@@ -113,12 +118,19 @@ class Rig:
         """In-process supervisor, updated every tick; None: a supervisor elsewhere on the bus."""
         self.dut = None
         """The in-process controller's handle (process faults stop or pause it); None: external."""
+        self.recorder: BusRecorder | None = None
+        """The CAN log, written at the end of every tick (polled: no thread woken for every frame)."""
+        self.poll_dut: Callable[[], None] | None = None
+        """A driven in-process controller (drivers/dut.py, DutSpec.driven): called right after SYNC, it
+        answers from this thread."""
         self.faults = faults if faults is not None else FaultSet()
         self.bitrate = bitrate
         self._held: deque[tuple[int, int, float, bool]] = deque()
         """Commands a loop-delay fault holds back: (due tick, drive, torque, enable)."""
         self.stats = TickStats()
-        self.telemetry = link.subscribe(self.keys.controller_telemetry, ControllerTelemetry, capacity=1 << 16)
+        self.telemetry = link.subscribe(
+            self.keys.controller_telemetry, ControllerTelemetry, capacity=TELEMETRY_CAPACITY
+        )
         keys = self.keys
         link.declare_publishers([keys.tes_wrench, keys.rig_tick])
         self.sc_link.declare_publishers([keys.sc_request])
@@ -135,6 +147,8 @@ class Rig:
         drive = plant.robot.drive
         self.permission_timeout, self.contactor_timeout = drive.permission_timeout, drive.contactor_timeout
         self._permission_seen = -math.inf
+        self._supervisor_silent = False
+        """An external supervisor let a whole guard pass without a frame: not waited for until heard."""
         self._estop_asserted = False
         self._contactor_commanded = False
         self.safety_state = -1
@@ -144,9 +158,9 @@ class Rig:
         self._permitted = False
         plant.drives.set_permission(False)  # both paths open until the supervisor's first frame
         plant.drives.set_contactor(False)
-        self.zenoh_inputs: list[tuple[int, str, bytes]] = []
+        self.inputs = InputsLog()
         """Every (tick, key, payload) the controller was sent on zenoh, in the order it could see them
-        (what `pure-hil replay` replays)."""
+        (what `pure-hil replay` replays); build() streams it to the run folder."""
         if supervisor is not None:
             # What it puts at the end of tick k reaches the controller for tick k + 1.
             supervisor.on_put = lambda key, data: self._record(self.plant.tick + 1, key, data)
@@ -203,16 +217,21 @@ class Rig:
         self._send_sensors(k, feedback, imu, silent)
         faults.flush(plant.t)
         self.can.send(MessageName.SYNC, {"Tick": k % TICK_MODULO})
-        if deadline is None:
-            deadline = time.monotonic() + self.command_guard
-        if self._silent:
-            deadline = time.monotonic()  # a silent controller: take what is queued, wait for nothing
-        self._collect_commands(k, deadline, lockstep, faults.command_delay())
+        guard = time.monotonic() + self.command_guard if deadline is None else deadline
+        if self.poll_dut is not None:
+            self.poll_dut()  # driven: what it answers is queued when poll() returns, or it is not coming
+        # Neither a driven controller nor a silent one is waited for: take what is queued.
+        waiting = self.poll_dut is None and not self._silent
+        self._collect_commands(k, guard if waiting else time.monotonic(), lockstep, faults.command_delay())
         self._deliver_held(k)
         if self.supervisor is not None:
             self.supervisor.update(plant.t, fence=k if lockstep else None)
+        elif lockstep:
+            self._await_supervisor(guard)
         self._drain_nowait()
         self.apply_permission()
+        if self.recorder is not None:
+            self.recorder.poll()
         self.stats.ticks += 1
 
     # ------------------------------------------------------------------------------------------ outputs
@@ -258,7 +277,7 @@ class Rig:
 
     def _record(self, k: int, key: str, data: bytes) -> None:
         if key in (self.keys.tes_wrench, self.keys.sc_command, self.keys.controller_command):
-            self.zenoh_inputs.append((k, key, data))
+            self.inputs.append(k, key, data)
 
     def _put(self, k: int, key: str, payload: Payload, link: ZenohLink | None = None) -> None:
         self._put_bytes(k, key, encode(payload), link)
@@ -323,11 +342,32 @@ class Rig:
         while (rx := self.can.recv(timeout=0.0)) is not None:
             self._other_frame(rx)
 
+    def _await_supervisor(self, deadline: float) -> None:
+        """Lockstep beside a supervisor elsewhere (another process or thread): its SUPERVISOR_ESTOP frames
+        are an output the loop waits for like the controller's commands, once the last one is half the
+        permission timeout old in simulated time; a supervisor merely slower than the loop must not look
+        dead to the drives. One that stays silent for a whole guard is not waited for again until heard."""
+        if self._supervisor_silent or self.plant.t - self._permission_seen < self.permission_timeout / 2:
+            return
+        seen = self._permission_seen
+        while self._permission_seen == seen:
+            rx = self.can.recv(timeout=max(deadline - time.monotonic(), 0.0))
+            if rx is None:
+                if time.monotonic() >= deadline:
+                    self._supervisor_silent = True
+                    return
+                continue
+            if rx.name in COMMANDS:
+                self.stats.late_commands += 1  # its tick is over: never applied
+            else:
+                self._other_frame(rx)
+
     def _other_frame(self, rx: Received) -> None:
         if rx.name == MessageName.CONTROLLER_HEARTBEAT:
             self.stats.controller_states[int(rx.signals["State"])] += 1
         elif rx.name == MessageName.SUPERVISOR_ESTOP and rx.ok:
             self._permission_seen = self.plant.t
+            self._supervisor_silent = False
             self._estop_asserted = bool(rx.signals["Estop"])
             self._contactor_commanded = bool(rx.signals["Contactor"])
             self.safety_state = int(rx.signals["State"])

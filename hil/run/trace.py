@@ -65,8 +65,9 @@ class Trace:
     """The rig node's CAN statistics (sent, received, E2E events, malformed frames)."""
     motor_torque: np.ndarray
     """(n, 3) motor torques the drives produced, Nm."""
-    zenoh_inputs: list[tuple[int, str, bytes]]
-    """What the controller was sent on zenoh: (tick, key, msgpack payload)."""
+    zenoh_inputs: list[tuple[int, str, bytes]] | None
+    """What the controller was sent on zenoh: (tick, key, msgpack payload); None: streamed to the run
+    folder's zenoh_inputs.msgpack as the run went (hil/outputs/inputs_log.py)."""
     safety_state: np.ndarray
     """(n,) the supervisor's state per tick as on the bus (SUPERVISOR_ESTOP.State; -1: no frame yet)."""
     safety_speed: np.ndarray

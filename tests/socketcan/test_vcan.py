@@ -29,6 +29,7 @@ ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
 RIDER = str(ROOT / "configs/riders/ref_60kg_180.toml")
 SMOKE = ROOT / "configs/scenarios/bench_smoke.toml"
+VCAN_BENCH = ROOT / "configs/benches/vcan.toml"
 TICK = 1.0 / 400
 SYNC_ID = 0x080
 BOOT_UP_IDS = {0x010, 0x720}
@@ -98,7 +99,12 @@ def run_bench(
             start("controller", controller or [*reference, "--law", "hacs", "--lockstep"])
         watcher = threading.Thread(target=watch, daemon=True)
         watcher.start()
-        rig = [str(BIN / "pure-hil"), "run", str(scenario), "--bench", "vcan", "--out", str(out)]
+        # Under the VM's CPU emulation a spawned controller may take longer than the default 30 s to import.
+        bench = tmp_path / "vcan.toml"
+        bench.write_text(
+            VCAN_BENCH.read_text().replace("[controller]\n", "[controller]\nboot_timeout = 120\n")
+        )
+        rig = [str(BIN / "pure-hil"), "run", str(scenario), "--bench", str(bench), "--out", str(out)]
         rig += ["--supervisor", "external", "--clock", "lockstep", "--quiet"]
         rig += ["--controller", "spawned" if spawn else "external"]
         start("rig", rig)
