@@ -1,28 +1,49 @@
-"""Lockstep speed of a scenario end to end (plant, CAN frames, zenoh, controller), with the per-stage cost
-of the rig's tick and, measured in the same run, the floor: bare python-can virtual send+recv of the same
-number of frames per tick.
+"""Lockstep speed of a scenario with everything on (plant, CAN frames through the DBC codec and E2E, zenoh,
+the reference controller, the embedded supervisor, the CAN log recorder), the per-stage cost of the rig's
+tick, and, measured in the same run:
+- rig only: the same scenario with an instant responder in place of the controller (it answers every SYNC
+  with disabled zero-torque commands and a heartbeat at once; the plant is clamped on its stand);
+- the floor: bare python-can virtual send+recv of the tick's frames.
 
-    python benchmarks/lockstep.py [SCENARIO (default speed_limiting)] [--duration S]
+    python benchmarks/lockstep.py [SCENARIO (default speed_limiting)] [--duration S] [--json]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import tempfile
 import time
+from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import can
 import msgspec
 
+import controller.embedded
+import hil.run.build as build_module
 import hil.run.rig as rig_module
-from drivers.can_bus import private_channel
+from drivers.can_bus import CanNode, open_bus, private_channel
+from drivers.can_codec import DRIVE_COMMAND, MessageName
+from drivers.dut import DutSpec
+from hil.bench.bench import load_bench
+from hil.run.build import RunOptions
 from hil.run.pipeline import load_scenario, run
 from plant.ballbot import Plant
 from safety.node import SupervisorNode
 
 FRAMES_PER_TICK = 12  # 3 feedback, 3 IMU, SYNC, 3 commands, heartbeat, + (DRIVEn_TORQUE, estop) / 4
+STAGES = {
+    "plant.step": "plant step (RK4, rider)",
+    "_send_sensors": "sample + 7 frames out",
+    "_publish_tes": "seat wrench -> zenoh",
+    "_publish_sc_request": "SC request -> zenoh",
+    "controller": "controller (driven: frames, step, out)",
+    "_collect_commands": "collect the controller's answer",
+    "supervisor": "supervisor (frames, decide, emit)",
+}
 
 
 def timed(totals: dict[str, float], name: str, fn):
@@ -34,6 +55,48 @@ def timed(totals: dict[str, float], name: str, fn):
             totals[name] = totals.get(name, 0.0) + time.perf_counter() - t0
 
     return wrapper
+
+
+class InstantResponder:
+    """In place of the controller: every SYNC answered at once from the rig's thread (DutSpec.driven)."""
+
+    def __init__(self, spec: DutSpec):
+        self.bus = open_bus(spec.can)
+        self.node = CanNode(self.bus, name="responder")
+        self.node.send(MessageName.CONTROLLER_HEARTBEAT, {"State": 0, "Mode": 0, "FaultCode": 0})
+
+    def poll(self) -> None:
+        while (rx := self.node.recv(timeout=0.0)) is not None:
+            if rx.name == MessageName.SYNC:
+                for name in DRIVE_COMMAND:
+                    self.node.send(name, {"Torque": 0.0, "Tick": rx.signals["Tick"], "Enable": 0})
+                self.node.send(MessageName.CONTROLLER_HEARTBEAT, {"State": 1, "Mode": 0, "FaultCode": 0})
+
+    def stop(self) -> None:
+        self.bus.shutdown()
+
+
+def timed_run(scenario, bench, out: Path, options: RunOptions | None = None):
+    t0 = time.perf_counter()
+    result = run(scenario, bench, out=out, options=options)
+    return result, time.perf_counter() - t0
+
+
+def rig_only(scenario, out: Path) -> float:
+    """us per tick of the rig's loop with an instant responder in place of the controller."""
+    sim = out / "clamped.toml"
+    sim.write_text('fixture = "clamped"\n')
+    bench = msgspec.structs.replace(load_bench(), sim=str(sim))
+    original = build_module.start_dut
+    build_module.start_dut = lambda name, spec: InstantResponder(spec)
+    try:
+        result, _ = timed_run(scenario, bench, out / "rig-only", RunOptions(stop_on_fall=False))
+    finally:
+        build_module.start_dut = original
+    timing = result.trace.timing
+    if result.trace.failure is not None:
+        raise SystemExit(f"rig-only run failed: {result.trace.failure}")
+    return timing.wall_time / timing.ticks * 1e6
 
 
 def bare_floor(ticks: int) -> float:
@@ -51,52 +114,82 @@ def bare_floor(ticks: int) -> float:
     return elapsed
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser()
-    parser.add_argument("scenario", nargs="?", default="speed_limiting")
-    parser.add_argument("--duration", type=float, default=None)
-    args = parser.parse_args()
-    scenario = load_scenario(args.scenario)
-    if args.duration:
-        scenario = msgspec.structs.replace(scenario, duration=args.duration)
-    totals: dict[str, float] = {}
+def instrument(totals: dict[str, float]) -> None:
     rig = rig_module.Rig
     for name in ("_send_sensors", "_publish_tes", "_publish_sc_request", "_collect_commands"):
         setattr(rig, name, timed(totals, name, getattr(rig, name)))
     Plant.step = timed(totals, "plant.step", Plant.step)
     SupervisorNode.update = timed(totals, "supervisor", SupervisorNode.update)
-    t0 = time.perf_counter()
-    result = run(scenario)
-    wall = time.perf_counter() - t0
-    ticks = result.trace.stats.ticks
-    sim = result.trace.t[-1]
+    embedded = controller.embedded.EmbeddedController
+    embedded.poll = timed(totals, "controller", embedded.poll)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("scenario", nargs="?", default="speed_limiting")
+    parser.add_argument("--duration", type=float, default=None)
+    parser.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
+    args = parser.parse_args()
+    scenario = load_scenario(args.scenario)
+    if args.duration:
+        scenario = msgspec.structs.replace(scenario, duration=args.duration)
+    with tempfile.TemporaryDirectory(prefix="lockstep-bench-") as tmp:
+        out = Path(tmp)
+        only_us = rig_only(scenario, out)
+        totals: dict[str, float] = {}
+        instrument(totals)
+        result, wall = timed_run(scenario, load_bench(), out / "full")
+    trace = result.trace
+    if trace.failure is not None:
+        raise SystemExit(f"run failed: {trace.failure}")
+    ticks, sim, loop = trace.stats.ticks, float(trace.t[-1]), trace.timing
     floor = bare_floor(ticks)
-    print(
-        f"{scenario.name} ({result.law}, lockstep, {scenario.tick_hz:g} Hz): {sim:.2f} s simulated, "
-        f"{ticks} ticks"
-    )
-    print(f"  end to end incl. start-up: {wall:.2f} s wall = {sim / wall:.2f}x real time")
-    loop = result.trace.timing
-    print(
-        f"  tick loop only:            {loop.wall_time:.2f} s = {loop.speed:.2f}x real time, "
-        f"{loop.wall_time / ticks * 1e3:.2f} ms/tick"
-    )
-    print("  per-stage cost of the rig's tick (wall, includes waiting on the other threads):")
-    labels = {
-        "plant.step": "plant step (RK4, rider)",
-        "_send_sensors": "sample + 7 frames out",
-        "_publish_tes": "seat wrench -> zenoh",
-        "_publish_sc_request": "SC request -> zenoh",
-        "_collect_commands": "wait for the controller's answer",
-        "supervisor": "supervisor (frames, decide, emit)",
+    figures = {
+        "scenario": scenario.name,
+        "law": result.law,
+        "tick_hz": scenario.tick_hz,
+        "ticks": ticks,
+        "simulated_s": sim,
+        "speed_tick_loop": loop.speed,
+        "speed_end_to_end": sim / wall,
+        "us_per_tick": loop.wall_time / ticks * 1e6,
+        "rig_only_us_per_tick": only_us,
+        "floor_us_per_tick": floor / ticks * 1e6,
+        "stages_us_per_tick": {name: totals.get(name, 0.0) / ticks * 1e6 for name in STAGES},
+        "missing_commands": trace.stats.missing_commands,
+        "passed": result.passed,
     }
-    for name, label in labels.items():
-        print(f"    {label:<34} {totals.get(name, 0.0) / ticks * 1e6:8.0f} us/tick")
+    if args.json:
+        print(json.dumps(figures))
+        return
+    print(
+        f"{scenario.name} ({result.law}, lockstep, {scenario.tick_hz:g} Hz, recorder on): "
+        f"{sim:.2f} s simulated, {ticks} ticks, passed: {result.passed}"
+    )
+    print(
+        f"  end to end (start-up, run, outputs): {wall:.2f} s wall = "
+        f"{figures['speed_end_to_end']:.2f}x real time"
+    )
+    print(
+        f"  tick loop only:                      {loop.wall_time:.2f} s = {loop.speed:.2f}x real time, "
+        f"{figures['us_per_tick']:.0f} us/tick"
+    )
+    print("  per-stage cost of the rig's tick:")
+    for name, label in STAGES.items():
+        print(f"    {label:<40} {figures['stages_us_per_tick'][name]:8.0f} us/tick")
+    print(
+        f"  rig only (instant responder, clamped): {only_us:.0f} us/tick = "
+        f"{1e6 / scenario.tick_hz / only_us:.1f}x real time"
+    )
     print(
         f"  floor, bare python-can virtual send+recv of {FRAMES_PER_TICK} frames/tick: "
-        f"{floor / ticks * 1e6:.0f} us/tick = {sim / floor:.1f}x real time at most"
+        f"{figures['floor_us_per_tick']:.0f} us/tick = {sim / floor:.1f}x real time at most"
     )
-    print(f"  ratio tick loop / floor: {result.trace.timing.wall_time / floor:.1f}")
+    print(
+        f"  ratios: tick loop / rig only {figures['us_per_tick'] / only_us:.2f}, "
+        f"tick loop / floor {figures['us_per_tick'] / figures['floor_us_per_tick']:.1f}, "
+        f"rig only / floor {only_us / figures['floor_us_per_tick']:.1f}"
+    )
 
 
 if __name__ == "__main__":

@@ -1,18 +1,25 @@
-"""Real-time pacing at the tick rate: period jitter and overruns of the rig's loop, with the rig's own work
-(plant step, sensor sampling, the tick's frames on a virtual bus drained by a second thread), against the
-same clock with no work at all, measured in the same run.
+"""Real-time pacing at the tick rate: period jitter and overruns of the rig's loop against the same clock
+with no work at all, measured in the same run.
 
-    python benchmarks/realtime.py [--seconds 60] [--hz 400] [--fifo] [--cpu N]
-
-The controller is not in the loop here: in one process it cannot keep 400 Hz on a small machine
-(docs/rig.md); with a controller on its own board the rig's loop carries exactly this work.
+    python benchmarks/realtime.py [--seconds 60] [--hz 400] [--fifo] [--cpu N] [--json]
+        the rig's own work only: plant step, sensor sampling, the tick's frames on an in-process bus
+        drained by a second thread;
+    python benchmarks/realtime.py --full [--seconds 60] [--scenario speed_limiting] [--json]
+        a whole run in real time on the embedded bench: the reference controller on its own thread, the
+        supervisor in the tick, the recorder on; also missing and late commands, ticks without
+        controller telemetry and the process's peak memory.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import resource
+import tempfile
 import threading
+import time
+from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -32,13 +39,75 @@ def paced(seconds: float, hz: float, work, fifo: bool, cpu: int | None):
     return clock.stats()
 
 
+def peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def full(args) -> None:
+    import msgspec
+
+    from hil.bench.bench import load_bench
+    from hil.run.pipeline import load_scenario, run
+
+    idle = paced(min(args.seconds, 10.0), 400.0, lambda: None, False, None)
+    scenario = msgspec.structs.replace(load_scenario(args.scenario), duration=args.seconds)
+    bench = msgspec.structs.replace(load_bench(), clock="realtime")
+    with tempfile.TemporaryDirectory(prefix="realtime-bench-") as tmp:
+        t0 = time.perf_counter()
+        result = run(scenario, bench, out=Path(tmp))
+        wall = time.perf_counter() - t0
+    tr = result.trace
+    timing, stats = tr.timing, tr.stats
+    figures = {
+        "scenario": scenario.name,
+        "seconds": args.seconds,
+        "ticks": stats.ticks,
+        "overruns": timing.overruns,
+        "jitter_us": timing.jitter_us,
+        "idle_jitter_us": idle.jitter_us,
+        "missing_commands": stats.missing_commands,
+        "late_commands": stats.late_commands,
+        "telemetry_missing": tr.controller_telemetry_missing,
+        "passed": result.passed,
+        "failure": None if tr.failure is None else str(tr.failure),
+        "peak_rss_mb": peak_rss_mb(),
+        "wall_s": wall,
+        "policy": timing.realtime_policy,
+    }
+    if args.json:
+        print(json.dumps(figures))
+        return
+    j, i = timing.jitter_us or {}, idle.jitter_us or {}
+    print(
+        f"{scenario.name}, {args.seconds:g} s in real time on the embedded bench ({timing.realtime_policy}): "
+        f"passed: {result.passed}"
+    )
+    print(f"  ticks {stats.ticks}, overruns {timing.overruns}")
+    print("  jitter = |period - nominal|, us      p50     p99   p99.9     max")
+    for label, q in (("the run", j), ("no work (baseline)", i)):
+        print(f"    {label:<32}" + "".join(f"{q.get(p, 0):8.0f}" for p in ("p50", "p99", "p99.9", "max")))
+    print(
+        f"  commands missing {stats.missing_commands}, late {stats.late_commands}; "
+        f"ticks without controller telemetry {tr.controller_telemetry_missing}"
+    )
+    print(f"  peak memory {figures['peak_rss_mb']:.0f} MB; whole command {wall:.1f} s (outputs included)")
+
+
 def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--seconds", type=float, default=60.0)
     p.add_argument("--hz", type=float, default=400.0)
     p.add_argument("--fifo", action="store_true", help="SCHED_FIFO (needs privileges)")
     p.add_argument("--cpu", type=int, default=None, help="pin to this CPU")
+    p.add_argument("--full", action="store_true", help="a whole run (controller, supervisor, recorder)")
+    p.add_argument(
+        "--scenario", default="speed_limiting", help="--full: the scenario (its duration: --seconds)"
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object")
     args = p.parse_args()
+    if args.full:
+        full(args)
+        return
 
     plant = Plant(
         RobotParams(),
@@ -77,6 +146,19 @@ def main() -> None:
     drainer.join()
     tx_bus.shutdown()
     rx_bus.shutdown()
+    if args.json:
+        print(
+            json.dumps(
+                {
+                    "ticks": loaded.ticks,
+                    "overruns": loaded.overruns,
+                    "jitter_us": loaded.jitter_us,
+                    "idle_jitter_us": idle.jitter_us,
+                    "policy": loaded.realtime_policy,
+                }
+            )
+        )
+        return
     print(f"real-time pacing at {args.hz:g} Hz ({loaded.realtime_policy}); jitter = |period - nominal|, us")
     print(f"{'loop':<34}{'ticks':>7}{'overruns':>9}{'p50':>8}{'p99':>8}{'p99.9':>8}{'max':>8}")
     for label, s in (("no work (baseline)", idle), ("plant + sensors + 8 frames", loaded)):
