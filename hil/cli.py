@@ -14,7 +14,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse
 import json
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -109,12 +111,13 @@ def _run(args: argparse.Namespace) -> int:
     out = Path(args.out or Path(bench.outputs.folder) / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}")
     show_progress = sys.stderr.isatty() and not args.quiet
     print(f"pure-hil run: {scenario.name} on bench {bench.name} -> {out}")
+    stop = _stop_on_signals()  # Ctrl-C ends the run at the next tick; what ran is judged and written
     result = run(
         scenario,
         bench,
         out=out,
         seed=args.seed,
-        options=RunOptions(progress=_progress if show_progress else None),
+        options=RunOptions(progress=_progress if show_progress else None, stop=stop),
     )
     if show_progress:
         print(file=sys.stderr)
@@ -125,7 +128,11 @@ def _run(args: argparse.Namespace) -> int:
         )
         return 2 if failure.config else 1
     print(format_table(result))
-    print(f"outputs: {out}/summary.json, can.log, recording.rrd, plots.png")
+    print(f"outputs: {out}/summary.json, can.log, recording.rrd, plots.png, trace.npy")
+    if result.trace.stopped_early:
+        simulated = float(result.trace.t[-1]) if len(result.trace.t) else 0.0
+        print(f"pure-hil run: stopped at t = {simulated:.2f} s of {scenario.duration:g} s", file=sys.stderr)
+        return 130
     return 0 if result.passed else 1
 
 
@@ -214,14 +221,17 @@ def _replay(args: argparse.Namespace) -> int:
 
 
 # ----------------------------------------------------------------------------- the bench's processes
-def _until_interrupted(message: str) -> None:
-    """Print `message`, then block until SIGINT or SIGTERM (the long-running commands' clean stop)."""
-    import signal
-    import threading
-
+def _stop_on_signals() -> threading.Event:
+    """An event SIGINT or SIGTERM sets: the long-running commands' clean stop."""
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
+    return stop
+
+
+def _until_interrupted(message: str) -> None:
+    """Print `message`, then block until SIGINT or SIGTERM."""
+    stop = _stop_on_signals()
     print(message, flush=True)
     stop.wait()
 

@@ -82,3 +82,40 @@ def test_an_unexpected_error_is_one_line_and_keeps_its_traceback_in_a_file(monke
     err = capsys.readouterr().err
     assert err.startswith("pure-hil simulate: unexpected ZeroDivisionError: a bug (traceback: ")
     assert "ZeroDivisionError" in Path(err.split("traceback: ")[1].rstrip(")\n")).read_text()
+
+
+def test_ctrl_c_ends_a_run_at_the_next_tick_and_writes_its_folder(tmp_path):
+    """An operator's Ctrl-C (SIGINT) on a long run: the run stops, is judged on what ran and leaves its whole
+    folder (before, the command died with exit 130 and left no summary)."""
+    import signal
+    import time
+
+    import numpy as np
+
+    scenario = tmp_path / "long.toml"
+    scenario.write_text('name = "long"\nrider = "ref_60kg_180"\nduration = 3600.0\n')
+    out = tmp_path / "run"
+    script = Path(sys.executable).parent / "pure-hil"
+    proc = subprocess.Popen(
+        [str(script), "run", str(scenario), "--out", str(out), "--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        deadline = time.monotonic() + 60
+        while not (out / "trace.npy").exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.5)  # ticking
+        proc.send_signal(signal.SIGINT)
+        output, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, output
+    assert "stopped at t = " in output and "Traceback" not in output
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["stopped_early"] and 0 < summary["simulated"] < 3600 and summary["passed"]
+    rows = np.load(out / "trace.npy")
+    assert len(rows) == summary["rig"]["ticks"] and abs(rows[-1, 0] - summary["simulated"]) < 1e-6
+    assert all((out / name).stat().st_size > 0 for name in ("can.log", "recording.rrd", "plots.png"))

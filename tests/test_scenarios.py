@@ -8,6 +8,7 @@ from pathlib import Path
 
 import can
 import msgspec
+import numpy as np
 import pytest
 
 from drivers.can_codec import Catalog
@@ -175,6 +176,49 @@ def test_zenoh_inputs_stream_to_the_run_folder_as_the_run_goes(tmp_path):
     in_memory = run(short, private_bench()).trace.zenoh_inputs
     on_disk = [tuple(e) for e in msgspec.msgpack.decode(path.read_bytes())]
     assert len(on_disk) > 400 and on_disk == in_memory  # seat samples, SC requests and commands
+
+
+def test_the_trace_and_the_recording_stream_to_the_run_folder_as_the_run_goes(tmp_path, monkeypatch):
+    """trace.npy grows during the run in blocks and holds the same rows a run without a folder keeps in
+    memory (telemetry included: a block is written only once the next is full); the recording is written
+    block by block and still holds every tick."""
+    import rerun.chunk
+
+    import hil.outputs.recording as recording
+    import hil.outputs.trace_log as trace_log
+
+    monkeypatch.setattr(trace_log, "BLOCK", 64)
+    monkeypatch.setattr(recording, "BLOCK", 64)
+    short = msgspec.structs.replace(load("speed_limiting"), duration=1.0)  # 400 ticks
+    path = tmp_path / "run" / "trace.npy"
+    sizes = []
+    options = RunOptions(on_tick=lambda plant: plant.tick % 50 == 0 and sizes.append(path.stat().st_size))
+    streamed = run(short, private_bench(), out=tmp_path / "run", options=options)
+    assert sizes == sorted(sizes) and sizes[-1] > sizes[0]  # written before the run's end
+    assert isinstance(streamed.trace.t, np.memmap)
+    rows = np.load(path)
+    assert rows.shape == (400, len(trace_log.COLUMNS))
+    kept = run(short, private_bench()).trace
+    assert np.array_equal(rows[:, 0], kept.t) and np.array_equal(rows[:, 1:3], kept.velocity)
+    told = rows[:, trace_log.TELEMETRY : trace_log.TELEMETRY + 2]
+    assert np.array_equal(told, kept.command_speed, equal_nan=True) and not np.isnan(told).any()
+    assert streamed.trace.controller_telemetry_missing == kept.controller_telemetry_missing == 0
+    reader = rerun.chunk.RrdReader(str(tmp_path / "run" / "recording.rrd"))
+    chunks = [c for c in reader.stream() if c.entity_path == "/speed/actual" and c.num_rows > 1]
+    assert len(chunks) >= 400 // 64 and sum(c.num_rows for c in chunks) == 400
+
+
+def test_a_long_run_is_plotted_by_stretches_that_keep_every_peak():
+    from hil.outputs.plots import STRETCHES, _stretched
+
+    t = np.arange(100 * STRETCHES) * 0.0025
+    values = np.sin(t)
+    values[12345] = 9.0  # one tick's spike
+    times, high = _stretched(t, values, np.nanmax)
+    _, low = _stretched(t, values, np.nanmin)
+    assert len(times) <= STRETCHES and high.max() == 9.0 and low.min() == values.min()
+    short = t[: 2 * STRETCHES]
+    assert len(_stretched(short, np.sin(short), np.nanmax)[0]) == len(short)  # short runs drawn as they are
 
 
 def write_scenario(tmp_path, text: str) -> Path:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -32,7 +33,7 @@ KEYS = Keys()
 SCENARIO = """
 name = "secured_estop"
 rider = "ref_60kg_180"
-duration = 6.0
+duration = 120.0  # lockstep: ended by the test (SIGINT) once the e-stop has brought the robot to rest
 [[sc]]
 at = 0.0
 mode = "limit"
@@ -98,11 +99,8 @@ def test_a_scenario_runs_through_the_router_and_only_certified_roles_reach_the_s
         ),
     ]
     out = tmp_path / "run"
-    # Real time: the operator's e-stop comes from another process on the wall clock, as on a bench. In
-    # lockstep the 6 s scenario can end (4x faster) before the e-stop has brought the robot to rest.
-    run = ["run", str(scenario), *bench, "--clock", "realtime", "--out", str(out), "--quiet"]
     rig = subprocess.Popen(
-        [str(BIN / "pure-hil"), *run],
+        [str(BIN / "pure-hil"), "run", str(scenario), *bench, "--out", str(out), "--quiet"],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -141,6 +139,12 @@ def test_a_scenario_runs_through_the_router_and_only_certified_roles_reach_the_s
             timeout=60,
         )
         assert estop.returncode == 0, estop.stdout + estop.stderr
+        # The operator ends the run (Ctrl-C) once the supervisor has the robot stopped and unpowered.
+        deadline = time.monotonic() + 60
+        while not any(s.state == "ESTOP" for s in states) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.2)
+        rig.send_signal(signal.SIGINT)
         output, _ = rig.communicate(timeout=120)
     finally:
         if rig.poll() is None:
@@ -149,9 +153,10 @@ def test_a_scenario_runs_through_the_router_and_only_certified_roles_reach_the_s
             sub.undeclare()
         witness.close()
 
-    assert rig.returncode == 0, output
+    assert rig.returncode == 130, output  # stopped by the operator; the run's folder is written all the same
     summary = json.loads((out / "summary.json").read_text())
     assert summary["bench"]["zenoh"] == "router" and summary["passed"], output
+    assert summary["stopped_early"] and summary["simulated"] < 120.0
     steps = [(e["to_state"], e["cause"]) for e in summary["safety"]["events"]]
     assert ("STOPPING", "OPERATOR_ESTOP") in steps, steps
     assert summary["safety"]["ended_resting"] and summary["fallen"] is None

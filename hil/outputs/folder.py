@@ -52,6 +52,7 @@ def summary(result: RunResult) -> dict:
         "failure": None if tr.failure is None else {"stage": tr.failure.stage, "error": tr.failure.error},
         "fallen": tr.fallen,
         "simulated": round(float(tr.t[-1]), 6) if len(tr.t) else 0.0,
+        "stopped_early": tr.stopped_early,
         "metrics": {k: None if math.isnan(v) else v for k, v in result.metrics.items()},
         "metrics_unavailable": {k: why for k in result.metrics if (why := unavailable(tr, k))},
         "verdicts": [msgspec.to_builtins(v) for v in result.verdicts],

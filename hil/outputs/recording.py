@@ -1,5 +1,5 @@
 """The run's rerun recording: states, commands and the rider on a simulated-time timeline, written to a
-file in column batches (one chunk per signal group for the whole run, never one call per tick).
+file in column batches (one chunk per signal group and block of ticks, never one call per tick).
 
 File sink only: no viewer is spawned and nothing is served (network rule); CI=1 keeps rerun's analytics off.
 """
@@ -15,7 +15,7 @@ import numpy as np
 os.environ.setdefault("CI", "1")  # rerun's analytics are off in CI mode; the SDK alone never phones home
 
 import rerun as rr
-from rerun.chunk import Chunk, ChunkStore
+from rerun.chunk import Chunk, LazyChunkStream
 
 SIGNALS = {
     # entity path: (trace attribute, series names)
@@ -30,33 +30,44 @@ SIGNALS = {
 DEGREES = {"tilt/chassis", "tilt/command", "rider/lean"}
 
 
+BLOCK = 4096
+"""Ticks per chunk: the recording is written as it is produced, one block at a time (memory flat in a run's
+length: rerun's LazyChunkStream writes each chunk as the generator yields it)."""
+
+
 def write_rrd(path: Path, trace, name: str = "pure-hil") -> None:
-    """The whole run as chunks, one per signal group, written straight to `path`. No RecordingStream: a
-    Python-created stream is never dropped and keeps its batcher threads for the life of the process
-    (rerun-io/rerun#2116), which a service running for weeks cannot afford."""
-    times = [rr.TimeColumn("sim_time", duration=np.asarray(trace.t, float))]
-    chunks = []
+    """The whole run as chunks (per signal group and block of ticks), written straight to `path`. No
+    RecordingStream: a Python-created stream is never dropped and keeps its batcher threads for the life
+    of the process (rerun-io/rerun#2116), which a service running for weeks cannot afford."""
+    LazyChunkStream.from_iter(_chunks(trace)).write_rrd(
+        path, application_id=f"pure_hil_{name}", recording_id=uuid.uuid4().hex
+    )
 
-    def series(entity: str, names: list[str], values) -> None:
+
+def _chunks(trace):
+    groups = [(entity, names, attr) for entity, (attr, names) in SIGNALS.items()]
+    groups += [
+        ("yaw_rate", ["yaw rate"], "yaw_rate"),
+        ("safety/state", ["supervisor state (0 normal .. 3 e-stop)"], "safety_state"),
+        ("safety/speed_estimate", ["supervisor's speed estimate"], "safety_speed"),
+    ]
+    for entity, names, _ in groups:
         labels = rr.SeriesLines.columns(names=names).partition([len(names)])
-        chunks.append(Chunk.from_columns(entity, indexes=[], columns=labels))
-        scalars = rr.Scalars.columns(scalars=np.asarray(values, float))
-        chunks.append(Chunk.from_columns(entity, indexes=times, columns=scalars))
+        yield Chunk.from_columns(entity, indexes=[], columns=labels)
+    for start in range(0, len(trace.t), BLOCK):
+        block = slice(start, start + BLOCK)
+        times = [rr.TimeColumn("sim_time", duration=np.asarray(trace.t[block], float))]
+        for entity, _, attr in groups:
+            values = np.asarray(getattr(trace, attr)[block], float)
+            values = np.degrees(values) if entity in DEGREES else values
+            yield Chunk.from_columns(entity, indexes=times, columns=rr.Scalars.columns(scalars=values))
 
-    for entity, (attr, names) in SIGNALS.items():
-        values = np.asarray(getattr(trace, attr), float)
-        series(entity, names, np.degrees(values) if entity in DEGREES else values)
-    series("yaw_rate", ["yaw rate"], trace.yaw_rate)
-    series("safety/state", ["supervisor state (0 normal .. 3 e-stop)"], trace.safety_state)
-    series("safety/speed_estimate", ["supervisor's speed estimate"], trace.safety_speed)
-
-    def text_log(entity: str, rows: list[tuple[float, str, str]]) -> None:
+    def text_log(entity: str, rows: list[tuple[float, str, str]]):
         if rows:
             t, text, level = zip(*rows, strict=True)
             index = [rr.TimeColumn("sim_time", duration=np.asarray(t, float))]
-            chunks.append(
-                Chunk.from_columns(entity, indexes=index, columns=rr.TextLog.columns(text=text, level=level))
-            )
+            columns = rr.TextLog.columns(text=text, level=level)
+            yield Chunk.from_columns(entity, indexes=index, columns=columns)
 
     events = []
     for e in trace.safety_events:
@@ -65,14 +76,11 @@ def write_rrd(path: Path, trace, name: str = "pure-hil") -> None:
         events.append((float(e.t), text, level))
     if trace.fallen:
         events.append((float(trace.t[-1]), f"fell: {trace.fallen}", "ERROR"))
-    text_log("events", events)
+    yield from text_log("events", events)
     faults = getattr(trace, "fault_events", ())
-    text_log(
+    yield from text_log(
         "events/faults",
         [(float(f.t), f"fault {f.fault} {f.action}: {f.kind} {f.detail}".strip(), "WARN") for f in faults],
-    )
-    ChunkStore.from_chunks(chunks).write_rrd(
-        path, application_id=f"pure_hil_{name}", recording_id=uuid.uuid4().hex
     )
 
 

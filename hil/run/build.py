@@ -67,6 +67,8 @@ class Built:
     duration: float
     dut: object | None
     """The embedded controller's handle (process faults stop or pause it); None: in another process."""
+    trace_path: Path | None = None
+    """Where the run's rows stream (hil/outputs/trace_log.py); None: kept in memory."""
 
 
 BOOT_TIMEOUT = {"embedded": 10.0, "spawned": 30.0, "external": 120.0}
@@ -209,7 +211,8 @@ def build(
     rig.recorder = recorder
     rig.poll_dut = getattr(dut, "poll", None) if lockstep else None
     faults.attach(rig)
-    return Built(rig, plant, bus_config, law, clock, scenario.duration, dut)
+    trace = None if out is None else out / "trace.npy"
+    return Built(rig, plant, bus_config, law, clock, scenario.duration, dut, trace)
 
 
 @dataclass(frozen=True, slots=True)

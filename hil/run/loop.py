@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 
+from hil.outputs.trace_log import TELEMETRY, TraceLog
 from hil.run.build import Built, RunOptions
 from hil.run.clock import LockstepClock, RealtimeClock
 from hil.run.rig import Rig
@@ -25,64 +26,51 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
     ticks = round(built.duration / plant.dt)
     lockstep = built.clock == "lockstep"
     clock = LockstepClock(plant.dt, rig.command_guard) if lockstep else RealtimeClock(plant.dt)
-    rows = np.full((ticks, 19), np.nan)
-    command = np.full((ticks, 2), np.nan)
-    tilt_cmd = np.full((ticks, 2), np.nan)
+    log = TraceLog(ticks, built.trace_path)
     first_tick = plant.tick + 1
 
     def take_telemetry() -> None:
         for sample in rig.telemetry.drain():
-            i = sample.seq - first_tick
-            if 0 <= i < ticks:
-                command[i], tilt_cmd[i] = sample.command_speed, sample.tilt_command
+            log.telemetry(sample.seq - first_tick, sample.command_speed, sample.tilt_command)
 
     supervisor = rig.supervisor  # its record outlives a kill
     n = 0
     next_report = time.monotonic() + 0.5
-    failure = None
+    failure, stopped = None, False
     clock.start()
-    while n < ticks:
-        try:
-            rig.tick(clock.command_deadline(), lockstep)
-        except Exception as exc:  # a bug or a broken bus mid-run: keep what ran, say where it stopped
-            failure = Failure(f"tick {plant.tick} (t = {plant.t:.4f} s)", reason(exc))
-            break
-        tr = plant.truth()
-        rows[n] = (
-            tr.t,
-            *tr.velocity,
-            *tr.tilt,
-            *tr.lean,
-            *tr.position,
-            tr.yaw_rate,
-            *tr.ball_rate,
-            *tr.motor_torque,
-            rig.safety_state,
-            _supervisor_speed(rig),
-            tr.powered,
-            tr.resting,
-        )
-        n += 1
-        if n % TELEMETRY_EVERY == 0:  # long before the subscription's ring could overflow
-            take_telemetry()
-        if options.stop_on_fall and tr.fallen:
-            break
-        if options.on_tick is not None:
-            options.on_tick(plant)
-        if options.stop is not None and options.stop.is_set():
-            break
-        if options.progress is not None and time.monotonic() > next_report:
-            options.progress(tr.t, built.duration)
-            next_report = time.monotonic() + 0.5
-        clock.wait_next()
-    clock.stop()
+    try:  # the clock's real-time settings (gc off) end with the loop, whatever ends it
+        while n < ticks:
+            try:
+                rig.tick(clock.command_deadline(), lockstep)
+            except Exception as exc:  # a bug or a broken bus mid-run: keep what ran, say where it stopped
+                failure = Failure(f"tick {plant.tick} (t = {plant.t:.4f} s)", reason(exc))
+                break
+            tr = plant.truth()
+            log.append(_row(tr, rig))
+            n += 1
+            if n % TELEMETRY_EVERY == 0:  # long before the subscription's ring could overflow
+                take_telemetry()
+            if options.stop_on_fall and tr.fallen:
+                break
+            if options.on_tick is not None:
+                options.on_tick(plant)
+            if options.stop is not None and options.stop.is_set():
+                stopped = True
+                break
+            if options.progress is not None and time.monotonic() > next_report:
+                options.progress(tr.t, built.duration)
+                next_report = time.monotonic() + 0.5
+            clock.wait_next()
+    finally:
+        clock.stop()
     rig.faults.finish(plant.tick, plant.t)
     timing = clock.stats()
-    rows, command, tilt_cmd = rows[:n], command[:n], tilt_cmd[:n]
     for _ in range(50 if n else 0):  # the last telemetry samples may still be in flight
         take_telemetry()
-        if not np.isnan(command[-1, 0]) or not rig.telemetry.wait(0.02):
+        if log.last_told() or not rig.telemetry.wait(0.02):
             break
+    rows = log.close()
+    command, tilt_cmd = rows[:, TELEMETRY : TELEMETRY + 2], rows[:, TELEMETRY + 2 : TELEMETRY + 4]
     return Trace(
         t=rows[:, 0],
         velocity=rows[:, 1:3],
@@ -100,7 +88,7 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
         bus=rig.can.stats.as_dict(),
         motor_torque=rows[:, 12:15],
         zenoh_inputs=rig.inputs.entries if rig.inputs.path is None else None,
-        safety_state=rows[:, 15].astype(int),
+        safety_state=rows[:, 15].astype(np.int8),
         safety_speed=rows[:, 16],
         powered=rows[:, 17].astype(bool),
         resting=rows[:, 18].astype(bool),
@@ -113,6 +101,25 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
         fault_events=list(rig.faults.events),
         fault_windows=[rig.faults.window(n, plant.t) for n in range(len(rig.faults.specs))],
         failure=failure,
+        stopped_early=stopped,
+    )
+
+
+def _row(tr, rig: Rig) -> tuple:
+    """The rig's columns of a tick's row (hil/outputs/trace_log.py COLUMNS)."""
+    return (
+        tr.t,
+        *tr.velocity,
+        *tr.tilt,
+        *tr.lean,
+        *tr.position,
+        tr.yaw_rate,
+        *tr.ball_rate,
+        *tr.motor_torque,
+        rig.safety_state,
+        _supervisor_speed(rig),
+        tr.powered,
+        tr.resting,
     )
 
 

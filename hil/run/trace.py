@@ -92,6 +92,8 @@ class Trace:
     """Per fault: (start, end) of the time it acted, None if it never started."""
     failure: Failure | None = None
     """Why the run stopped before its end (None: it ran to the end, or to a fall)."""
+    stopped_early: bool = False
+    """Its caller stopped it (an operator's Ctrl-C, the service's stop) before the scenario's end."""
 
     @classmethod
     def empty(cls, failure: Failure) -> Trace:
