@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import errno
 import logging
+import socket
 import time
 import uuid
 from collections import Counter
@@ -27,9 +28,9 @@ from drivers.e2e import E2EChecker, E2EEvent, E2EProtector, E2EStatus, is_protec
 
 log = logging.getLogger(__name__)
 
-FORBIDDEN_INTERFACES = {
-    "udp_multicast": "it sends multicast UDP off this machine; use 'pure_shared' or 'socketcan'"
-}
+LOOPBACK_ONLY_INTERFACES = frozenset({"udp_multicast"})
+"""Buses over IP multicast: allowed only in a network namespace whose only interface is lo, where nothing
+can leave the machine (docs/bench.md, "Processes at host speed"), never in the host's namespace."""
 IN_PROCESS_INTERFACES = frozenset({"pure_shared", "virtual"})
 """Buses that exist only inside one Python process (drivers/shared_bus.py; python-can's `virtual`)."""
 
@@ -54,12 +55,19 @@ class BusConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only
         return self.interface in IN_PROCESS_INTERFACES
 
     def __post_init__(self) -> None:
-        if self.interface in FORBIDDEN_INTERFACES:
+        if self.interface in LOOPBACK_ONLY_INTERFACES and (here := network_interfaces()) != ["lo"]:
             raise ValueError(
-                f"interface {self.interface!r} is not allowed: {FORBIDDEN_INTERFACES[self.interface]}"
+                f"interface {self.interface!r} is not allowed here: it sends multicast UDP, allowed only "
+                f"inside a network namespace whose only interface is lo (this one has {', '.join(here)}); "
+                "use 'pure_shared' or 'socketcan', or run the bench inside such a namespace (docs/bench.md)"
             )
         if not 0.0 < self.max_load <= 1.0:
             raise ValueError("max_load must be in (0, 1]")
+
+
+def network_interfaces() -> list[str]:
+    """The network interfaces of this process's namespace."""
+    return sorted(name for _, name in socket.if_nameindex())
 
 
 def private_channel(prefix: str = "pure") -> str:

@@ -197,9 +197,13 @@ class SupervisorNode:
         does), and every SYNC triggers an update with the traffic of the tick before it. Until the first
         SYNC it announces itself every `poll` seconds (the rig's start-up handshake waits for its frame)."""
         period = self.config.output.estop_frame_period
+        announce = 0.0
         while not stop.is_set():
-            if self.tick is None:
+            # Announced by the clock, not per frame received: a bus that echoes the supervisor's own frames
+            # (udp_multicast) would otherwise make every announcement trigger the next.
+            if self.tick is None and time.monotonic() >= announce:
                 self._send_frame(self.machine.state, self.machine.cause, self.machine.contactor_closed)
+                announce = time.monotonic() + period
             rx = self.can.recv(timeout=poll if self.tick is not None else period)
             if rx is None:
                 continue

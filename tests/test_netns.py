@@ -274,3 +274,52 @@ def test_the_default_embedded_bench_is_unreachable_from_another_host(hosts, tmp_
             if proc.poll() is None:
                 proc.terminate()
                 proc.wait(10)
+
+
+@pytest.fixture
+def loopback_host():
+    """One namespace whose only interface is lo, with a multicast route on lo (docs/bench.md)."""
+    name = f"phil-lo-{secrets.token_hex(3)}"
+    refused = subprocess.run(["ip", "netns", "add", name], capture_output=True, text=True)
+    if refused.returncode != 0:
+        pytest.skip(f"network namespaces are not permitted here: {refused.stderr.strip()}")
+    try:
+        ip("-n", name, "link", "set", "lo", "up")
+        ip("-n", name, "link", "set", "lo", "multicast", "on")
+        ip("-n", name, "route", "add", "224.0.0.0/4", "dev", "lo")
+        yield name
+    finally:
+        subprocess.run(["ip", "netns", "del", name], capture_output=True)
+    assert name not in subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
+
+
+def test_the_processes_bench_runs_three_processes_over_multicast_only_inside_a_loopback_namespace(
+    loopback_host, tmp_path
+):
+    """Rig, controller and supervisor as separate processes on python-can's udp_multicast bus, at host
+    speed: allowed inside a namespace whose only interface is lo, refused in the host's namespace."""
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
+    command = [str(BIN / "pure-hil"), "run", "balance", "--bench", "processes", "--quiet"]
+    refused = subprocess.run(
+        [*command, "--out", str(tmp_path / "host")], capture_output=True, text=True, env=env
+    )
+    assert refused.returncode == 2 and "only inside a network namespace whose only interface is lo" in (
+        refused.stderr
+    ), refused.stdout + refused.stderr
+    out = tmp_path / "run"
+    inside = subprocess.run(
+        ["ip", "netns", "exec", loopback_host, *command, "--out", str(out)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=180,
+    )
+    assert inside.returncode == 0, inside.stdout + inside.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["bench"]["can"] == "udp_multicast:239.74.163.2"
+    assert summary["bench"]["controller"] == summary["bench"]["supervisor"] == "spawned"
+    assert summary["passed"] and summary["rig"]["missing_commands"] == 0
+    assert summary["bus"]["received"]["DRIVE1_COMMAND"] == summary["rig"]["ticks"]  # from another process
+    # The bus echoes each process's own frames: the supervisor's start-up announcements are paced by its
+    # clock (they used to trigger each other: thousands of frames, E2E counter aliasing at the rig).
+    assert summary["bus"]["e2e"] == {} and summary["bus"]["received"]["SUPERVISOR_ESTOP"] < 2 * 2000
