@@ -4,7 +4,8 @@ with no work at all, measured in the same run.
     python benchmarks/realtime.py [--seconds 60] [--hz 400] [--fifo] [--cpu N] [--json]
         the rig's own work only: plant step, sensor sampling, the tick's frames on an in-process bus
         drained by a second thread;
-    python benchmarks/realtime.py --full [--seconds 60] [--scenario speed_limiting] [--json]
+    python benchmarks/realtime.py --full [--seconds 60] [--scenario speed_limiting] [--fifo] [--lock-memory]
+                                         [--cpu N] [--json]
         a whole run in real time on the embedded bench: the reference controller on its own thread, the
         supervisor in the tick, the recorder on; also missing and late commands, ticks without
         controller telemetry and the process's peak memory.
@@ -37,7 +38,7 @@ from plant.rider import Sine
 
 
 def paced(seconds: float, hz: float, work, fifo: bool, cpu: int | None):
-    clock = RealtimeClock(1.0 / hz, fifo=fifo, cpu=cpu)
+    clock = RealtimeClock(1.0 / hz, priority=50 if fifo else 0, cpu=cpu)
     clock.start()
     for _ in range(int(seconds * hz)):
         work()
@@ -81,9 +82,11 @@ def full(args) -> None:
 
     idle = paced(min(args.seconds, 10.0), 400.0, lambda: None, False, None)
     scenario = msgspec.structs.replace(load_scenario(args.scenario), duration=args.seconds)
-    bench = msgspec.structs.replace(
-        load_bench("processes" if args.processes else "embedded"), clock="realtime"
+    bench = load_bench("processes" if args.processes else "embedded")
+    realtime = msgspec.structs.replace(
+        bench.realtime, priority=50 if args.fifo else 0, lock_memory=args.lock_memory, cpu=args.cpu
     )
+    bench = msgspec.structs.replace(bench, clock="realtime", realtime=realtime)
     with tempfile.TemporaryDirectory(prefix="realtime-bench-") as tmp:
         anonymous = AnonymousPeak()
         t0 = time.perf_counter()
@@ -157,7 +160,8 @@ def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--seconds", type=float, default=60.0)
     p.add_argument("--hz", type=float, default=400.0)
-    p.add_argument("--fifo", action="store_true", help="SCHED_FIFO (needs privileges)")
+    p.add_argument("--fifo", action="store_true", help="SCHED_FIFO 50 (needs privileges)")
+    p.add_argument("--lock-memory", action="store_true", help="--full: mlockall for the run's loop")
     p.add_argument("--cpu", type=int, default=None, help="pin to this CPU")
     p.add_argument("--full", action="store_true", help="a whole run (controller, supervisor, recorder)")
     p.add_argument(

@@ -60,3 +60,40 @@ def test_jitter_percentiles_match_the_sorted_samples_within_a_bin():
         assert exact <= got[name] <= exact + 1.0 + 1e-6, name
     assert abs(got["max"] - 45000.0) < 1e-3  # the maximum is exact, even beyond the last bin
     assert len(hist.counts) == 20_000  # bounded, whatever the run's length
+
+
+def _locked_kb() -> int:
+    with open("/proc/self/status") as status:
+        return next(int(line.split()[1]) for line in status if line.startswith("VmLck:"))
+
+
+def test_realtime_settings_hold_for_the_loop_and_end_with_it_or_say_they_were_refused():
+    """SCHED_FIFO and mlockall for the loop, where the machine permits them; the policy line says which
+    held, and stop() gives the thread back its normal scheduler and unlocks the memory (a service runs many
+    runs in one process)."""
+    import gc
+    import os
+
+    plain = RealtimeClock(0.004)
+    plain.start()
+    assert os.sched_getscheduler(0) == os.SCHED_OTHER and not gc.isenabled()  # control: nothing asked
+    plain.stop()
+    assert gc.isenabled()
+
+    clock = RealtimeClock(0.004, priority=10, lock_memory=True)
+    clock.start()
+    try:
+        during = os.sched_getscheduler(0), _locked_kb()
+        clock.wait_next()
+    finally:
+        clock.stop()
+    policy = clock.stats().realtime_policy
+    if "SCHED_FIFO refused" in policy:
+        assert during[0] == os.SCHED_OTHER
+    else:
+        assert policy.startswith("SCHED_FIFO 10") and during[0] == os.SCHED_FIFO
+    if "mlockall refused" in policy:
+        assert during[1] == 0
+    else:
+        assert "memory locked" in policy and during[1] > 0
+    assert os.sched_getscheduler(0) == os.SCHED_OTHER and _locked_kb() == 0

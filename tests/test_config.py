@@ -74,3 +74,22 @@ def test_missing_rider_field_is_named():
 def test_missing_file_is_a_config_error(tmp_path):
     with pytest.raises(ConfigError, match="cannot read"):
         load_toml(tmp_path / "nope.toml", SimParams)
+
+
+def test_bench_files_name_the_file_and_the_field(tmp_path):
+    from drivers.can_bus import network_interfaces
+    from hil.bench.bench import load_bench
+
+    for path in sorted((CONFIGS / "benches").glob("*.toml")):
+        if path.stem == "processes" and network_interfaces() != ["lo"]:
+            with pytest.raises(ConfigError, match=r"processes.toml.*only inside a network namespace.*\$\.can"):
+                load_bench(path)
+        else:
+            assert load_bench(path).name == path.stem
+    bad = tmp_path / "bench.toml"
+    bad.write_text('name = "fast"\n[realtime]\npriority = 120\n')
+    with pytest.raises(ConfigError, match=r"bench.toml.*Expected `int` <= 99 - at `\$\.realtime\.priority`"):
+        load_bench(bad)
+    bad.write_text('name = "fast"\n[realtime]\nlock_memroy = true\n')
+    with pytest.raises(ConfigError, match=r"unknown field `lock_memroy`"):
+        load_bench(bad)

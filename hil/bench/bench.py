@@ -57,6 +57,20 @@ class SupervisorPart(_Part):
     """Its rules; a scenario's `[safety]` table overrides them for that scenario's runs."""
 
 
+class RealtimePart(_Part):
+    """How the rig's loop runs under the real-time clock. Each setting falls back where the machine refuses
+    it, and the run's summary says which held (`timing.policy`)."""
+
+    priority: Annotated[int, msgspec.Meta(ge=0, le=99)] = 0
+    """SCHED_FIFO priority of the rig's tick thread (1-99; 0: the normal scheduler). Needs CAP_SYS_NICE or
+    an rtprio limit (docs/rig.md)."""
+    lock_memory: bool = False
+    """mlockall for the run: no page fault stalls a tick. Needs CAP_IPC_LOCK or a large enough memlock
+    limit."""
+    cpu: Annotated[int, msgspec.Meta(ge=0)] | None = None
+    """Pin the rig's tick thread to this CPU."""
+
+
 class OutputsPart(_Part):
     folder: str = "runs"
     """Where `pure-hil run` puts run folders when no --out is given."""
@@ -78,6 +92,7 @@ class Bench(_Part):
     sim: str = "sim/default.toml"
     """The plant's simulation settings (tick rate and seed come from the scenario)."""
     clock: Literal["scenario", "lockstep", "realtime"] = "scenario"
+    realtime: RealtimePart = RealtimePart()
     rider_on_board: bool = False
     """A person sits on the robot: fault injection is refused outright."""
 

@@ -28,7 +28,7 @@ from drivers.keys import Keys
 from drivers.resources import find
 from drivers.schemas import SafetyState
 from drivers.zenoh_link import ZenohAccess, ZenohLink, lend
-from hil.bench.bench import Bench
+from hil.bench.bench import Bench, RealtimePart
 from hil.faults import FaultError, FaultSet
 from hil.outputs.inputs_log import InputsLog
 from hil.run.rig import OperatorStep, Rig, ScStep
@@ -69,6 +69,8 @@ class Built:
     """The embedded controller's handle (process faults stop or pause it); None: in another process."""
     trace_path: Path | None = None
     """Where the run's rows stream (hil/outputs/trace_log.py); None: kept in memory."""
+    realtime: RealtimePart = RealtimePart()  # noqa: RUF009 (frozen msgspec struct: one shared default is fine)
+    """The loop's scheduling under the real-time clock."""
 
 
 BOOT_TIMEOUT = {"embedded": 10.0, "spawned": 30.0, "external": 120.0}
@@ -212,7 +214,7 @@ def build(
     rig.poll_dut = getattr(dut, "poll", None) if lockstep else None
     faults.attach(rig)
     trace = None if out is None else out / "trace.npy"
-    return Built(rig, plant, bus_config, law, clock, scenario.duration, dut, trace)
+    return Built(rig, plant, bus_config, law, clock, scenario.duration, dut, trace, bench.realtime)
 
 
 @dataclass(frozen=True, slots=True)

@@ -25,7 +25,11 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
     rig, plant = built.rig, built.plant
     ticks = round(built.duration / plant.dt)
     lockstep = built.clock == "lockstep"
-    clock = LockstepClock(plant.dt, rig.command_guard) if lockstep else RealtimeClock(plant.dt)
+    if lockstep:
+        clock = LockstepClock(plant.dt, rig.command_guard)
+    else:
+        rt = built.realtime
+        clock = RealtimeClock(plant.dt, rt.priority, rt.cpu, rt.lock_memory)
     log = TraceLog(ticks, built.trace_path)
     first_tick = plant.tick + 1
 
