@@ -139,7 +139,7 @@ def _run(args: argparse.Namespace) -> int:
 def _campaign(args: argparse.Namespace) -> int:
     """A campaign's cases in parallel processes: progress, a report (worst first) and JUnit XML."""
     from hil.bench.parts import check
-    from hil.suites.campaign import expand, junit_xml, load_campaign, report, run_campaign
+    from hil.suites.campaign import distributable, expand, junit_xml, load_campaign, report, run_campaign
 
     try:
         campaign = load_campaign(args.file)
@@ -151,10 +151,15 @@ def _campaign(args: argparse.Namespace) -> int:
     check(bench)
     out = Path(args.out or f"runs/campaign-{campaign.name}-{time.strftime('%Y%m%d-%H%M%S')}")
     out.mkdir(parents=True, exist_ok=True)
-    print(
-        f"campaign {campaign.name}: {len(cases)} cases on {args.workers} worker(s), "
-        f"bench {bench.name} -> {out}"
-    )
+    where = f"the cluster at {args.scheduler}" if args.scheduler else f"{args.workers} worker(s)"
+    print(f"campaign {campaign.name}: {len(cases)} cases on {where}, bench {bench.name} -> {out}")
+    if args.scheduler and not distributable(bench):
+        print(
+            f"pure-hil campaign: bench {bench.name} cannot run on a cluster: every part must be in the rig's "
+            "process on an in-process bus (e.g. the embedded bench)",
+            file=sys.stderr,
+        )
+        return 2
 
     def progress(done: int, total: int, r) -> None:
         verdict = "ERROR" if r.error else "PASS" if r.passed else "FAIL"
@@ -167,7 +172,11 @@ def _campaign(args: argparse.Namespace) -> int:
             f"pure-hil campaign: on bench {bench.name} cases run one at a time (a shared bus)",
             file=sys.stderr,
         )
-    results = run_campaign(cases, args.workers, out, progress, bench)
+    try:
+        results = run_campaign(cases, args.workers, out, progress, bench, args.scheduler)
+    except OSError as exc:  # the scheduler cannot be reached (distributed raises OSError after its timeout)
+        print(f"pure-hil campaign: scheduler {args.scheduler}: {exc}", file=sys.stderr)
+        return 2
     text = report(campaign.name, results)
     (out / "report.md").write_text(text)
     (out / "junit.xml").write_bytes(junit_xml(campaign.name, results))
@@ -506,6 +515,11 @@ def build_parser() -> argparse.ArgumentParser:
     cam = sub.add_parser("campaign", help="scenarios x riders x faults x seeds in parallel; report + JUnit")
     cam.add_argument("file", help="a shipped campaign's name or a campaign file")
     cam.add_argument("--workers", type=int, default=1, help="parallel processes (lockstep runs)")
+    cam.add_argument(
+        "--scheduler",
+        default=None,
+        help="run the cases on a Dask cluster, e.g. tcp://127.0.0.1:8786 (needs pip install '.[cluster]')",
+    )
     cam.add_argument("--out", default=None, help="report folder (default runs/campaign-NAME-TIMESTAMP)")
     cam.add_argument(
         "--select",

@@ -339,12 +339,14 @@ def run_campaign(
     out: Path | None = None,
     progress: Callable[[int, int, CaseResult], None] | None = None,
     bench: Bench | None = None,
+    scheduler: str | None = None,
 ) -> list[CaseResult]:
     """Every case on `bench`, `workers` at a time in fresh processes (spawned: no zenoh or bus state is
-    inherited). A bench whose parts are not all in the rig's process, or whose bus is shared, runs them one
-    at a time in this process: they would share the bus and the hub."""
+    inherited), or as tasks on the Dask cluster at `scheduler` (hil/suites/cluster.py). A bench whose parts
+    are not all in the rig's process, or whose bus is shared, runs them one at a time in this process: they
+    would share the bus and the hub."""
     bench = bench or load_bench()
-    parallel = bench.self_contained and bench.can.in_process and not bench.can.channel
+    parallel = distributable(bench)
     results: list[CaseResult] = []
     folder = (lambda c: out / c.id) if out is not None else (lambda c: None)
     # Coverage: twins first, so a faulty case is judged the moment it finishes.
@@ -359,7 +361,14 @@ def run_campaign(
         if progress:
             progress(len(results), len(cases), result)
 
-    if workers <= 1 or not parallel:
+    if scheduler is not None:
+        if not parallel:
+            raise ValueError(f"bench {bench.name}: on a cluster every part must be in the rig's process")
+        from hil.suites.cluster import run_on_cluster
+
+        phases = [[c for c in cases if c.role != "faulty"], [c for c in cases if c.role == "faulty"]]
+        run_on_cluster(scheduler, phases, bench, out, done)
+    elif workers <= 1 or not parallel:
         for case in cases:
             done(case, run_case(case, folder(case), bench))
     else:
@@ -374,6 +383,12 @@ def run_campaign(
                 done(futures[future], future.result())
     order = {c.id: i for i, c in enumerate(cases)}
     return sorted(results, key=lambda r: order[r.case_id])
+
+
+def distributable(bench: Bench) -> bool:
+    """Cases on this bench can run side by side, in any process: every part in the rig's process, on a
+    private in-process bus."""
+    return bench.self_contained and bench.can.in_process and not bench.can.channel
 
 
 def _quiet_worker() -> None:
