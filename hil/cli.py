@@ -88,11 +88,14 @@ def _simulate(args: argparse.Namespace) -> int:
     return 1 if summary.fallen else 0
 
 
-def _progress(t: float, duration: float) -> None:
-    width = 30
-    done = int(width * min(t / duration, 1.0))
+def _progress(status) -> None:
+    """The run's live status line (a terminal only)."""
+    width = 20
+    done = int(width * min(status.t / status.duration, 1.0))
     print(
-        f"\r  [{'#' * done}{'.' * (width - done)}] {t:6.2f} / {duration:g} s",
+        f"\r  [{'#' * done}{'.' * (width - done)}] {status.t:7.2f} / {status.duration:g} s "
+        f"{status.speed_factor:5.1f}x  {status.speed:4.2f} m/s  tilt {status.tilt_deg:4.1f} deg  "
+        f"{status.supervisor:<8} overruns {status.overruns}\x1b[K",
         end="",
         file=sys.stderr,
         flush=True,

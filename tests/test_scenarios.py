@@ -286,3 +286,19 @@ def test_criterion_bounds_hold_within_float_rounding_only():
     assert not one_tick.check(0.0025 + 1e-6)
     assert not Criterion(metric="max_speed", min=0.5).check(0.5 - 1e-6)
     assert not one_tick.check(float("nan"))
+
+
+def test_a_running_run_reports_its_status_and_the_cli_shows_it_on_one_line(capsys):
+    from hil.cli import _progress
+
+    statuses = []
+    scenario = msgspec.structs.replace(load("speed_limiting"), duration=6.0)
+    run(scenario, private_bench(), options=RunOptions(progress=statuses.append))
+    assert statuses, "reported about every 0.5 s of wall time"
+    times = [s.t for s in statuses]
+    assert times == sorted(times) and 0 < times[-1] <= 6.0
+    assert all(s.speed_factor > 0.1 and s.supervisor in ("NORMAL", "LIMITING") for s in statuses)
+    assert all(s.tilt_deg < 20 and s.overruns == 0 for s in statuses)  # lockstep: no overruns
+    _progress(statuses[-1])
+    line = capsys.readouterr().err
+    assert line.startswith("\r") and "/ 6 s" in line and "m/s" in line and statuses[-1].supervisor in line

@@ -40,12 +40,30 @@ from safety.config import RobotGeometry, SupervisorConfig
 from safety.node import SupervisorNode
 
 
+@dataclass(frozen=True, slots=True)
+class RunStatus:
+    """A running run at a glance (a live status line)."""
+
+    t: float
+    duration: float
+    speed_factor: float
+    """Simulated seconds per wall second so far."""
+    speed: float
+    """Ground speed, m/s."""
+    tilt_deg: float
+    """Chassis tilt from upright, deg."""
+    supervisor: str
+    """The supervisor's state as on the bus ("-": no frame yet)."""
+    overruns: int
+    """Real time: ticks that started late."""
+
+
 @dataclass(slots=True)
 class RunOptions:
     """What a program adds to a bench and a scenario (nothing of it belongs in a file)."""
 
-    progress: Callable[[float, float], None] | None = None
-    """Called with (simulated time, duration) about every 0.5 s of wall time."""
+    progress: Callable[[RunStatus], None] | None = None
+    """Called with the run's status about every 0.5 s of wall time."""
     on_tick: Callable[[Plant], None] | None = None
     """Called after every tick with the plant (the service applies live rider intent there)."""
     stop: threading.Event | None = None

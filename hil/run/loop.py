@@ -9,11 +9,11 @@ import time
 import numpy as np
 
 from hil.outputs.trace_log import TELEMETRY, TraceLog
-from hil.run.build import Built, RunOptions
+from hil.run.build import Built, RunOptions, RunStatus
 from hil.run.clock import LockstepClock, RealtimeClock
 from hil.run.rig import Rig
 from hil.run.trace import Failure, Trace, reason
-from safety.machine import Event
+from safety.machine import Event, State
 
 TELEMETRY_EVERY = 64
 """Ticks between takes of the controller's telemetry during a run."""
@@ -39,7 +39,8 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
 
     supervisor = rig.supervisor  # its record outlives a kill
     n = 0
-    next_report = time.monotonic() + 0.5
+    began = time.monotonic()
+    next_report = began + 0.5
     failure, stopped = None, False
     clock.start()
     try:  # the clock's real-time settings (gc off) end with the loop, whatever ends it
@@ -62,7 +63,7 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
                 stopped = True
                 break
             if options.progress is not None and time.monotonic() > next_report:
-                options.progress(tr.t, built.duration)
+                options.progress(_status(tr, rig, clock, built.duration, began))
                 next_report = time.monotonic() + 0.5
             clock.wait_next()
     finally:
@@ -106,6 +107,19 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
         fault_windows=[rig.faults.window(n, plant.t) for n in range(len(rig.faults.specs))],
         failure=failure,
         stopped_early=stopped,
+    )
+
+
+def _status(tr, rig: Rig, clock, duration: float, began: float) -> RunStatus:
+    state = rig.safety_state
+    return RunStatus(
+        t=tr.t,
+        duration=duration,
+        speed_factor=tr.t / max(time.monotonic() - began, 1e-9),
+        speed=math.hypot(*tr.velocity),
+        tilt_deg=math.degrees(math.hypot(*tr.tilt)),
+        supervisor=State(state).name if state >= 0 else "-",
+        overruns=getattr(clock, "overruns", 0),
     )
 
 
