@@ -143,6 +143,7 @@ def _campaign(args: argparse.Namespace) -> int:
     """A campaign's cases in parallel processes: progress, a report (worst first) and JUnit XML."""
     from hil.bench.parts import check
     from hil.suites.campaign import distributable, expand, junit_xml, load_campaign, report, run_campaign
+    from hil.suites.html_report import html_report
 
     try:
         campaign = load_campaign(args.file)
@@ -183,8 +184,9 @@ def _campaign(args: argparse.Namespace) -> int:
     text = report(campaign.name, results)
     (out / "report.md").write_text(text)
     (out / "junit.xml").write_bytes(junit_xml(campaign.name, results))
+    (out / "report.html").write_text(html_report(campaign.name, results, out))
     print(text)
-    print(f"report: {out / 'report.md'}  junit: {out / 'junit.xml'}")
+    print(f"report: {out / 'report.md'}  {out / 'report.html'}  junit: {out / 'junit.xml'}")
     return 0 if all(r.passed for r in results) else 1
 
 

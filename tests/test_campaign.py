@@ -7,6 +7,7 @@ import json
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
+from html.parser import HTMLParser
 
 import msgspec
 import pytest
@@ -169,6 +170,37 @@ def test_cli_runs_a_campaign_on_workers_and_fails_on_a_missed_reaction(missed_ca
     assert (suite.get("tests"), suite.get("failures"), suite.get("errors")) == ("2", "1", "0")
     for case in ("blind-none-seed0", "blind-seat_silent-seed0"):
         assert json.loads((out / case / "summary.json").read_text())["law"] == "ihacs"
+    # The HTML page: worst first, each case's verdicts and plot, every link to a file that is there.
+    page = _Links()
+    page.feed((out / "report.html").read_text())
+    assert page.rows[0].startswith("FAIL") and page.rows[1].startswith("PASS")
+    assert WHY in page.text
+    assert page.images == ["blind-seat_silent-seed0/plots.png", "blind-none-seed0/plots.png"]
+    assert {"blind-none-seed0/recording.rrd", "blind-none-seed0/summary.json"} <= set(page.links)
+    for link in page.links + page.images:
+        assert (out / link).exists(), link
+
+
+class _Links(HTMLParser):
+    def __init__(self):
+        super().__init__()
+        self.links: list[str] = []
+        self.images: list[str] = []
+        self.rows: list[str] = []
+        self.text = ""
+        self._cell = False
+
+    def handle_starttag(self, tag, attrs):
+        a = dict(attrs)
+        if tag == "a":
+            self.links.append(a["href"])
+        elif tag == "img":
+            self.images.append(a["src"])
+        elif tag == "tr" and "class" in a:
+            self.rows.append(a["class"])
+
+    def handle_data(self, data):
+        self.text += data
 
 
 # pytest in a subprocess: in-process runs would drop and re-import native (PyO3) modules, which fails.

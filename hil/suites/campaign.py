@@ -260,9 +260,9 @@ class CaseResult:
 
 def run_case(case: Case, out: Path | None = None, bench: Bench | None = None) -> CaseResult:
     """Run one case in this process, lockstep, on `bench` (default: embedded, a private bus and its own
-    zenoh hub on a free loopback port, so cases in parallel never meet)."""
+    zenoh hub on a free loopback port, so cases in parallel never meet); with `out`, its whole run folder
+    there (summary, CAN log, trace, recording, plots: the bench's outputs)."""
     from drivers.zenoh_link import free_loopback_endpoint
-    from hil.outputs.folder import summary
     from hil.run.pipeline import run
 
     bench = bench or load_bench()
@@ -271,7 +271,7 @@ def run_case(case: Case, out: Path | None = None, bench: Bench | None = None) ->
     bench = bench.with_overrides(clock="lockstep")
     start = time.monotonic()
     try:
-        result = run(case.build(), bench)
+        result = run(case.build(), bench, out=out)
     except Exception as exc:  # a broken case is a result (an error), never the end of the campaign
         detail = "".join(traceback.format_exception_only(type(exc), exc)).strip()
         return CaseResult(
@@ -284,11 +284,6 @@ def run_case(case: Case, out: Path | None = None, bench: Bench | None = None) ->
             twin=case.twin_id,
         )
     tr = result.trace
-    if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "summary.json").write_bytes(
-            msgspec.json.format(msgspec.json.encode(summary(result)), indent=2)
-        )
     judged = case.role != "plain"
     res = CaseResult(
         case.id,

@@ -4,9 +4,10 @@
 A case travels whole: the Case and the Bench with every command option applied, so any worker runs it as
 this machine would. Each case is a lockstep run on an in-process bus with its zenoh hub on a free loopback
 port of the worker's machine: cases never meet, whatever runs beside them. What comes back is the case's
-result and its summary.json as bytes (a few kB; no shared folder needed). A worker that dies mid-case: the
-scheduler gives the case to another worker (Dask's `distributed.scheduler.allowed-failures`); a case that
-raises or whose workers keep dying comes back as an ERROR saying why, and the campaign goes on.
+result and its summary.json and plots.png as bytes (~100 kB; no shared folder needed). A worker that
+dies mid-case: the scheduler gives the case to another worker (Dask's
+`distributed.scheduler.allowed-failures`); a case that raises or whose workers keep dying comes back as an
+ERROR saying why, and the campaign goes on.
 """
 
 from __future__ import annotations
@@ -22,14 +23,19 @@ from hil.suites.campaign import Case, CaseResult, run_case
 CONNECT_TIMEOUT = "20s"
 
 
-def run_remote(case: Case, bench: Bench, keep_summary: bool) -> tuple[CaseResult, bytes | None]:
-    """On a worker: the case, and its summary.json when the campaign keeps folders."""
-    if not keep_summary:
-        return run_case(case, None, bench), None
+RETURNED = ("summary.json", "plots.png")
+"""What of a case's run folder comes back from its worker (~100 kB); the CAN log, trace and recording stay
+behind (rerun the case by its id and seed for them)."""
+
+
+def run_remote(case: Case, bench: Bench, keep: bool) -> tuple[CaseResult, dict[str, bytes]]:
+    """On a worker: the case, and the files of its folder in RETURNED when the campaign keeps folders."""
+    if not keep:
+        return run_case(case, None, bench), {}
     with tempfile.TemporaryDirectory(prefix="pure-hil-case-") as tmp:
         result = run_case(case, Path(tmp), bench)
-        summary = Path(tmp) / "summary.json"
-        return result, summary.read_bytes() if summary.exists() else None
+        files = {name: (Path(tmp) / name).read_bytes() for name in RETURNED if (Path(tmp) / name).exists()}
+        return result, files
 
 
 def run_on_cluster(
@@ -53,12 +59,12 @@ def run_on_cluster(
             for future in as_completed(futures, loop=client.loop):  # (not the default client's)
                 case = futures[future]
                 try:
-                    result, summary = future.result()
+                    result, files = future.result()
                 except Exception as exc:  # the worker died too often, or the task could not run there
-                    result, summary = _error(case, f"{type(exc).__name__}: {exc}"), None
-                if summary is not None and out is not None:
+                    result, files = _error(case, f"{type(exc).__name__}: {exc}"), {}
+                for name, data in files.items():
                     (out / case.id).mkdir(parents=True, exist_ok=True)
-                    (out / case.id / "summary.json").write_bytes(summary)
+                    (out / case.id / name).write_bytes(data)
                 done(case, result)
 
 
