@@ -165,11 +165,21 @@ def _campaign(args: argparse.Namespace) -> int:
         )
         return 2
 
+    bar = _bar(len(cases), "case")
+    counts = {"PASS": 0, "FAIL": 0, "ERROR": 0}
+
     def progress(done: int, total: int, r) -> None:
         verdict = "ERROR" if r.error else "PASS" if r.passed else "FAIL"
-        print(f"[{done}/{total}] {verdict:5s} {r.case_id} ({r.wall:.1f} s)", flush=True)
-        for line in r.message().splitlines() if not r.passed else ():
-            print(f"        {line}", flush=True)
+        counts[verdict] += 1
+        lines = [f"[{done}/{total}] {verdict:5s} {r.case_id} ({r.wall:.1f} s)"]
+        lines += [f"        {line}" for line in (r.message().splitlines() if not r.passed else ())]
+        if bar is None:
+            print("\n".join(lines), flush=True)
+            return
+        for line in lines if not r.passed else ():  # above the bar: what failed and why
+            bar.write(line)
+        bar.set_postfix(passed=counts["PASS"], failed=counts["FAIL"], errors=counts["ERROR"])
+        bar.update()
 
     if args.workers > 1 and not (bench.self_contained and bench.can.in_process):
         print(
@@ -181,6 +191,9 @@ def _campaign(args: argparse.Namespace) -> int:
     except OSError as exc:  # the scheduler cannot be reached (distributed raises OSError after its timeout)
         print(f"pure-hil campaign: scheduler {args.scheduler}: {exc}", file=sys.stderr)
         return 2
+    finally:
+        if bar is not None:
+            bar.close()
     text = report(campaign.name, results)
     (out / "report.md").write_text(text)
     (out / "junit.xml").write_bytes(junit_xml(campaign.name, results))
@@ -206,7 +219,21 @@ def _compare(args: argparse.Namespace) -> int:
         f"pure-hil compare: {len(scenarios)} scenario(s) x {len(riders)} rider(s) x {args.trials} trial(s) "
         f"x HACS/iHACS, lockstep, bench {bench.name}"
     )
-    result = compare(scenarios, tuple(str(find(r, "riders")) for r in riders), args.trials, bench=bench)
+    bar = _bar(len(scenarios) * len(riders) * args.trials * 2, "run")
+
+    def progress(line: str) -> None:
+        if bar is None:
+            print(line, flush=True)
+        else:
+            bar.write(line)
+            bar.update()
+
+    try:
+        paths = tuple(str(find(r, "riders")) for r in riders)
+        result = compare(scenarios, paths, args.trials, progress=progress, bench=bench)
+    finally:
+        if bar is not None:
+            bar.close()
     out = Path(args.out) if args.out else Path("runs") / f"compare-{time.strftime('%Y%m%d-%H%M%S')}"
     write(result, out)
     print(result.table())
@@ -235,6 +262,15 @@ def _replay(args: argparse.Namespace) -> int:
 
 
 # ----------------------------------------------------------------------------- the bench's processes
+def _bar(total: int, unit: str):
+    """A progress bar with counts and ETA on a terminal (stderr); None elsewhere (CI logs keep lines)."""
+    if not sys.stderr.isatty():
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit=unit, file=sys.stderr, dynamic_ncols=True)
+
+
 def _stop_on_signals() -> threading.Event:
     """An event SIGINT or SIGTERM sets: the long-running commands' clean stop."""
     stop = threading.Event()

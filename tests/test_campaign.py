@@ -243,3 +243,45 @@ def test_plugin_fixtures_run_a_scenario_with_faults_and_assert_on_events(pyteste
     )
     result = pytester.runpytest_subprocess("-p", "no:cacheprovider", "-m", "hil")
     result.assert_outcomes(passed=1)
+
+
+def test_on_a_terminal_a_campaign_shows_a_progress_bar_with_counts_and_elsewhere_lines(tmp_path):
+    """The bar (tqdm, on stderr) only when stderr is a terminal; the lines of the test above otherwise."""
+    import fcntl
+    import os
+    import pty
+    import struct
+    import termios
+    import threading
+
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))  # a terminal has a size
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hil.cli", "campaign", str(SMOKE), "--workers", "2", "--out", str(tmp_path)],
+        stdout=subprocess.PIPE,
+        stderr=slave,
+        text=True,
+        cwd=ROOT,
+    )
+    os.close(slave)
+    seen = bytearray()
+
+    def drain():
+        while True:
+            try:
+                chunk = os.read(master, 4096)
+            except OSError:  # the child closed the terminal
+                return
+            if not chunk:
+                return
+            seen.extend(chunk)
+
+    reader = threading.Thread(target=drain, daemon=True)
+    reader.start()
+    stdout, _ = proc.communicate(timeout=300)
+    reader.join(10)
+    os.close(master)
+    terminal = seen.decode(errors="replace")
+    assert proc.returncode == 0, stdout[-2000:] + terminal[-2000:]
+    assert "6/6" in terminal and "passed=6" in terminal and ("case/s" in terminal or "s/case" in terminal)
+    assert "[1/6]" not in stdout and "6/6 passed" in stdout  # no per-case lines under a bar; the report
