@@ -23,7 +23,7 @@ MARKER = "hil: a hardware-in-the-loop run on the rig (lockstep unless the scenar
 
 def pytest_addoption(parser: pytest.Parser) -> None:
     group = parser.getgroup("hil", "PURE hardware-in-the-loop rig")
-    group.addoption("--hil-out", default=None, help="write each HIL case's summary.json under this folder")
+    group.addoption("--hil-out", default=None, help="write each HIL case's run folder under this folder")
     group.addoption(
         "--hil-bench",
         default="embedded",
