@@ -136,24 +136,15 @@ def full(args) -> None:
 
 
 def in_a_loopback_namespace(argv: list[str]) -> int:
-    """Run this benchmark again inside a network namespace of its own whose only interface is lo (with a
-    multicast route on lo), then remove the namespace."""
-    name = f"pure-rt-{os.getpid()}"
+    """Run this benchmark again inside a network namespace of its own whose only interface is lo."""
+    from hil.bench.netns import NamespaceRefused, loopback_namespace
+
     try:
-        subprocess.run(["ip", "netns", "add", name], check=True, capture_output=True, text=True)
-    except (OSError, subprocess.CalledProcessError) as exc:
-        print(
-            f"--processes: cannot create a network namespace ({exc}); it needs `ip netns add`",
-            file=sys.stderr,
-        )
+        with loopback_namespace("pure-rt") as name:
+            return subprocess.run(["ip", "netns", "exec", name, sys.executable, __file__, *argv]).returncode
+    except NamespaceRefused as exc:
+        print(f"--processes: {exc}", file=sys.stderr)
         return 2
-    try:
-        for step in (["link", "set", "lo", "up"], ["link", "set", "lo", "multicast", "on"]):
-            subprocess.run(["ip", "-n", name, *step], check=True)
-        subprocess.run(["ip", "-n", name, "route", "add", "224.0.0.0/4", "dev", "lo"], check=True)
-        return subprocess.run(["ip", "netns", "exec", name, sys.executable, __file__, *argv]).returncode
-    finally:
-        subprocess.run(["ip", "netns", "del", name], check=False)
 
 
 def main() -> None:

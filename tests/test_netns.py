@@ -278,18 +278,14 @@ def test_the_default_embedded_bench_is_unreachable_from_another_host(hosts, tmp_
 
 @pytest.fixture
 def loopback_host():
-    """One namespace whose only interface is lo, with a multicast route on lo (docs/bench.md)."""
-    name = f"phil-lo-{secrets.token_hex(3)}"
-    refused = subprocess.run(["ip", "netns", "add", name], capture_output=True, text=True)
-    if refused.returncode != 0:
-        pytest.skip(f"network namespaces are not permitted here: {refused.stderr.strip()}")
+    """One namespace whose only interface is lo, with a multicast route on lo (hil/bench/netns.py)."""
+    from hil.bench.netns import NamespaceRefused, loopback_namespace
+
     try:
-        ip("-n", name, "link", "set", "lo", "up")
-        ip("-n", name, "link", "set", "lo", "multicast", "on")
-        ip("-n", name, "route", "add", "224.0.0.0/4", "dev", "lo")
-        yield name
-    finally:
-        subprocess.run(["ip", "netns", "del", name], capture_output=True)
+        with loopback_namespace("phil-lo") as name:
+            yield name
+    except NamespaceRefused as exc:
+        pytest.skip(str(exc))
     assert name not in subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
 
 

@@ -238,6 +238,11 @@ class CaseResult:
     false_trip: str = ""
     """A fault-free case of a coverage campaign: why it counts as a false trip ('' if it does not)."""
 
+    @classmethod
+    def errored(cls, case: Case, why: str, wall: float = 0.0) -> CaseResult:
+        """A case that could not run to a verdict (it raised, or its worker died)."""
+        return cls(case.id, case.scenario, False, wall, error=why, role=case.role, twin=case.twin_id)
+
     @property
     def failed(self) -> list[dict]:
         return [v for v in self.verdicts if not v["passed"]]
@@ -274,15 +279,7 @@ def run_case(case: Case, out: Path | None = None, bench: Bench | None = None) ->
         result = run(case.build(), bench, out=out)
     except Exception as exc:  # a broken case is a result (an error), never the end of the campaign
         detail = "".join(traceback.format_exception_only(type(exc), exc)).strip()
-        return CaseResult(
-            case.id,
-            case.scenario,
-            False,
-            time.monotonic() - start,
-            error=detail,
-            role=case.role,
-            twin=case.twin_id,
-        )
+        return CaseResult.errored(case, detail, time.monotonic() - start)
     tr = result.trace
     judged = case.role != "plain"
     res = CaseResult(

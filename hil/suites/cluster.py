@@ -61,12 +61,8 @@ def run_on_cluster(
                 try:
                     result, files = future.result()
                 except Exception as exc:  # the worker died too often, or the task could not run there
-                    result, files = _error(case, f"{type(exc).__name__}: {exc}"), {}
+                    result, files = CaseResult.errored(case, f"{type(exc).__name__}: {exc}"), {}
                 for name, data in files.items():
                     (out / case.id).mkdir(parents=True, exist_ok=True)
                     (out / case.id / name).write_bytes(data)
                 done(case, result)
-
-
-def _error(case: Case, why: str) -> CaseResult:
-    return CaseResult(case.id, case.scenario, False, 0.0, error=why, role=case.role, twin=case.twin_id)
