@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import subprocess
 import sys
@@ -74,8 +75,9 @@ def cluster(cases, workers: int) -> float:
 def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("file", nargs="?", default=str(ROOT / "configs/campaigns/smoke.toml"))
-    p.add_argument("--repeat", type=int, default=2)
+    p.add_argument("--repeat", type=int, default=6)
     args = p.parse_args()
+    logging.basicConfig(level=logging.ERROR)  # 1 worker runs in this process: no fault/supervisor lines
     base = expand(load_campaign(args.file))
     cases = [replace(c, seed=c.seed + 1000 * k) for k in range(args.repeat) for c in base]  # distinct ids
     print(f"{len(cases)} cases ({Path(args.file).name} x {args.repeat}), {os.cpu_count()} CPUs")

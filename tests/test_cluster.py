@@ -24,10 +24,10 @@ SMOKE = ROOT / "configs/campaigns/smoke.toml"
 
 
 class Cluster:
-    def __init__(self, tmp: Path):
+    def __init__(self, tmp: Path, workers: int = 2, tls: list[str] = (), security=None):
         self.file = tmp / "scheduler.json"
         self.env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
-        common = ["--no-dashboard"]
+        common = ["--no-dashboard", *tls]
         self.scheduler = self._start(
             ["scheduler", "--host", "127.0.0.1", "--port", "0", "--scheduler-file", str(self.file), *common]
         )
@@ -36,11 +36,11 @@ class Cluster:
             time.sleep(0.1)
         self.address = json.loads(self.file.read_text())["address"]
         worker = ["worker", self.address, "--host", "127.0.0.1", "--nthreads", "1", "--no-nanny", *common]
-        self.workers = [self._start(worker) for _ in range(2)]
+        self.workers = [self._start(worker) for _ in range(workers)]
         from distributed import Client
 
-        with Client(self.address, timeout="30s") as client:
-            client.wait_for_workers(2, timeout=60)
+        with Client(self.address, timeout="30s", security=security) as client:
+            client.wait_for_workers(workers, timeout=60)
 
     def _start(self, args: list[str]) -> subprocess.Popen:
         # A session of its own: killing a worker kills nothing else.
@@ -113,3 +113,46 @@ def test_a_worker_killed_mid_campaign_loses_no_case(cluster):
     for r in results:
         assert r.verdicts or r.error, r
     assert sum(1 for r in results if not r.error) >= len(cases) - 1
+
+
+def test_a_tls_cluster_runs_a_campaign_for_a_client_with_its_certificate_and_refuses_one_without(tmp_path):
+    """docs/campaigns.md's securing recipe, end to end: scheduler and worker started with `--protocol tls`
+    and certificates; the client configured through Dask's config (here its environment variables)."""
+    from distributed.security import Security
+
+    pem = Security.temporary()  # a throwaway CA-signed certificate, key and CA, as PEM text
+    files = {"ca.pem": pem.tls_ca_file, "cert.pem": pem.tls_scheduler_cert, "key.pem": pem.tls_scheduler_key}
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+    ca, cert, key = (str(tmp_path / name) for name in files)
+    tls = ["--protocol", "tls", "--tls-ca-file", ca, "--tls-cert", cert, "--tls-key", key]
+    client = Security(tls_ca_file=ca, tls_client_cert=cert, tls_client_key=key, require_encryption=True)
+    cluster = Cluster(tmp_path, workers=1, tls=tls, security=client)
+    try:
+        assert cluster.address.startswith("tls://127.0.0.1:")
+        configured = {
+            **cluster.env,
+            "DASK_DISTRIBUTED__COMM__REQUIRE_ENCRYPTION": "True",
+            "DASK_DISTRIBUTED__COMM__TLS__CA_FILE": ca,
+            "DASK_DISTRIBUTED__COMM__TLS__CLIENT__CERT": cert,
+            "DASK_DISTRIBUTED__COMM__TLS__CLIENT__KEY": key,
+        }
+
+        def campaign(env: dict, out: Path) -> subprocess.CompletedProcess:
+            argv = ["campaign", str(SMOKE), "--scheduler", cluster.address, "--out", str(out)]
+            return subprocess.run(
+                [str(BIN / "pure-hil"), *argv], env=env, capture_output=True, text=True, timeout=180
+            )
+
+        secured = campaign(configured, tmp_path / "secured")
+        assert secured.returncode == 0, secured.stderr
+        cases = expand(load_campaign(SMOKE))
+        assert f'tests="{len(cases)}"' in (tmp_path / "secured" / "junit.xml").read_text()
+        # Positive control: the same command without the client's certificate is refused, in one line.
+        refused = campaign(cluster.env, tmp_path / "refused")
+        assert refused.returncode == 2, refused.stderr
+        assert "Traceback" not in refused.stderr
+        assert f"scheduler {cluster.address}" in refused.stderr
+        assert not (tmp_path / "refused" / "junit.xml").exists()
+    finally:
+        cluster.close()
