@@ -206,24 +206,27 @@ def _campaign(args: argparse.Namespace) -> int:
 def _compare(args: argparse.Namespace) -> int:
     from hil.bench.parts import check
     from hil.run.pipeline import load_scenario
-    from hil.suites.compare import PAPER_RIDERS, compare, write
+    from hil.suites.compare import compare, write
+    from hil.suites.paper import load_paper
     from plant.params import RiderParams
 
     scenarios = [load_scenario(s) for s in args.scenarios]
-    riders = tuple(args.riders) if args.riders else PAPER_RIDERS
+    riders = tuple(args.riders) if args.riders else tuple(load_paper().riders)
     for rider in riders:
         load_toml(find(rider, "riders"), RiderParams)  # a bad rider file fails now, not after an hour of runs
     bench = bench_from(args)
     check(bench)
+    log = sys.stderr if args.json else sys.stdout  # --json: stdout holds the object alone
     print(
         f"pure-hil compare: {len(scenarios)} scenario(s) x {len(riders)} rider(s) x {args.trials} trial(s) "
-        f"x HACS/iHACS, lockstep, bench {bench.name}"
+        f"x HACS/iHACS, lockstep, bench {bench.name}",
+        file=log,
     )
     bar = _bar(len(scenarios) * len(riders) * args.trials * 2, "run")
 
     def progress(line: str) -> None:
         if bar is None:
-            print(line, flush=True)
+            print(line, file=log, flush=True)
         else:
             bar.write(line)
             bar.update()
@@ -236,8 +239,14 @@ def _compare(args: argparse.Namespace) -> int:
             bar.close()
     out = Path(args.out) if args.out else Path("runs") / f"compare-{time.strftime('%Y%m%d-%H%M%S')}"
     write(result, out)
+    if args.json:
+        print(json.dumps(result.to_json()))
+        return 0
     print(result.table())
-    print(f"outputs: {out}/compare.md, compare.json")
+    print(
+        f"outputs: {out}/compare.md, compare.json"
+        + (", compare.png" if (out / "compare.png").exists() else "")
+    )
     return 0
 
 
@@ -550,6 +559,7 @@ def build_parser() -> argparse.ArgumentParser:
     cmp_.add_argument("--riders", nargs="*", default=None, help="riders (default: the paper's four)")
     cmp_.add_argument("--trials", type=int, default=1, help="seeds per rider")
     cmp_.add_argument("--out", default=None)
+    cmp_.add_argument("--json", action="store_true", help="print one JSON object (cells, orderings, runs)")
     add_bench_options(cmp_)
     cmp_.set_defaults(func=_compare)
 

@@ -18,7 +18,7 @@ from plant.drives import DriveArray
 from plant.omniwheel import motor_jacobian, wheel_inertia_equivalents
 from plant.params import RiderParams, RobotParams, SimParams
 from plant.plane import G0, STICK_TIME_CONSTANT, PlaneDynamics, PlaneParams, Wrench
-from plant.rider import Profile, Segment, TorsoController, TwistController
+from plant.rider import LeanStyle, Profile, Segment, TorsoController, TwistController
 from plant.sensors import DriveFeedback, DriveFeedbackModel, ImuModel, ImuSample, TesModel, TesSample
 
 PITCH, ROLL = 0, 1
@@ -129,8 +129,9 @@ class Plant:
         if self.seated is not None:
             segments += [*self.seated.lower_limbs, self.seated.hat_segment()]
             hat = self.seated.hat
+            self.style = LeanStyle(rider.lean_amplitude_deg, rider.lean_rate_deg)  # type: ignore[union-attr]
             self.torso = tuple(
-                TorsoController(rider, hat.mass, hat.com_distance, Profile(p))  # type: ignore[arg-type]
+                TorsoController(rider, hat.mass, hat.com_distance, Profile(p, style=self.style))  # type: ignore[arg-type]
                 for p in (intent.pitch, intent.roll)
             )
             self.twist = TwistController(rider, Profile(intent.twist))  # type: ignore[arg-type]
@@ -170,7 +171,9 @@ class Plant:
         if self.torso is None:
             return
         for controller, segments in zip(self.torso, (intent.pitch, intent.roll), strict=True):
-            controller.profile = Profile(segments, start=self.t, value=math.degrees(controller.lean_cmd))
+            controller.profile = Profile(
+                segments, start=self.t, value=math.degrees(controller.lean_cmd), style=self.style
+            )
         self.twist.profile = Profile(intent.twist, start=self.t, value=self.twist.torque)
 
     # ------------------------------------------------------------------------------------------ dynamics

@@ -180,6 +180,13 @@ class RiderParams(_Record):
     """Largest twisting moment the rider can put on the seat, Nm."""
     max_lean_rate_deg: Positive = 40.0
     """Fastest change of the intended lean, deg/s."""
+    lean_amplitude_deg: Annotated[float, msgspec.Meta(gt=0, le=60)] = 25.0
+    """How far this rider leans, relative to the chassis, when a trial asks them to lean as far as they can
+    (an `until` segment without its own amplitude), deg, clipped to max_lean_deg. Default from the paper's
+    Table II (docs/riders.md)."""
+    lean_rate_deg: Positive = 4.0
+    """How fast this rider leans in such a trial, deg/s. Default from the paper's Table II and Fig. 4
+    (docs/riders.md)."""
     max_lean_accel_deg: Positive = 400.0
     """Fastest change of the intended lean's rate, deg/s² [EST]: a trunk cannot change its angular velocity
     at once (40 deg/s is reached in 0.1 s), so the hip torque and the seat's load change smoothly."""

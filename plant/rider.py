@@ -60,32 +60,82 @@ class Adversarial(_Segment, tag="adversarial"):
     """How long the robot must move against the lean before the rider switches sides, s."""
 
 
-Segment = Ramp | Hold | Step | Sine | Adversarial
+class Until(_Segment, tag="until"):
+    """The paper's protocol (docs/riders.md): lean toward `direction` x `amplitude` at `rate` until the
+    robot's |speed| rises above `speed` ("lean until it moves", "brake past 1.4 m/s") or, with
+    `when = "slower"`, falls below it ("lean back until it stops"); the rider acts `reaction_time` after
+    noticing, and the next segment starts then. `duration` bounds the segment (the trial's end, the
+    finishing line). Lean profiles only; `amplitude` and `rate` default to the rider's own
+    (RiderParams.lean_amplitude_deg, lean_rate_deg)."""
+
+    duration: _Positive
+    direction: Literal[-1, 1] = 1
+    speed: _Positive = 0.2
+    """|speed|, m/s, whose crossing ends the segment."""
+    when: Literal["faster", "slower"] = "faster"
+    amplitude: _Positive | None = None
+    """deg; None: the rider's lean_amplitude_deg."""
+    rate: _Positive | None = None
+    """deg/s; None: the rider's lean_rate_deg."""
+    reaction_time: Annotated[float, msgspec.Meta(ge=0)] = 0.3
+    """s from the speed's crossing to the rider's next move (a person's reaction to what they see)."""
+
+
+Segment = Ramp | Hold | Step | Sine | Adversarial | Until
+
+
+class LeanStyle(msgspec.Struct, frozen=True):
+    """How a rider follows a protocol segment that does not say: lean amplitude (deg) and rate (deg/s)."""
+
+    amplitude: float = 30.0
+    rate: float = 40.0
+
+
+DEFAULT_STYLE = LeanStyle()
+
+
+def _compile(segments, t: float, value: float, style: LeanStyle):
+    """Spans (start, end, segment, start value) from time t and value; the end time and final value."""
+    spans: list[tuple[float, float, Segment, float]] = []
+    for seg in segments:
+        if isinstance(seg, Step):
+            spans.append((t, t, seg, value))
+            value = seg.to
+            continue
+        end = t + seg.duration
+        spans.append((t, end, seg, value))
+        if isinstance(seg, Ramp):
+            value = seg.to
+        elif isinstance(seg, Until):  # never reacted: where the lean got to by the end
+            value = _leaning(seg, seg.duration, value, style, math.inf)
+        t = end
+    return spans, t, value
+
+
+def _leaning(seg: Until, elapsed: float, v0: float, style: LeanStyle, limit: float) -> float:
+    """An Until's lean after `elapsed` s: from v0 toward its goal at its rate."""
+    goal = seg.direction * min(seg.amplitude or style.amplitude, limit)
+    step = (seg.rate or style.rate) * elapsed
+    return goal if abs(goal - v0) <= step else v0 + math.copysign(step, goal - v0)
 
 
 class Profile:
-    """A compiled segment sequence: target(t, speed) -> value, or None while adversarial."""
+    """A compiled segment sequence: target(t, speed, limit) -> the value the rider aims at."""
 
     def __init__(
-        self, segments: list[Segment] | tuple[Segment, ...] = (), start: float = 0.0, value: float = 0.0
+        self,
+        segments: list[Segment] | tuple[Segment, ...] = (),
+        start: float = 0.0,
+        value: float = 0.0,
+        style: LeanStyle = DEFAULT_STYLE,
     ):
         """Segments play from time `start`, beginning at `value` (a live change starts where the rider is)."""
-        self._spans: list[tuple[float, float, Segment, float]] = []  # (start, end, segment, start value)
-        t = start
-        for seg in segments:
-            if isinstance(seg, Step):
-                self._spans.append((t, t, seg, value))
-                value = seg.to
-                continue
-            end = t + seg.duration
-            self._spans.append((t, end, seg, value))
-            if isinstance(seg, Ramp):
-                value = seg.to
-            t = end
-        self.end_time = t
-        self.final_value = value
+        self._segments = tuple(segments)
+        self.style = style
+        self._spans, self.end_time, self.final_value = _compile(self._segments, start, value, style)
         self._side: dict[int, float] = {}  # adversarial span -> the side the rider leans to
         self._against_since: float | None = None
+        self._noticed: float | None = None  # when an Until's speed condition was first seen
 
     def target(self, t: float, speed: float, limit: float) -> float:
         """The value the rider aims at, at time t; `limit` is the largest they can reach."""
@@ -101,8 +151,27 @@ class Profile:
                 return v0 + seg.amplitude * math.sin(2.0 * math.pi * seg.frequency_hz * (t - start))
             if isinstance(seg, Adversarial):
                 return self._adversarial_side(i, seg, t, speed) * limit
+            if isinstance(seg, Until):
+                value = _leaning(seg, t - start, v0, self.style, limit)
+                if self._reacted(seg, t, speed):
+                    self._end_early(i, t, value)
+                    return self.target(t, speed, limit)
+                return value
             return v0
         return self.final_value
+
+    def _reacted(self, seg: Until, t: float, speed: float) -> bool:
+        crossed = abs(speed) > seg.speed if seg.when == "faster" else abs(speed) < seg.speed
+        if crossed and self._noticed is None:
+            self._noticed = t
+        return self._noticed is not None and t - self._noticed >= seg.reaction_time
+
+    def _end_early(self, i: int, t: float, value: float) -> None:
+        """Span i ends at t with `value`: the segments after it start from there."""
+        start, _, seg, v0 = self._spans[i]
+        later, self.end_time, self.final_value = _compile(self._segments[i + 1 :], t, value, self.style)
+        self._spans[i:] = [(start, t, seg, v0), *later]
+        self._noticed = None
 
     def _adversarial_side(self, span: int, seg: Adversarial, t: float, speed: float) -> float:
         side = self._side.setdefault(span, float(seg.direction))

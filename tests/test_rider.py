@@ -10,7 +10,7 @@ from hil.run.truth_balancer import TruthBalancer
 from plant.anthropometry import seat_rider
 from plant.ballbot import Plant, RiderIntent
 from plant.params import RobotParams
-from plant.rider import Adversarial, Hold, Profile, Ramp, Sine, Step
+from plant.rider import Adversarial, Hold, LeanStyle, Profile, Ramp, Sine, Step, Until
 from tests.helpers import RIDER_75, deg, sim
 
 G = 9.80665
@@ -43,6 +43,35 @@ def test_adversarial_segment_follows_the_motion_with_commitment():
     assert p.target(1.71, -0.3, 25.0) == -25.0  # backward for 0.5 s: lean backward to go faster
     assert p.target(1.8, 0.05, 25.0) == -25.0  # committed
     assert p.target(6.0, -0.3, 25.0) == 0.0  # after the segment
+
+
+def test_until_leans_at_the_riders_rate_until_the_robot_moves_then_the_next_segment_starts_there():
+    style = LeanStyle(amplitude=20.0, rate=4.0)
+    p = Profile([Until(duration=8.0, speed=0.2, reaction_time=0.3), Ramp(to=0.0, duration=1.0)], style=style)
+    assert p.target(1.0, 0.0, 30.0) == pytest.approx(4.0)  # 4 deg/s toward the rider's amplitude
+    assert p.target(2.0, 0.15, 30.0) == pytest.approx(8.0)  # slower than 0.2 m/s: not moving yet
+    assert p.target(2.5, 0.25, 30.0) == pytest.approx(10.0)  # moving: noticed, still leaning...
+    assert p.target(2.7, 0.25, 30.0) == pytest.approx(10.8)  # ...for the reaction time
+    assert p.target(2.81, 0.25, 30.0) == pytest.approx(11.24)  # reacted: sitting up from 11.24 deg
+    assert p.target(3.31, 0.25, 30.0) == pytest.approx(5.62)  # the ramp started at 2.81, not at 8
+    assert p.end_time == pytest.approx(3.81) and p.target(4.0, 0.0, 30.0) == 0.0
+    # Positive control: a robot that never moves keeps the rider leaning to their amplitude, to the end.
+    q = Profile([Until(duration=8.0, speed=0.2), Ramp(to=0.0, duration=1.0)], style=style)
+    assert q.target(7.9, 0.1, 30.0) == pytest.approx(20.0) and q.end_time == pytest.approx(9.0)
+    assert q.target(8.5, 0.1, 30.0) == pytest.approx(10.0)  # the ramp starts where the lean got to
+
+
+def test_until_slower_brakes_until_the_robot_stops_and_leans_no_further_than_the_rider_can():
+    p = Profile(
+        [Until(duration=5.0, direction=-1, amplitude=12.0, rate=40.0, when="slower", speed=0.15)], value=0.0
+    )
+    assert p.target(0.2, 1.2, 30.0) == pytest.approx(-8.0)
+    assert p.target(1.0, 0.5, 30.0) == pytest.approx(-12.0)  # its amplitude
+    assert p.target(1.1, 0.1, 30.0) == pytest.approx(-12.0)  # stopped: noticed
+    assert p.target(1.41, 0.1, 30.0) == pytest.approx(-12.0)  # reacted; nothing follows: where it got to
+    assert p.end_time == pytest.approx(1.41)
+    clipped = Profile([Until(duration=5.0, rate=40.0)], style=LeanStyle(amplitude=35.0))
+    assert clipped.target(2.0, 0.0, 22.0) == pytest.approx(22.0)  # a rider's max_lean bounds the trial
 
 
 def held_lean(lean_deg, rider=RIDER_75, fixture="clamped", seconds=4.0):

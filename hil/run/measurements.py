@@ -160,6 +160,15 @@ MEASUREMENTS: dict[str, Measurement] = {
             True,
         ),
         Measurement(
+            "max_torso_deg",
+            "deg",
+            "largest |torso angle| from the vertical, as a chest IMU sees it (chassis tilt + lean): the "
+            "paper's ζ",
+            lambda w: w.largest(np.degrees(w.trace.tilt[:, w.plane_index] + w.trace.lean[:, w.plane_index])),
+            True,
+            True,
+        ),
+        Measurement(
             "rmse", "rad/s", "RMSE of the ball rate against the commanded rate", _rmse, True, True, True
         ),
         Measurement(

@@ -1,32 +1,29 @@
 """`pure-hil compare`: HACS against iHACS on the same scenarios and riders, as the iHACS paper's Table II:
-max |torso lean|, max |chassis tilt|, max |speed|, command-speed RMSE, mean (SD) over riders and trials."""
+max |torso angle|, max |chassis tilt|, max |speed|, command-speed RMSE, mean (SD) over riders and trials,
+each paper task's cell beside the paper's value and its distance in the paper's SDs (hil/suites/paper.py),
+and a figure of the same."""
 
 from __future__ import annotations
 
-import statistics
 from dataclasses import dataclass
 from pathlib import Path
 
 import msgspec
 
+from drivers.resources import find
 from hil.bench.bench import Bench, load_bench
 from hil.run.pipeline import run
 from hil.run.scenario import Scenario
+from hil.suites.paper import LAWS, WITHIN, PaperTable, against, load_paper, mean_sd
 
-PAPER_RIDERS = (
-    "configs/riders/s04_abi_50kg_164.toml",
-    "configs/riders/s07_abi_73kg_176.toml",
-    "configs/riders/s12_mwcu_79kg_160.toml",
-    "configs/riders/s16_mwcu_52kg_167.toml",
-)
 COLUMNS = (
+    ("pitch.max_torso_deg", "max|torso| (deg)", "{:.1f}"),
     ("pitch.max_lean_deg", "max|lean| (deg)", "{:.1f}"),
     ("pitch.max_tilt_deg", "max|tilt| (deg)", "{:.1f}"),
     ("pitch.max_speed", "max|v| (m/s)", "{:.2f}"),
     ("pitch.rmse_paper", "RMSE (E-3)", "{:.1f}"),
     ("pitch.rmse", "RMSE (rad/s)", "{:.2f}"),
 )
-LAWS = ("hacs", "ihacs")
 
 
 @dataclass(slots=True)
@@ -34,12 +31,25 @@ class Comparison:
     runs: list[dict]
     """One row per run: scenario, law, rider, seed, passed, fallen, and the metrics."""
 
+    paper: PaperTable | None = None
+    """The paper's Table II; its tasks' cells are shown beside it."""
+
     def cell(self, scenario: str, law: str, metric: str, fmt: str) -> str:
         values = [r[metric] for r in self.runs if r["scenario"] == scenario and r["law"] == law]
         if not values:
             return "-"
-        sd = statistics.stdev(values) if len(values) > 1 else 0.0
-        return f"{fmt.format(statistics.fmean(values))} ({fmt.format(sd)})"
+        mean, sd = mean_sd(values)
+        text = f"{fmt.format(mean)} ({fmt.format(sd)})"
+        for c in self.checked()[0]:
+            if (c.metric, c.task, c.law) == (metric, scenario, law):
+                mark = "" if c.within else " ✗"
+                paper = f"{fmt.format(c.paper_mean)} ({fmt.format(c.paper_sd)})"
+                text += f" · paper {paper}, {c.distance:.1f} SD{mark}"
+        return text
+
+    def checked(self):
+        """(cells, orderings) against the paper, or nothing without it."""
+        return against(self.runs, self.paper) if self.paper is not None else ([], [])
 
     def table(self) -> str:
         scenarios = list(dict.fromkeys(r["scenario"] for r in self.runs))
@@ -56,17 +66,50 @@ class Comparison:
             f"\nmean (SD) over {len(self.runs) // max(len(n), 1)} runs per column (riders × trials); "
             f"falls: {falls}"
         )
+        cells, orderings = self.checked()
+        if cells:
+            within = sum(c.within for c in cells)
+            holding = sum(o.holds for o in orderings)
+            lines.append(
+                f"against {self.paper.source}: {within} of {len(cells)} cells within {WITHIN:g} SD; "
+                f"{holding} of {len(orderings)} orderings hold (iHACS vs HACS)"
+            )
+            lines += [
+                f"- {c.task} {c.law.upper()} {c.metric}: {c.distance:.1f} SD off; hangs on {c.note}"
+                for c in cells
+                if not c.within
+            ]
+            lines += [
+                f"- ordering {o.task} {o.metric}: the paper has iHACS {o.expected} than HACS; here "
+                f"{o.ihacs:.3g} vs {o.hacs:.3g}"
+                for o in orderings
+                if not o.holds
+            ]
         return "\n".join(lines)
+
+    def to_json(self) -> dict:
+        cells, orderings = self.checked()
+        return {
+            "source": self.paper.source if self.paper else None,
+            "cells": [{**{k: getattr(c, k) for k in c.__slots__}, "within": c.within} for c in cells],
+            "cells_within": sum(c.within for c in cells),
+            "orderings": [{**{k: getattr(o, k) for k in o.__slots__}, "holds": o.holds} for o in orderings],
+            "orderings_hold": sum(o.holds for o in orderings),
+            "runs": self.runs,
+        }
 
 
 def compare(
     scenarios: list[Scenario],
-    riders: tuple[str, ...] = PAPER_RIDERS,
+    riders: tuple[str, ...] | None = None,
     trials: int = 1,
     progress=print,
     bench: Bench | None = None,
 ) -> Comparison:
-    """Every scenario x rider x trial under both laws on `bench` (default embedded), in lockstep."""
+    """Every scenario x rider x trial (default: the paper's four riders) under both laws on `bench`
+    (default embedded), in lockstep."""
+    paper = load_paper()
+    riders = riders or tuple(str(find(r)) for r in paper.riders)
     bench = (bench or load_bench()).with_overrides(clock="lockstep")
     runs = []
     for scenario in scenarios:
@@ -91,10 +134,48 @@ def compare(
                             f"max|v| {row['pitch.max_speed']:.2f} m/s, RMSE {row['pitch.rmse']:.2f} rad/s"
                             + (f", FELL: {row['fallen']}" if row["fallen"] else "")
                         )
-    return Comparison(runs)
+    return Comparison(runs, paper)
 
 
 def write(comparison: Comparison, out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    (out / "compare.json").write_bytes(msgspec.json.format(msgspec.json.encode(comparison.runs), indent=2))
+    data = msgspec.json.encode(comparison.to_json())
+    (out / "compare.json").write_bytes(msgspec.json.format(data, indent=2))
     (out / "compare.md").write_text(comparison.table() + "\n")
+    cells, _ = comparison.checked()
+    if cells:
+        figure(cells, out / "compare.png")
+
+
+def figure(cells, path: Path) -> None:
+    """One panel per metric: our mean (SD) per task and law beside the paper's mean and its 2-SD band."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    metrics = list(dict.fromkeys(c.metric for c in cells))
+    columns = list(dict.fromkeys((c.task, c.law) for c in cells))
+    fig, axes = plt.subplots(1, len(metrics), figsize=(3.4 * len(metrics), 3.6), squeeze=False)
+    for ax, metric in zip(axes[0], metrics, strict=True):
+        for c in (c for c in cells if c.metric == metric):
+            x = columns.index((c.task, c.law))
+            band = 2 * c.paper_sd
+            ax.add_patch(plt.Rectangle((x - 0.3, c.paper_mean - band), 0.6, 2 * band, color="0.85", zorder=0))
+            ax.hlines(c.paper_mean, x - 0.3, x + 0.3, color="0.4", zorder=1)
+            ax.errorbar(
+                x,
+                c.mean,
+                yerr=c.sd,
+                fmt="o",
+                color="tab:blue" if c.within else "tab:red",
+                capsize=3,
+                zorder=2,
+            )
+        ax.set_xticks(range(len(columns)), [f"{t.split('_')[0]}\n{law.upper()}" for t, law in columns])
+        ax.set_title(metric.removeprefix("pitch."), fontsize=9)
+        ax.margins(y=0.15)
+    fig.suptitle("ours: mean ± SD (red: beyond 2 SD); paper: mean (line) and ± 2 SD (grey)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
