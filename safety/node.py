@@ -209,6 +209,9 @@ class SupervisorNode:
                 continue
             self.frame(rx, self._stamp(0.0))
             if rx.name == MessageName.SYNC:
+                # Behind the rig (a busy machine): take in what is already queued first, so a zenoh input
+                # is judged at the newest tick, not stamped with an old one it has overtaken.
+                self._drain_can(self._stamp(0.0))
                 self.update(self._stamp(0.0))
 
 
