@@ -209,9 +209,10 @@ class SupervisorNode:
                 continue
             self.frame(rx, self._stamp(0.0))
             if rx.name == MessageName.SYNC:
-                # Behind the rig (a busy machine): take in what is already queued first, so a zenoh input
-                # is judged at the newest tick, not stamped with an old one it has overtaken.
-                self._drain_can(self._stamp(0.0))
+                # Behind the rig (a busy machine): take in what is already queued first, each frame at the
+                # tick it came in, so a zenoh input is judged at the newest tick, not an old one it overtook.
+                while (queued := self.can.recv(timeout=0.0)) is not None:
+                    self.frame(queued, self._stamp(0.0))
                 self.update(self._stamp(0.0))
 
 
