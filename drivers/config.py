@@ -40,3 +40,17 @@ def decode_toml(raw: bytes | str, type: type[T], origin: Path | str = "<string>"
         raise ConfigError(origin, str(exc)) from exc
     except msgspec.DecodeError as exc:
         raise ConfigError(origin, f"not valid TOML: {exc}") from exc
+
+
+def dump_toml(record: msgspec.Struct) -> bytes:
+    """A record as a config file load_toml reads back equal. TOML has no null: a None field is left out,
+    which reads back as its default (None, for every optional field of the configs)."""
+
+    def drop_none(value):
+        if isinstance(value, dict):
+            return {k: drop_none(v) for k, v in value.items() if v is not None}
+        if isinstance(value, list):
+            return [drop_none(v) for v in value]
+        return value
+
+    return msgspec.toml.encode(drop_none(msgspec.to_builtins(record)))

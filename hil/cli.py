@@ -13,6 +13,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse
+import functools
 import json
 import signal
 import sys
@@ -233,7 +234,7 @@ def _compare(args: argparse.Namespace) -> int:
 
     try:
         paths = tuple(str(find(r, "riders")) for r in riders)
-        result = compare(scenarios, paths, args.trials, progress=progress, bench=bench)
+        result = compare(scenarios, paths, args.trials, progress=progress, bench=bench, workers=args.workers)
     finally:
         if bar is not None:
             bar.close()
@@ -247,6 +248,76 @@ def _compare(args: argparse.Namespace) -> int:
         f"outputs: {out}/compare.md, compare.json"
         + (", compare.png" if (out / "compare.png").exists() else "")
     )
+    return 0
+
+
+def _calibrate(args: argparse.Namespace) -> int:
+    from hil.suites.calibrate import Unknown, calibrate, sensitivity, write
+    from hil.suites.paper import load_paper
+
+    try:
+        unknowns = [Unknown.parse(text) for text in args.fit or args.sensitivity]
+    except ValueError as exc:
+        print(f"pure-hil calibrate: {exc}", file=sys.stderr)
+        return 2
+    target = load_paper(args.target)
+    bench = bench_from(args)
+    if args.sensitivity:
+        names = [u.name for u in unknowns]
+        moved = f"{', '.join(names)} (±{args.step:.0%})"
+        print(f"pure-hil calibrate: how each cell of {args.target} moves with {moved}")
+        result = sensitivity(target, names, bench, args.step, args.workers)
+        print("\n\n".join(result.table(m.name) for m in target.metric))
+        return 0
+    print(
+        f"pure-hil calibrate: {', '.join(u.name for u in unknowns)} to {args.target} ({len(target.tasks)} "
+        f"task(s) x {len(target.riders)} rider(s) x HACS/iHACS per evaluation, at most {args.budget})"
+    )
+    calibration = calibrate(
+        target,
+        unknowns,
+        bench,
+        budget=args.budget,
+        workers=args.workers,
+        progress=lambda s: print(s, flush=True),
+    )
+    out = Path(args.out) if args.out else Path("runs") / f"calibrate-{time.strftime('%Y%m%d-%H%M%S')}"
+    fitted = write(calibration, out)
+    print(calibration.table())
+    print(f"outputs: {out}/calibrate.md, calibrate.json; fitted files: {Path(fitted.robot).parent}")
+    return 0
+
+
+def _adversary(args: argparse.Namespace) -> int:
+    from hil.run.pipeline import load_scenario
+    from hil.suites.adversary import requirement, search, summary, write_worst
+
+    scenario = load_scenario(args.scenario)
+    if args.law:
+        scenario = msgspec.structs.replace(scenario, law=args.law)
+    bench = bench_from(args)
+    try:
+        requirement(args.objective, scenario, bench)
+    except ValueError as exc:
+        print(f"pure-hil adversary: {exc}", file=sys.stderr)
+        return 2
+    print(
+        f"pure-hil adversary: {scenario.name} ({scenario.law}), objective {args.objective}, CMA-ES seed "
+        f"{args.seed}, {args.budget} lockstep runs, {args.workers} at a time"
+    )
+    found = search(
+        scenario,
+        args.objective,
+        args.budget,
+        args.workers,
+        args.seed,
+        bench,
+        functools.partial(print, flush=True),
+    )
+    out = Path(args.out) if args.out else Path("runs") / f"adversary-{time.strftime('%Y%m%d-%H%M%S')}"
+    path = write_worst(found, out, bench)
+    print(summary(found))
+    print(f"worst profile: {path} (pure-hil run {path}); its run folder: {out / 'run'}")
     return 0
 
 
@@ -560,8 +631,38 @@ def build_parser() -> argparse.ArgumentParser:
     cmp_.add_argument("--trials", type=int, default=1, help="seeds per rider")
     cmp_.add_argument("--out", default=None)
     cmp_.add_argument("--json", action="store_true", help="print one JSON object (cells, orderings, runs)")
+    cmp_.add_argument("--workers", type=int, default=1, help="runs at a time, each in its own process")
     add_bench_options(cmp_)
     cmp_.set_defaults(func=_compare)
+
+    cal = sub.add_parser("calibrate", help="fit unknown parameters to a target table (bounded least squares)")
+    what = cal.add_mutually_exclusive_group(required=True)
+    what.add_argument(
+        "--fit",
+        nargs="+",
+        metavar="NAME[=LO:HI]",
+        help="parameters to fit, e.g. rider.lean_rate_deg rider.lean_amplitude_deg=10:35 (docs/riders.md)",
+    )
+    what.add_argument(
+        "--sensitivity", nargs="+", metavar="NAME", help="instead: each cell at each parameter moved ±--step"
+    )
+    cal.add_argument("--step", type=float, default=0.2, help="relative move for --sensitivity")
+    cal.add_argument("--target", default="paper/ihacs_table2.toml", help="a table in the paper's format")
+    cal.add_argument("--budget", type=int, default=40, help="at most this many evaluations")
+    cal.add_argument("--workers", type=int, default=1, help="runs at a time, each in its own process")
+    cal.add_argument("--out", default=None)
+    add_bench_options(cal)
+    cal.set_defaults(func=_calibrate)
+
+    adv = sub.add_parser("adversary", help="search the worst rider (CMA-ES) for an STL requirement")
+    adv.add_argument("scenario", help="shipped scenario name or file")
+    adv.add_argument("--objective", choices=("overspeed", "tilt", "rmse"), default="overspeed")
+    adv.add_argument("--budget", type=int, default=50, help="lockstep runs")
+    adv.add_argument("--workers", type=int, default=1, help="runs at a time, each in its own process")
+    adv.add_argument("--seed", type=int, default=0, help="the search's seed: the same seed, the same search")
+    adv.add_argument("--out", default=None)
+    add_bench_options(adv)
+    adv.set_defaults(func=_adversary)
 
     cam = sub.add_parser("campaign", help="scenarios x riders x faults x seeds in parallel; report + JUnit")
     cam.add_argument("file", help="a shipped campaign's name or a campaign file")

@@ -365,7 +365,7 @@ def run_campaign(
             done(case, run_case(case, folder(case), bench))
     else:
         with ProcessPoolExecutor(
-            max_workers=workers, mp_context=get_context("spawn"), initializer=_quiet_worker
+            max_workers=workers, mp_context=get_context("spawn"), initializer=quiet_worker
         ) as pool:
             futures = {pool.submit(run_case, c, folder(c), bench): c for c in cases if c.role != "faulty"}
             for future in as_completed(futures):
@@ -383,7 +383,7 @@ def distributable(bench: Bench) -> bool:
     return bench.self_contained and bench.can.in_process and not bench.can.channel
 
 
-def _quiet_worker() -> None:
+def quiet_worker() -> None:
     # Workers' warnings (every supervisor transition, every fault start) would interleave unreadably with
     # the progress lines; each case's summary.json keeps them.
     logging.basicConfig(level=logging.ERROR)

@@ -5,7 +5,9 @@ and a figure of the same."""
 
 from __future__ import annotations
 
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
+from multiprocessing import get_context
 from pathlib import Path
 
 import msgspec
@@ -14,6 +16,7 @@ from drivers.resources import find
 from hil.bench.bench import Bench, load_bench
 from hil.run.pipeline import run
 from hil.run.scenario import Scenario
+from hil.suites.campaign import distributable, quiet_worker
 from hil.suites.paper import LAWS, WITHIN, PaperTable, against, load_paper, mean_sd
 
 COLUMNS = (
@@ -105,36 +108,64 @@ def compare(
     trials: int = 1,
     progress=print,
     bench: Bench | None = None,
+    workers: int = 1,
+    paper: PaperTable | None = None,
+    pool: ProcessPoolExecutor | None = None,
 ) -> Comparison:
     """Every scenario x rider x trial (default: the paper's four riders) under both laws on `bench`
-    (default embedded), in lockstep."""
-    paper = load_paper()
+    (default embedded), in lockstep, `workers` runs at a time in fresh processes when the bench allows
+    (or on `pool`, a caller's run_pool kept across comparisons)."""
+    paper = paper or load_paper()
     riders = riders or tuple(str(find(r)) for r in paper.riders)
-    bench = (bench or load_bench()).with_overrides(clock="lockstep")
-    runs = []
-    for scenario in scenarios:
-        for rider in riders:
-            for trial in range(trials):
-                for law in LAWS:
-                    s = msgspec.structs.replace(scenario, rider=rider, law=law, seed=scenario.seed + trial)
-                    result = run(s, bench.with_overrides(law="scenario"))
-                    row = {
-                        "scenario": scenario.name,
-                        "law": law,
-                        "rider": Path(rider).stem,
-                        "seed": s.seed,
-                        "passed": result.passed,
-                        "fallen": result.trace.fallen,
-                        **result.metrics,
-                    }
-                    runs.append(row)
-                    if progress:
-                        progress(
-                            f"  {scenario.name:<16} {law:<6} {Path(rider).stem:<20} seed {s.seed}: "
-                            f"max|v| {row['pitch.max_speed']:.2f} m/s, RMSE {row['pitch.rmse']:.2f} rad/s"
-                            + (f", FELL: {row['fallen']}" if row["fallen"] else "")
-                        )
-    return Comparison(runs, paper)
+    bench = (bench or load_bench()).with_overrides(clock="lockstep", law="scenario")
+    jobs = [
+        (scenario.name, msgspec.structs.replace(scenario, rider=rider, law=law, seed=scenario.seed + trial))
+        for scenario in scenarios
+        for rider in riders
+        for trial in range(trials)
+        for law in LAWS
+    ]
+    rows: list[dict | None] = [None] * len(jobs)
+
+    def done(i: int, row: dict) -> None:
+        rows[i] = row
+        if progress:
+            progress(
+                f"  {row['scenario']:<16} {row['law']:<6} {row['rider']:<20} seed {row['seed']}: "
+                f"max|v| {row['pitch.max_speed']:.2f} m/s, RMSE {row['pitch.rmse']:.2f} rad/s"
+                + (f", FELL: {row['fallen']}" if row["fallen"] else "")
+            )
+
+    if pool is None and workers > 1 and distributable(bench):
+        with run_pool(workers) as own:
+            return compare(scenarios, riders, trials, progress, bench, workers, paper, own)
+    if pool is not None:
+        futures = {pool.submit(_row, name, s, bench): i for i, (name, s) in enumerate(jobs)}
+        for future in as_completed(futures):
+            done(futures[future], future.result())
+    else:
+        for i, (name, s) in enumerate(jobs):
+            done(i, _row(name, s, bench))
+    return Comparison([r for r in rows if r is not None], paper)
+
+
+def run_pool(workers: int) -> ProcessPoolExecutor:
+    """Processes for runs side by side: spawned fresh (no zenoh or bus state inherited), quiet."""
+    return ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=quiet_worker)
+
+
+def _row(name: str, scenario: Scenario, bench: Bench) -> dict:
+    """One run's line of the comparison: what it was, and its metrics."""
+    result = run(scenario, bench)
+    return {
+        "scenario": name,
+        "law": scenario.law,
+        "rider": Path(scenario.rider).stem,
+        "seed": scenario.seed,
+        "passed": result.passed,
+        "fallen": result.trace.fallen,
+        **result.metrics,
+    }
 
 
 def write(comparison: Comparison, out: Path) -> None:

@@ -20,8 +20,8 @@ WITHIN = 2.0
 UNKNOWNS = {
     "pitch.max_torso_deg": "the rider's lean amplitude and rate (RiderParams.lean_amplitude_deg, "
     "lean_rate_deg) and, under HACS, how much lean the robot needs to reach a speed (HACS authority)",
-    "pitch.max_tilt_deg": "the chassis's mass, height and inertia and the LQR weights, which set the tilt "
-    "per Nm of rider torque, and, under HACS, on how much lean the riders need (see max_torso)",
+    "pitch.max_tilt_deg": "how much lean the riders need under HACS, i.e. the controller's LQR-PI tuning "
+    "(not the chassis: ±20 % of its mass, COM height or inertia moves a cell < 0.2 deg; docs/riders.md)",
     "pitch.max_speed": "the rider's reaction (Until.reaction_time, sitting up) and, under HACS in "
     "speed limiting, the LQR-PI's velocity authority against a leaning rider",
     "pitch.rmse_paper": "the trial window t0..tf, which the paper does not give (equation 2 grows with the "
@@ -111,3 +111,18 @@ def against(runs: list[dict], paper: PaperTable) -> tuple[list[Cell], list[Order
             if len(means) == 2:
                 orderings.append(Ordering(m.name, task, means["hacs"], means["ihacs"], m.ihacs))
     return cells, orderings
+
+
+def table_from(runs: list[dict], like: PaperTable, source: str, riders: list[str], sd_floor: float = 0.05):
+    """A target table in the paper's format from runs of ours (a lab's own bench runs, or a fit's known
+    answer): each cell's mean and SD over the runs, the SD at least `sd_floor` of the mean's magnitude."""
+    tasks = [t for t in like.tasks if any(r["scenario"] == t for r in runs)]
+    metrics = []
+    for m in like.metric:
+        cells = []
+        for task in tasks:
+            for law in LAWS:
+                mean, sd = mean_sd([r[m.name] for r in runs if r["scenario"] == task and r["law"] == law])
+                cells.append((mean, max(sd, sd_floor * abs(mean), 10.0**-m.decimals)))
+        metrics.append(msgspec.structs.replace(m, cells=cells))
+    return PaperTable(source=source, riders=riders, tasks=tasks, metric=metrics)

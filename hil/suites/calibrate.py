@@ -1,0 +1,321 @@
+"""`pure-hil calibrate`: fit named unknown parameters of the world (the rider's lean amplitude and rate, the
+chassis's mass, height and inertia, friction) to a target table — the paper's Table II or a lab's own, in
+the same format (configs/paper/ihacs_table2.toml) — by bounded least squares (scipy.optimize.least_squares)
+on the cells' distances in SD. Each evaluation is a `compare` of the table's tasks and riders, in lockstep.
+
+The controller keeps its own nominal robot model (the bench's controller.robot): what is fitted is the
+world it does not know, as on a real bench. docs/riders.md.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+from collections.abc import Callable
+from contextlib import ExitStack
+from dataclasses import dataclass
+from pathlib import Path
+
+import msgspec
+import numpy as np
+
+from drivers.config import dump_toml, load_toml
+from drivers.resources import find
+from hil.bench.bench import Bench, load_bench
+from hil.run.scenario import Scenario
+from hil.suites.campaign import distributable
+from hil.suites.compare import Comparison, compare, run_pool
+from hil.suites.paper import PaperTable
+from plant.params import RiderParams, RobotParams
+
+UNKNOWNS: dict[str, tuple[float, float]] = {
+    "rider.lean_amplitude_deg": (5.0, 45.0),
+    "rider.lean_rate_deg": (0.5, 20.0),
+    "robot.body.mass": (15.0, 60.0),
+    "robot.body.com_height": (0.1, 0.5),
+    "robot.body.inertia_pitch": (0.1, 4.0),
+    "robot.friction.rolling_viscous": (0.0, 3.0),
+    "robot.friction.drivetrain_viscous": (0.0, 3.0),
+}
+"""Parameters `calibrate` may fit, with the bounds used when none are given: `rider.*` applies to every
+rider of the table, `robot.*` to the plant's robot."""
+
+
+@dataclass(frozen=True, slots=True)
+class Unknown:
+    name: str
+    lower: float
+    upper: float
+
+    @classmethod
+    def parse(cls, text: str) -> Unknown:
+        """`name` or `name=lower:upper`."""
+        name, _, bounds = text.partition("=")
+        if name not in UNKNOWNS:
+            raise ValueError(f"unknown parameter {name!r}: one of {', '.join(UNKNOWNS)}")
+        lower, upper = UNKNOWNS[name]
+        if bounds:
+            try:
+                lower, upper = (float(v) for v in bounds.split(":"))
+            except ValueError:
+                raise ValueError(f"{text!r}: bounds are lower:upper, e.g. {name}=1:10") from None
+        if not lower < upper:
+            raise ValueError(f"{text!r}: the lower bound must be below the upper")
+        return cls(name, lower, upper)
+
+
+def replaced(record: msgspec.Struct, path: list[str], value: float) -> msgspec.Struct:
+    """`record` with the field at `path` (nested records) set to `value`, validated as a config file is."""
+    head, *rest = path
+    new = replaced(getattr(record, head), rest, value) if rest else value
+    return msgspec.convert(msgspec.to_builtins(msgspec.structs.replace(record, **{head: new})), type(record))
+
+
+@dataclass(frozen=True, slots=True)
+class World:
+    """The files one evaluation runs with: the riders' and the robot's, the unknowns set."""
+
+    riders: tuple[str, ...]
+    robot: str
+
+
+def write_world(values: dict[str, float], riders: list[str], robot: str, folder: Path) -> World:
+    folder.mkdir(parents=True, exist_ok=True)
+    robot_params = load_toml(find(robot, "robot"), RobotParams)
+    for name, value in values.items():
+        if name.startswith("robot."):
+            robot_params = replaced(robot_params, name.split(".")[1:], value)
+    robot_path = folder / "robot.toml"
+    robot_path.write_bytes(dump_toml(robot_params))
+    paths = []
+    for rider in riders:
+        params = load_toml(find(rider, "riders"), RiderParams)
+        for name, value in values.items():
+            if name.startswith("rider."):
+                params = replaced(params, name.split(".")[1:], value)
+        path = folder / f"{params.name}.toml"
+        path.write_bytes(dump_toml(params))
+        paths.append(str(path))
+    return World(tuple(paths), str(robot_path))
+
+
+@dataclass
+class Calibration:
+    unknowns: list[Unknown]
+    start: dict[str, float]
+    fitted: dict[str, float]
+    before: Comparison
+    after: Comparison
+    evaluations: int
+    cost_before: float
+    cost_after: float
+    message: str
+    riders: list[str]
+    robot: str
+
+    def table(self) -> str:
+        lines = ["| parameter | start | fitted | bounds |", "|---|---:|---:|---|"]
+        lines += [
+            f"| {u.name} | {self.start[u.name]:.4g} | {self.fitted[u.name]:.4g} | {u.lower:g}..{u.upper:g} |"
+            for u in self.unknowns
+        ]
+        before, _ = self.before.checked()
+        after = {(c.metric, c.task, c.law): c for c in self.after.checked()[0]}
+        lines += ["", "| cell | target | before | after |", "|---|---:|---:|---:|"]
+        for c in before:
+            a = after[(c.metric, c.task, c.law)]
+            lines.append(
+                f"| {c.task} {c.law.upper()} {c.metric} | {c.paper_mean:.3g} ({c.paper_sd:.3g}) | "
+                f"{c.mean:.3g}, {c.distance:.1f} SD | {a.mean:.3g}, {a.distance:.1f} SD |"
+            )
+        within = (sum(c.within for c in before), sum(c.within for c in after.values()))
+        lines.append(
+            f"\ncells within 2 SD: {within[0]} -> {within[1]} of {len(before)}; sum of squared distances "
+            f"{self.cost_before:.2f} -> {self.cost_after:.2f}; {self.evaluations} evaluations "
+            f"({self.message})"
+        )
+        return "\n".join(lines)
+
+
+class _BudgetSpent(Exception):
+    pass
+
+
+def residuals(comparison: Comparison) -> np.ndarray:
+    """Each target cell's signed distance in its SD (an SD printed as 0 counts as half its last digit)."""
+    cells, _ = comparison.checked()
+    return np.array([math.copysign(c.distance, c.mean - c.paper_mean) for c in cells])
+
+
+def calibrate(
+    target: PaperTable,
+    unknowns: list[Unknown],
+    bench: Bench | None = None,
+    scenarios: list[Scenario] | None = None,
+    start: dict[str, float] | None = None,
+    budget: int = 40,
+    workers: int = 1,
+    progress: Callable[[str], None] | None = None,
+) -> Calibration:
+    """Fit `unknowns` to `target` (its tasks and riders; `scenarios` in place of the shipped tasks), at most
+    `budget` evaluations, starting from `start` or the shipped files' values."""
+    from scipy.optimize import least_squares
+
+    from hil.run.pipeline import load_scenario
+
+    scenarios = scenarios or [load_scenario(t) for t in target.tasks]
+    robot = scenarios[0].robot
+    bench = _nominal_controller(bench or load_bench(), robot)
+    names = [u.name for u in unknowns]
+    defaults = _defaults(target.riders[0], robot)
+    lower, upper = np.array([u.lower for u in unknowns]), np.array([u.upper for u in unknowns])
+    x0 = np.clip([(start or {}).get(n, defaults[n]) for n in names], lower, upper)
+    seen: dict[tuple[float, ...], Comparison] = {}
+
+    parallel = workers > 1 and distributable(bench)
+    with tempfile.TemporaryDirectory(prefix="pure-hil-calibrate-") as tmp, ExitStack() as stack:
+        pool = stack.enter_context(run_pool(workers)) if parallel else None  # one pool for every evaluation
+
+        def evaluate(x: np.ndarray) -> Comparison:
+            key = tuple(float(v) for v in x)
+            if key not in seen:
+                if len(seen) >= budget:
+                    raise _BudgetSpent
+                values = dict(zip(names, key, strict=True))
+                world = write_world(values, target.riders, robot, Path(tmp) / f"eval-{len(seen)}")
+                runs = [msgspec.structs.replace(s, robot=world.robot) for s in scenarios]
+                seen[key] = compare(runs, world.riders, progress=None, bench=bench, paper=target, pool=pool)
+                if progress:
+                    shown = ", ".join(f"{n}={v:.4g}" for n, v in values.items())
+                    cost = float(np.sum(residuals(seen[key]) ** 2))
+                    progress(f"  evaluation {len(seen)}: {shown}: sum of squared distances {cost:.2f}")
+            return seen[key]
+
+        before = evaluate(x0)
+        # Relative steps of 5 %: a lockstep run is deterministic, but a rider's reaction moves its metrics in
+        # small jumps, so a finite difference must span several of them; for the same reason a step below
+        # 1 % of a parameter cannot improve the fit (xtol).
+        try:
+            fit = least_squares(
+                lambda x: residuals(evaluate(x)), x0, bounds=(lower, upper), diff_step=0.05, xtol=0.01
+            )
+            best, message = fit.x, fit.message
+        except _BudgetSpent:  # every run counts, the Jacobian's too: the best point seen
+            best = np.array(min(seen, key=lambda k: float(np.sum(residuals(seen[k]) ** 2))))
+            message = f"the budget of {budget} evaluations is spent"
+        after = evaluate(best)
+    return Calibration(
+        unknowns,
+        dict(zip(names, map(float, x0), strict=True)),
+        dict(zip(names, map(float, best), strict=True)),
+        before,
+        after,
+        len(seen),
+        float(np.sum(residuals(before) ** 2)),
+        float(np.sum(residuals(after) ** 2)),
+        message,
+        target.riders,
+        robot,
+    )
+
+
+def _nominal_controller(bench: Bench, robot: str) -> Bench:
+    """The bench with its controller pinned to the nominal robot file: what is fitted or moved is the world
+    the controller does not know."""
+    nominal = str(find(bench.controller.robot or robot, "robot"))
+    return msgspec.structs.replace(bench, controller=msgspec.structs.replace(bench.controller, robot=nominal))
+
+
+def _defaults(rider: str, robot: str) -> dict[str, float]:
+    """The unknowns' values in the files as shipped (a rider's from the table's first rider)."""
+    records = {
+        "rider": load_toml(find(rider, "riders"), RiderParams),
+        "robot": load_toml(find(robot, "robot"), RobotParams),
+    }
+    out = {}
+    for name in UNKNOWNS:
+        head, *path = name.split(".")
+        value = records[head]
+        for part in path:
+            value = getattr(value, part)
+        out[name] = float(value)
+    return out
+
+
+def write(calibration: Calibration, out: Path) -> World:
+    """The fitted parameter files (riders and robot) under out/fitted, and calibrate.md / .json."""
+    out.mkdir(parents=True, exist_ok=True)
+    fitted = write_world(calibration.fitted, calibration.riders, calibration.robot, out / "fitted")
+    (out / "calibrate.md").write_text(calibration.table() + "\n")
+    summary = {
+        "fitted": calibration.fitted,
+        "start": calibration.start,
+        "bounds": {u.name: [u.lower, u.upper] for u in calibration.unknowns},
+        "evaluations": calibration.evaluations,
+        "cost_before": calibration.cost_before,
+        "cost_after": calibration.cost_after,
+        "before": calibration.before.to_json()["cells"],
+        "after": calibration.after.to_json()["cells"],
+    }
+    (out / "calibrate.json").write_bytes(msgspec.json.format(msgspec.json.encode(summary), indent=2))
+    return fitted
+
+
+@dataclass
+class Sensitivity:
+    """Each cell's mean at each parameter moved down and up by `step` (relative) from the shipped value."""
+
+    step: float
+    base: Comparison
+    moved: dict[str, tuple[Comparison, Comparison]]
+
+    def table(self, metric: str) -> str:
+        base = {(c.task, c.law): c for c in self.base.checked()[0] if c.metric == metric}
+        columns = list(base)
+        head = " | ".join(f"{task} {law.upper()}" for task, law in columns)
+        lines = [f"| {metric} | {head} |", "|---|" + "---:|" * len(columns)]
+        lines.append(
+            "| shipped | "
+            + " | ".join(f"{base[k].mean:.3g} (paper {base[k].paper_mean:g})" for k in columns)
+            + " |"
+        )
+        for name, pair in self.moved.items():
+            for sign, comparison in zip("-+", pair, strict=True):
+                cells = {(c.task, c.law): c for c in comparison.checked()[0] if c.metric == metric}
+                row = " | ".join(
+                    f"{cells[k].mean:.3g} ({cells[k].mean - base[k].mean:+.2g})" for k in columns
+                )
+                lines.append(f"| {name} {sign}{self.step:.0%} | {row} |")
+        return "\n".join(lines)
+
+
+def sensitivity(
+    target: PaperTable,
+    names: list[str],
+    bench: Bench | None = None,
+    step: float = 0.2,
+    workers: int = 1,
+    scenarios: list[Scenario] | None = None,
+) -> Sensitivity:
+    """How each cell moves with each named parameter, one at a time, by ±`step` of its shipped value."""
+    from hil.run.pipeline import load_scenario
+
+    scenarios = scenarios or [load_scenario(t) for t in target.tasks]
+    robot = scenarios[0].robot
+    bench = _nominal_controller(bench or load_bench(), robot)
+    defaults = _defaults(target.riders[0], robot)
+    parallel = workers > 1 and distributable(bench)
+    with tempfile.TemporaryDirectory(prefix="pure-hil-sensitivity-") as tmp, ExitStack() as stack:
+        pool = stack.enter_context(run_pool(workers)) if parallel else None
+
+        def at(values: dict[str, float], folder: str) -> Comparison:
+            world = write_world(values, target.riders, robot, Path(tmp) / folder)
+            runs = [msgspec.structs.replace(s, robot=world.robot) for s in scenarios]
+            return compare(runs, world.riders, progress=None, bench=bench, paper=target, pool=pool)
+
+        base = at({}, "base")
+        moved = {
+            name: tuple(at({name: defaults[name] * (1 + s * step)}, f"{name}{s}") for s in (-1, 1))
+            for name in names
+        }
+    return Sensitivity(step, base, moved)  # type: ignore[arg-type]

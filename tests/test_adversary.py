@@ -1,0 +1,61 @@
+"""`pure-hil adversary`: CMA-ES finds a rider worse than the shipped one, reproducibly for a seed, and the
+controller that resists riders better (iHACS) has the lower worst case."""
+
+from __future__ import annotations
+
+import msgspec
+import pytest
+
+pytest.importorskip("optuna")
+
+from drivers.config import load_toml
+from hil.run.pipeline import load_scenario, run
+from hil.run.scenario import Scenario
+from hil.suites.adversary import SPACE, profile, search, write_worst
+from plant.params import RiderParams
+from plant.rider import Ramp
+from tests.helpers import ROOT
+from tests.zenoh_helpers import private_bench
+
+BUDGET = 16
+
+
+def _limiting(law: str) -> Scenario:
+    return msgspec.structs.replace(load_scenario("speed_limiting"), law=law, duration=8.0)
+
+
+def test_the_adversary_beats_the_shipped_rider_under_hacs_reproducibly_and_ihacs_holds_better(tmp_path):
+    hacs = search(_limiting("hacs"), "overspeed", BUDGET, workers=2, seed=3, bench=private_bench())
+    assert hacs.requirement.bound == 0.5 and hacs.evaluations == BUDGET
+    # Positive: the worst profile found exceeds the cap by more than the shipped rider does.
+    assert hacs.worst_robustness < hacs.shipped_robustness < 0
+    again = search(_limiting("hacs"), "overspeed", BUDGET // 2, workers=2, seed=3, bench=private_bench())
+    assert again.history == hacs.history[: BUDGET // 2]  # the same seed, the same search
+    ihacs = search(_limiting("ihacs"), "overspeed", BUDGET, workers=2, seed=3, bench=private_bench())
+    assert ihacs.worst_robustness > hacs.worst_robustness  # iHACS's worst case is lower
+
+    path = write_worst(hacs, tmp_path, private_bench())
+    replayed = load_toml(path, Scenario)
+    assert replayed.law == "hacs" and replayed.intent == hacs.worst.intent
+    result = run(replayed, private_bench().with_overrides(law="scenario"))
+    speed = max(result.metrics["pitch.max_speed"], result.metrics["roll.max_speed"])
+    assert 0.5 - speed == pytest.approx(hacs.worst_robustness, abs=1e-9)  # the file reproduces it
+    assert (tmp_path / "run" / "summary.json").exists()
+
+
+def test_every_profile_stays_within_the_riders_body():
+    rider = load_toml(ROOT / "configs/riders/s07_abi_73kg_176.toml", RiderParams)
+    for corner in ({k: lo for k, (lo, hi) in SPACE.items()}, {k: hi for k, (lo, hi) in SPACE.items()}):
+        intent = profile(corner, rider)
+        for segments in (intent.pitch, intent.roll):
+            value = 0.0
+            for seg in segments:
+                if isinstance(seg, Ramp):
+                    assert abs(seg.to) <= rider.max_lean_deg
+                    assert abs(seg.to - value) / seg.duration <= rider.max_lean_rate_deg + 1e-9
+                    value = seg.to
+
+
+def test_an_objective_the_scenario_cannot_state_is_refused():
+    with pytest.raises(ValueError, match="no speed cap"):
+        search(load_scenario("balance"), "overspeed", 1, bench=private_bench())
