@@ -87,11 +87,13 @@ Segment = Ramp | Hold | Step | Sine | Adversarial | Until
 class LeanStyle(msgspec.Struct, frozen=True):
     """How a rider follows a protocol segment that does not say: lean amplitude (deg) and rate (deg/s)."""
 
-    amplitude: float = 30.0
-    rate: float = 40.0
+    amplitude: float
+    rate: float
 
 
-DEFAULT_STYLE = LeanStyle()
+_RIDER_DEFAULTS = {f.name: f.default for f in msgspec.structs.fields(RiderParams)}
+DEFAULT_STYLE = LeanStyle(_RIDER_DEFAULTS["lean_amplitude_deg"], _RIDER_DEFAULTS["lean_rate_deg"])
+"""A rider's style when a profile is made without one: RiderParams' defaults."""
 
 
 def _compile(segments, t: float, value: float, style: LeanStyle):
@@ -135,7 +137,7 @@ class Profile:
         self._spans, self.end_time, self.final_value = _compile(self._segments, start, value, style)
         self._side: dict[int, float] = {}  # adversarial span -> the side the rider leans to
         self._against_since: float | None = None
-        self._noticed: float | None = None  # when an Until's speed condition was first seen
+        self._noticed: dict[int, float] = {}  # Until span -> when its speed condition was first seen
 
     def target(self, t: float, speed: float, limit: float) -> float:
         """The value the rider aims at, at time t; `limit` is the largest they can reach."""
@@ -153,25 +155,24 @@ class Profile:
                 return self._adversarial_side(i, seg, t, speed) * limit
             if isinstance(seg, Until):
                 value = _leaning(seg, t - start, v0, self.style, limit)
-                if self._reacted(seg, t, speed):
+                if self._reacted(i, seg, t, speed):
                     self._end_early(i, t, value)
                     return self.target(t, speed, limit)
                 return value
             return v0
         return self.final_value
 
-    def _reacted(self, seg: Until, t: float, speed: float) -> bool:
+    def _reacted(self, span: int, seg: Until, t: float, speed: float) -> bool:
         crossed = abs(speed) > seg.speed if seg.when == "faster" else abs(speed) < seg.speed
-        if crossed and self._noticed is None:
-            self._noticed = t
-        return self._noticed is not None and t - self._noticed >= seg.reaction_time
+        if crossed:
+            self._noticed.setdefault(span, t)
+        return span in self._noticed and t - self._noticed[span] >= seg.reaction_time
 
     def _end_early(self, i: int, t: float, value: float) -> None:
         """Span i ends at t with `value`: the segments after it start from there."""
         start, _, seg, v0 = self._spans[i]
         later, self.end_time, self.final_value = _compile(self._segments[i + 1 :], t, value, self.style)
         self._spans[i:] = [(start, t, seg, v0), *later]
-        self._noticed = None
 
     def _adversarial_side(self, span: int, seg: Adversarial, t: float, speed: float) -> float:
         side = self._side.setdefault(span, float(seg.direction))

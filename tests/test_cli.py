@@ -119,3 +119,29 @@ def test_ctrl_c_ends_a_run_at_the_next_tick_and_writes_its_folder(tmp_path):
     rows = np.load(out / "trace.npy")
     assert len(rows) == summary["rig"]["ticks"] and abs(rows[-1, 0] - summary["simulated"]) < 1e-6
     assert all((out / name).stat().st_size > 0 for name in ("can.log", "recording.rrd", "plots.png"))
+
+
+def test_compare_json_prints_one_object_on_stdout_and_its_progress_on_stderr(tmp_path, capsys):
+    import msgspec
+
+    from drivers.config import dump_toml
+    from hil.run.pipeline import load_scenario
+
+    short = tmp_path / "speed_limiting.toml"  # a paper task by name, 2 s long
+    short.write_bytes(dump_toml(msgspec.structs.replace(load_scenario("speed_limiting"), duration=2.0)))
+    argv = ["compare", str(short), "--riders", "s16_mwcu_52kg_167", "--json", "--out", str(tmp_path / "out")]
+    assert main(argv) == 0
+    captured = capsys.readouterr()
+    data = json.loads(captured.out)
+    assert [r["law"] for r in data["runs"]] == ["hacs", "ihacs"] and len(data["cells"]) == 8
+    assert "s16_mwcu_52kg_167" in captured.err and "seed 0" in captured.err
+    assert (tmp_path / "out" / "compare.png").exists()
+
+
+def test_calibrate_and_adversary_refuse_what_they_cannot_do_in_one_line(capsys):
+    assert main(["calibrate", "--fit", "rider.shoe_size"]) == 2
+    err = capsys.readouterr().err
+    assert "unknown parameter 'rider.shoe_size'" in err and err.count("\n") == 1
+    assert main(["adversary", "balance", "--objective", "overspeed"]) == 2
+    err = capsys.readouterr().err
+    assert "balance has no speed cap" in err and err.count("\n") == 1

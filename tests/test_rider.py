@@ -70,7 +70,7 @@ def test_until_slower_brakes_until_the_robot_stops_and_leans_no_further_than_the
     assert p.target(1.1, 0.1, 30.0) == pytest.approx(-12.0)  # stopped: noticed
     assert p.target(1.41, 0.1, 30.0) == pytest.approx(-12.0)  # reacted; nothing follows: where it got to
     assert p.end_time == pytest.approx(1.41)
-    clipped = Profile([Until(duration=5.0, rate=40.0)], style=LeanStyle(amplitude=35.0))
+    clipped = Profile([Until(duration=5.0, rate=40.0)], style=LeanStyle(amplitude=35.0, rate=40.0))
     assert clipped.target(2.0, 0.0, 22.0) == pytest.approx(22.0)  # a rider's max_lean bounds the trial
 
 
