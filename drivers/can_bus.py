@@ -225,7 +225,16 @@ class CanNode:
         return Received(codec.name, signals, msg.timestamp, event)
 
     def recv(self, timeout: float | None = None) -> Received | None:
-        """The next catalog frame within `timeout` seconds (None: wait forever), else None."""
+        """The next catalog frame within `timeout` seconds (None: wait forever), else None. With timeout 0
+        (the tick's drains): the next queued catalog frame, past any rejected ones (they are counted), and
+        no clock read."""
+        if timeout == 0.0:
+            while (msg := self.bus.recv(0.0)) is not None:
+                if self.rx_hook is not None and (msg := self.rx_hook(msg)) is None:
+                    continue
+                if (frame := self.decode(msg)) is not None:
+                    return frame
+            return None
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
             remaining = None if deadline is None else max(deadline - time.monotonic(), 0.0)

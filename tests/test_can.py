@@ -167,6 +167,16 @@ frame_strategy = st.builds(
 )
 
 
+def test_a_drain_reads_past_a_rejected_frame_in_the_same_tick(pair):
+    """A malformed frame ahead of good ones must not hold them back until the next drain."""
+    tx, rx, _ = pair
+    tx.bus.send(can.Message(arbitration_id=0x7F0, is_extended_id=False, data=bytes(8)))  # not in the DBC
+    tx.send("SYNC", {"Tick": 7})
+    frame = rx.recv(timeout=0.0)
+    assert frame is not None and frame.name == "SYNC" and frame.signals["Tick"] == 7
+    assert rx.stats.malformed["unknown_id"] == 1 and rx.recv(timeout=0.0) is None
+
+
 @settings(max_examples=400, deadline=None)
 @given(st.lists(frame_strategy, max_size=30))
 def test_fuzzed_frames_never_raise_and_are_all_counted(frames_in):
