@@ -79,3 +79,11 @@ def test_the_sensitivity_table_moves_the_chassis_tilt_as_physics_says():
     assert tilt(lighter) > tilt(result.base) > tilt(heavier)
     table = result.table("pitch.max_tilt_deg")
     assert "robot.body.mass -20%" in table and "robot.body.mass +20%" in table
+
+
+def test_a_world_carries_the_controllers_tuning_as_its_own_file(tmp_path):
+    world = write_world({"controller.pi.ki": 20.0, "robot.body.mass": 33.0}, [], "pure", tmp_path)
+    tuning = msgspec.toml.decode((tmp_path / "controller.toml").read_bytes())
+    assert tuning["pi"]["ki"] == 20.0 and tuning["pi"]["kp"] == 3.0  # the rest as shipped
+    assert tuning["riders"]["s12_mwcu_79kg_160"]["gain"] == 0.07
+    assert world.on(private_bench()).controller.config == world.controller

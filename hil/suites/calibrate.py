@@ -36,9 +36,15 @@ UNKNOWNS: dict[str, tuple[float, float]] = {
     "robot.body.inertia_pitch": (0.1, 4.0),
     "robot.friction.rolling_viscous": (0.0, 3.0),
     "robot.friction.drivetrain_viscous": (0.0, 3.0),
+    "controller.lqr.q_tilt": (10.0, 1000.0),
+    "controller.lqr.q_ball_rate": (0.1, 10.0),
+    "controller.pi.kp": (0.5, 10.0),
+    "controller.pi.ki": (1.0, 50.0),
 }
 """Parameters `calibrate` may fit, with the bounds used when none are given: `rider.*` applies to every
-rider of the table, `robot.*` to the plant's robot."""
+rider of the table, `robot.*` to the plant's robot; `controller.*` is the reference controller's tuning
+(a what-if on the device under test, not the world: its file is written beside the world's and the bench's
+controller points to it)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -73,14 +79,34 @@ def replaced(record: msgspec.Struct, path: list[str], value: float) -> msgspec.S
 
 @dataclass(frozen=True, slots=True)
 class World:
-    """The files one evaluation runs with: the riders' and the robot's, the unknowns set."""
+    """The files one evaluation runs with: the riders', the robot's and the controller's tuning, with the
+    unknowns set."""
 
     riders: tuple[str, ...]
     robot: str
+    controller: str
+
+    def on(self, bench: Bench) -> Bench:
+        """`bench` with its controller reading this world's tuning."""
+        part = msgspec.structs.replace(bench.controller, config=self.controller)
+        return msgspec.structs.replace(bench, controller=part)
 
 
-def write_world(values: dict[str, float], riders: list[str], robot: str, folder: Path) -> World:
+def write_world(
+    values: dict[str, float], riders: list[str], robot: str, folder: Path, controller: str = "default"
+) -> World:
     folder.mkdir(parents=True, exist_ok=True)
+    # The controller's file is its own format (the rig never imports the controller): edited as TOML.
+    tuning = msgspec.toml.decode(find(controller, "controller").read_bytes())
+    for name, value in values.items():
+        if name.startswith("controller."):
+            *tables, key = name.split(".")[1:]
+            section = tuning
+            for table in tables:
+                section = section[table]
+            section[key] = value
+    controller_path = folder / "controller.toml"
+    controller_path.write_bytes(msgspec.toml.encode(tuning))
     robot_params = load_toml(find(robot, "robot"), RobotParams)
     for name, value in values.items():
         if name.startswith("robot."):
@@ -96,7 +122,7 @@ def write_world(values: dict[str, float], riders: list[str], robot: str, folder:
         path = folder / f"{params.name}.toml"
         path.write_bytes(dump_toml(params))
         paths.append(str(path))
-    return World(tuple(paths), str(robot_path))
+    return World(tuple(paths), str(robot_path), str(controller_path))
 
 
 @dataclass
@@ -112,6 +138,7 @@ class Calibration:
     message: str
     riders: list[str]
     robot: str
+    controller: str
 
     def table(self) -> str:
         lines = ["| parameter | start | fitted | bounds |", "|---|---:|---:|---|"]
@@ -167,7 +194,8 @@ def calibrate(
     robot = scenarios[0].robot
     bench = _nominal_controller(bench or load_bench(), robot)
     names = [u.name for u in unknowns]
-    defaults = _defaults(target.riders[0], robot)
+    controller = bench.controller.config
+    defaults = _defaults(target.riders[0], robot, controller)
     lower, upper = np.array([u.lower for u in unknowns]), np.array([u.upper for u in unknowns])
     x0 = np.clip([(start or {}).get(n, defaults[n]) for n in names], lower, upper)
     seen: dict[tuple[float, ...], Comparison] = {}
@@ -182,9 +210,12 @@ def calibrate(
                 if len(seen) >= budget:
                     raise _BudgetSpent
                 values = dict(zip(names, key, strict=True))
-                world = write_world(values, target.riders, robot, Path(tmp) / f"eval-{len(seen)}")
+                folder = Path(tmp) / f"eval-{len(seen)}"
+                world = write_world(values, target.riders, robot, folder, controller)
                 runs = [msgspec.structs.replace(s, robot=world.robot) for s in scenarios]
-                seen[key] = compare(runs, world.riders, progress=None, bench=bench, paper=target, pool=pool)
+                seen[key] = compare(
+                    runs, world.riders, progress=None, bench=world.on(bench), paper=target, pool=pool
+                )
                 if progress:
                     shown = ", ".join(f"{n}={v:.4g}" for n, v in values.items())
                     cost = float(np.sum(residuals(seen[key]) ** 2))
@@ -216,6 +247,7 @@ def calibrate(
         message,
         target.riders,
         robot,
+        controller,
     )
 
 
@@ -226,26 +258,30 @@ def _nominal_controller(bench: Bench, robot: str) -> Bench:
     return msgspec.structs.replace(bench, controller=msgspec.structs.replace(bench.controller, robot=nominal))
 
 
-def _defaults(rider: str, robot: str) -> dict[str, float]:
+def _defaults(rider: str, robot: str, controller: str) -> dict[str, float]:
     """The unknowns' values in the files as shipped (a rider's from the table's first rider)."""
     records = {
-        "rider": load_toml(find(rider, "riders"), RiderParams),
-        "robot": load_toml(find(robot, "robot"), RobotParams),
+        "rider": msgspec.to_builtins(load_toml(find(rider, "riders"), RiderParams)),
+        "robot": msgspec.to_builtins(load_toml(find(robot, "robot"), RobotParams)),
+        "controller": msgspec.toml.decode(find(controller, "controller").read_bytes()),
     }
     out = {}
     for name in UNKNOWNS:
         head, *path = name.split(".")
         value = records[head]
         for part in path:
-            value = getattr(value, part)
+            value = value[part]
         out[name] = float(value)
     return out
 
 
 def write(calibration: Calibration, out: Path) -> World:
-    """The fitted parameter files (riders and robot) under out/fitted, and calibrate.md / .json."""
+    """The fitted parameter files (riders, robot, controller tuning) under out/fitted, and calibrate.md /
+    .json."""
     out.mkdir(parents=True, exist_ok=True)
-    fitted = write_world(calibration.fitted, calibration.riders, calibration.robot, out / "fitted")
+    fitted = write_world(
+        calibration.fitted, calibration.riders, calibration.robot, out / "fitted", calibration.controller
+    )
     (out / "calibrate.md").write_text(calibration.table() + "\n")
     summary = {
         "fitted": calibration.fitted,
@@ -303,15 +339,16 @@ def sensitivity(
     scenarios = scenarios or [load_scenario(t) for t in target.tasks]
     robot = scenarios[0].robot
     bench = _nominal_controller(bench or load_bench(), robot)
-    defaults = _defaults(target.riders[0], robot)
+    controller = bench.controller.config
+    defaults = _defaults(target.riders[0], robot, controller)
     parallel = workers > 1 and distributable(bench)
     with tempfile.TemporaryDirectory(prefix="pure-hil-sensitivity-") as tmp, ExitStack() as stack:
         pool = stack.enter_context(run_pool(workers)) if parallel else None
 
         def at(values: dict[str, float], folder: str) -> Comparison:
-            world = write_world(values, target.riders, robot, Path(tmp) / folder)
+            world = write_world(values, target.riders, robot, Path(tmp) / folder, controller)
             runs = [msgspec.structs.replace(s, robot=world.robot) for s in scenarios]
-            return compare(runs, world.riders, progress=None, bench=bench, paper=target, pool=pool)
+            return compare(runs, world.riders, progress=None, bench=world.on(bench), paper=target, pool=pool)
 
         base = at({}, "base")
         moved = {
