@@ -8,7 +8,7 @@ import msgspec
 import pytest
 
 from hil.run.pipeline import load_scenario
-from hil.suites.calibrate import Unknown, calibrate, replaced, write, write_world
+from hil.suites.calibrate import Unknown, calibrate, with_values, write, write_world
 from hil.suites.compare import compare
 from hil.suites.paper import load_paper, table_from
 from plant.params import RiderParams
@@ -54,9 +54,9 @@ def test_unknowns_and_their_bounds_are_checked():
     with pytest.raises(ValueError, match="must be below"):
         Unknown.parse("rider.lean_rate_deg=5:1")
     rider = RiderParams(name="x", mass=70.0, height=1.7)
-    assert replaced(rider, ["lean_rate_deg"], 7.5).lean_rate_deg == 7.5
+    assert with_values(rider, {"rider.lean_rate_deg": 7.5}, "rider").lean_rate_deg == 7.5
     with pytest.raises(msgspec.ValidationError):  # validated as a config file would be
-        replaced(rider, ["mass"], -1.0)
+        with_values(rider, {"rider.mass": -1.0}, "rider")
 
 
 def test_the_sensitivity_table_moves_the_chassis_tilt_as_physics_says():

@@ -70,11 +70,21 @@ class Unknown:
         return cls(name, lower, upper)
 
 
-def replaced(record: msgspec.Struct, path: list[str], value: float) -> msgspec.Struct:
-    """`record` with the field at `path` (nested records) set to `value`, validated as a config file is."""
-    head, *rest = path
-    new = replaced(getattr(record, head), rest, value) if rest else value
-    return msgspec.convert(msgspec.to_builtins(msgspec.structs.replace(record, **{head: new})), type(record))
+def _apply(tree: dict, values: dict[str, float], head: str) -> dict:
+    """A config file's contents (`tree`) with the unknowns named `head.*` set in place."""
+    for name, value in values.items():
+        first, *tables, key = name.split(".")
+        if first == head:
+            section = tree
+            for table in tables:
+                section = section[table]
+            section[key] = value
+    return tree
+
+
+def with_values(record: msgspec.Struct, values: dict[str, float], head: str) -> msgspec.Struct:
+    """`record` with the unknowns named `head.*` set, validated as its config file is."""
+    return msgspec.convert(_apply(msgspec.to_builtins(record), values, head), type(record))
 
 
 @dataclass(frozen=True, slots=True)
@@ -97,32 +107,82 @@ def write_world(
 ) -> World:
     folder.mkdir(parents=True, exist_ok=True)
     # The controller's file is its own format (the rig never imports the controller): edited as TOML.
-    tuning = msgspec.toml.decode(find(controller, "controller").read_bytes())
-    for name, value in values.items():
-        if name.startswith("controller."):
-            *tables, key = name.split(".")[1:]
-            section = tuning
-            for table in tables:
-                section = section[table]
-            section[key] = value
+    tuning = _apply(msgspec.toml.decode(find(controller, "controller").read_bytes()), values, "controller")
     controller_path = folder / "controller.toml"
     controller_path.write_bytes(msgspec.toml.encode(tuning))
-    robot_params = load_toml(find(robot, "robot"), RobotParams)
-    for name, value in values.items():
-        if name.startswith("robot."):
-            robot_params = replaced(robot_params, name.split(".")[1:], value)
     robot_path = folder / "robot.toml"
-    robot_path.write_bytes(dump_toml(robot_params))
+    robot_path.write_bytes(
+        dump_toml(with_values(load_toml(find(robot, "robot"), RobotParams), values, "robot"))
+    )
     paths = []
     for rider in riders:
-        params = load_toml(find(rider, "riders"), RiderParams)
-        for name, value in values.items():
-            if name.startswith("rider."):
-                params = replaced(params, name.split(".")[1:], value)
+        params = with_values(load_toml(find(rider, "riders"), RiderParams), values, "rider")
         path = folder / f"{params.name}.toml"
         path.write_bytes(dump_toml(params))
         paths.append(str(path))
     return World(tuple(paths), str(robot_path), str(controller_path))
+
+
+class Evaluations:
+    """Runs the target's tasks and riders with given unknowns set, each evaluation a `compare` in lockstep
+    on its own world files; one process pool and one scratch folder for all of them (a context manager).
+    The controller keeps the nominal robot file: what is fitted or moved is the world it does not know."""
+
+    def __init__(
+        self,
+        target: PaperTable,
+        bench: Bench | None = None,
+        scenarios: list[Scenario] | None = None,
+        workers: int = 1,
+    ):
+        from hil.run.pipeline import load_scenario
+
+        self.target = target
+        self.scenarios = scenarios or [load_scenario(t) for t in target.tasks]
+        self.robot = self.scenarios[0].robot
+        bench = bench or load_bench()
+        nominal = msgspec.structs.replace(
+            bench.controller, robot=str(find(bench.controller.robot or self.robot, "robot"))
+        )
+        self.bench = msgspec.structs.replace(bench, controller=nominal)
+        self.controller = self.bench.controller.config
+        self.workers = workers if distributable(self.bench) else 1
+        self.count = 0
+        self._stack = ExitStack()
+
+    def __enter__(self) -> Evaluations:
+        self._tmp = Path(self._stack.enter_context(tempfile.TemporaryDirectory(prefix="pure-hil-calibrate-")))
+        self._pool = self._stack.enter_context(run_pool(self.workers)) if self.workers > 1 else None
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stack.close()
+
+    def __call__(self, values: dict[str, float]) -> Comparison:
+        world = self.write(values, self._tmp / f"eval-{self.count}")
+        self.count += 1
+        runs = [msgspec.structs.replace(s, robot=world.robot) for s in self.scenarios]
+        bench = world.on(self.bench)
+        return compare(runs, world.riders, progress=None, bench=bench, paper=self.target, pool=self._pool)
+
+    def write(self, values: dict[str, float], folder: Path) -> World:
+        return write_world(values, self.target.riders, self.robot, folder, self.controller)
+
+    def shipped(self) -> dict[str, float]:
+        """The unknowns' values in the files as shipped (a rider's from the table's first rider)."""
+        trees = {
+            "rider": msgspec.to_builtins(load_toml(find(self.target.riders[0], "riders"), RiderParams)),
+            "robot": msgspec.to_builtins(load_toml(find(self.robot, "robot"), RobotParams)),
+            "controller": msgspec.toml.decode(find(self.controller, "controller").read_bytes()),
+        }
+        out = {}
+        for name in UNKNOWNS:
+            head, *path = name.split(".")
+            value = trees[head]
+            for part in path:
+                value = value[part]
+            out[name] = float(value)
+        return out
 
 
 @dataclass
@@ -133,12 +193,17 @@ class Calibration:
     before: Comparison
     after: Comparison
     evaluations: int
-    cost_before: float
-    cost_after: float
     message: str
-    riders: list[str]
-    robot: str
-    controller: str
+    write_files: Callable[[dict[str, float], Path], World]
+    """Writes a world's files with given values (the fitted ones: `write`)."""
+
+    @property
+    def cost_before(self) -> float:
+        return cost(self.before)
+
+    @property
+    def cost_after(self) -> float:
+        return cost(self.after)
 
     def table(self) -> str:
         lines = ["| parameter | start | fitted | bounds |", "|---|---:|---:|---|"]
@@ -174,6 +239,11 @@ def residuals(comparison: Comparison) -> np.ndarray:
     return np.array([math.copysign(c.distance, c.mean - c.paper_mean) for c in cells])
 
 
+def cost(comparison: Comparison) -> float:
+    """The sum of the squared distances: what the fit minimises."""
+    return float(np.sum(residuals(comparison) ** 2))
+
+
 def calibrate(
     target: PaperTable,
     unknowns: list[Unknown],
@@ -188,21 +258,12 @@ def calibrate(
     `budget` evaluations, starting from `start` or the shipped files' values."""
     from scipy.optimize import least_squares
 
-    from hil.run.pipeline import load_scenario
-
-    scenarios = scenarios or [load_scenario(t) for t in target.tasks]
-    robot = scenarios[0].robot
-    bench = _nominal_controller(bench or load_bench(), robot)
     names = [u.name for u in unknowns]
-    controller = bench.controller.config
-    defaults = _defaults(target.riders[0], robot, controller)
     lower, upper = np.array([u.lower for u in unknowns]), np.array([u.upper for u in unknowns])
-    x0 = np.clip([(start or {}).get(n, defaults[n]) for n in names], lower, upper)
     seen: dict[tuple[float, ...], Comparison] = {}
-
-    parallel = workers > 1 and distributable(bench)
-    with tempfile.TemporaryDirectory(prefix="pure-hil-calibrate-") as tmp, ExitStack() as stack:
-        pool = stack.enter_context(run_pool(workers)) if parallel else None  # one pool for every evaluation
+    with Evaluations(target, bench, scenarios, workers) as evaluations:
+        shipped = evaluations.shipped()
+        x0 = np.clip([(start or {}).get(n, shipped[n]) for n in names], lower, upper)
 
         def evaluate(x: np.ndarray) -> Comparison:
             key = tuple(float(v) for v in x)
@@ -210,16 +271,12 @@ def calibrate(
                 if len(seen) >= budget:
                     raise _BudgetSpent
                 values = dict(zip(names, key, strict=True))
-                folder = Path(tmp) / f"eval-{len(seen)}"
-                world = write_world(values, target.riders, robot, folder, controller)
-                runs = [msgspec.structs.replace(s, robot=world.robot) for s in scenarios]
-                seen[key] = compare(
-                    runs, world.riders, progress=None, bench=world.on(bench), paper=target, pool=pool
-                )
+                seen[key] = evaluations(values)
                 if progress:
                     shown = ", ".join(f"{n}={v:.4g}" for n, v in values.items())
-                    cost = float(np.sum(residuals(seen[key]) ** 2))
-                    progress(f"  evaluation {len(seen)}: {shown}: sum of squared distances {cost:.2f}")
+                    progress(
+                        f"  evaluation {len(seen)}: {shown}: sum of squared distances {cost(seen[key]):.2f}"
+                    )
             return seen[key]
 
         before = evaluate(x0)
@@ -232,7 +289,7 @@ def calibrate(
             )
             best, message = fit.x, fit.message
         except _BudgetSpent:  # every run counts, the Jacobian's too: the best point seen
-            best = np.array(min(seen, key=lambda k: float(np.sum(residuals(seen[k]) ** 2))))
+            best = np.array(min(seen, key=lambda k: cost(seen[k])))
             message = f"the budget of {budget} evaluations is spent"
         after = evaluate(best)
     return Calibration(
@@ -242,46 +299,16 @@ def calibrate(
         before,
         after,
         len(seen),
-        float(np.sum(residuals(before) ** 2)),
-        float(np.sum(residuals(after) ** 2)),
         message,
-        target.riders,
-        robot,
-        controller,
+        evaluations.write,
     )
-
-
-def _nominal_controller(bench: Bench, robot: str) -> Bench:
-    """The bench with its controller pinned to the nominal robot file: what is fitted or moved is the world
-    the controller does not know."""
-    nominal = str(find(bench.controller.robot or robot, "robot"))
-    return msgspec.structs.replace(bench, controller=msgspec.structs.replace(bench.controller, robot=nominal))
-
-
-def _defaults(rider: str, robot: str, controller: str) -> dict[str, float]:
-    """The unknowns' values in the files as shipped (a rider's from the table's first rider)."""
-    records = {
-        "rider": msgspec.to_builtins(load_toml(find(rider, "riders"), RiderParams)),
-        "robot": msgspec.to_builtins(load_toml(find(robot, "robot"), RobotParams)),
-        "controller": msgspec.toml.decode(find(controller, "controller").read_bytes()),
-    }
-    out = {}
-    for name in UNKNOWNS:
-        head, *path = name.split(".")
-        value = records[head]
-        for part in path:
-            value = value[part]
-        out[name] = float(value)
-    return out
 
 
 def write(calibration: Calibration, out: Path) -> World:
     """The fitted parameter files (riders, robot, controller tuning) under out/fitted, and calibrate.md /
     .json."""
     out.mkdir(parents=True, exist_ok=True)
-    fitted = write_world(
-        calibration.fitted, calibration.riders, calibration.robot, out / "fitted", calibration.controller
-    )
+    fitted = calibration.write_files(calibration.fitted, out / "fitted")
     (out / "calibrate.md").write_text(calibration.table() + "\n")
     summary = {
         "fitted": calibration.fitted,
@@ -334,25 +361,14 @@ def sensitivity(
     scenarios: list[Scenario] | None = None,
 ) -> Sensitivity:
     """How each cell moves with each named parameter, one at a time, by ±`step` of its shipped value."""
-    from hil.run.pipeline import load_scenario
-
-    scenarios = scenarios or [load_scenario(t) for t in target.tasks]
-    robot = scenarios[0].robot
-    bench = _nominal_controller(bench or load_bench(), robot)
-    controller = bench.controller.config
-    defaults = _defaults(target.riders[0], robot, controller)
-    parallel = workers > 1 and distributable(bench)
-    with tempfile.TemporaryDirectory(prefix="pure-hil-sensitivity-") as tmp, ExitStack() as stack:
-        pool = stack.enter_context(run_pool(workers)) if parallel else None
-
-        def at(values: dict[str, float], folder: str) -> Comparison:
-            world = write_world(values, target.riders, robot, Path(tmp) / folder, controller)
-            runs = [msgspec.structs.replace(s, robot=world.robot) for s in scenarios]
-            return compare(runs, world.riders, progress=None, bench=world.on(bench), paper=target, pool=pool)
-
-        base = at({}, "base")
+    with Evaluations(target, bench, scenarios, workers) as evaluations:
+        shipped = evaluations.shipped()
+        base = evaluations({})
         moved = {
-            name: tuple(at({name: defaults[name] * (1 + s * step)}, f"{name}{s}") for s in (-1, 1))
+            name: (
+                evaluations({name: shipped[name] * (1 - step)}),
+                evaluations({name: shipped[name] * (1 + step)}),
+            )
             for name in names
         }
-    return Sensitivity(step, base, moved)  # type: ignore[arg-type]
+    return Sensitivity(step, base, moved)
