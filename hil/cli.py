@@ -273,14 +273,8 @@ def _calibrate(args: argparse.Namespace) -> int:
         f"pure-hil calibrate: {', '.join(u.name for u in unknowns)} to {args.target} ({len(target.tasks)} "
         f"task(s) x {len(target.riders)} rider(s) x HACS/iHACS per evaluation, at most {args.budget})"
     )
-    calibration = calibrate(
-        target,
-        unknowns,
-        bench,
-        budget=args.budget,
-        workers=args.workers,
-        progress=lambda s: print(s, flush=True),
-    )
+    say = functools.partial(print, flush=True)
+    calibration = calibrate(target, unknowns, bench, budget=args.budget, workers=args.workers, progress=say)
     out = Path(args.out) if args.out else Path("runs") / f"calibrate-{time.strftime('%Y%m%d-%H%M%S')}"
     fitted = write(calibration, out)
     print(calibration.table())

@@ -21,8 +21,7 @@ from drivers.resources import find
 from hil.bench.bench import Bench, load_bench
 from hil.run.build import supervisor_config
 from hil.run.scenario import Intent, Scenario
-from hil.suites.campaign import distributable
-from hil.suites.compare import run_pool
+from hil.suites.campaign import distributable, run_pool
 from plant.params import RiderParams
 from plant.rider import Hold, Ramp
 
@@ -101,10 +100,13 @@ def evaluate(scenario: Scenario, bench: Bench) -> dict[str, float]:
 class Search:
     requirement: Requirement
     worst: Scenario
-    worst_robustness: float
     shipped_robustness: float
     history: list[float]
     """Robustness of each evaluation, in order."""
+
+    @property
+    def worst_robustness(self) -> float:
+        return min(self.history)
 
     @property
     def evaluations(self) -> int:
@@ -156,8 +158,7 @@ def search(
     finally:
         if pool is not None:
             pool.shutdown()
-    best = study.best_trial
-    return Search(req, candidates[best.number], float(best.value), shipped, history)
+    return Search(req, candidates[study.best_trial.number], shipped, history)
 
 
 def _run_all(pool, scenarios: list[Scenario], bench: Bench) -> list[dict[str, float]]:

@@ -23,8 +23,8 @@ from drivers.config import dump_toml, load_toml
 from drivers.resources import find
 from hil.bench.bench import Bench, load_bench
 from hil.run.scenario import Scenario
-from hil.suites.campaign import distributable
-from hil.suites.compare import Comparison, compare, run_pool
+from hil.suites.campaign import distributable, run_pool
+from hil.suites.compare import Comparison, compare
 from hil.suites.paper import PaperTable
 from plant.params import RiderParams, RobotParams
 

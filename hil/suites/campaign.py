@@ -364,9 +364,7 @@ def run_campaign(
         for case in cases:
             done(case, run_case(case, folder(case), bench))
     else:
-        with ProcessPoolExecutor(
-            max_workers=workers, mp_context=get_context("spawn"), initializer=quiet_worker
-        ) as pool:
+        with run_pool(workers) as pool:
             futures = {pool.submit(run_case, c, folder(c), bench): c for c in cases if c.role != "faulty"}
             for future in as_completed(futures):
                 done(futures[future], future.result())
@@ -383,7 +381,12 @@ def distributable(bench: Bench) -> bool:
     return bench.self_contained and bench.can.in_process and not bench.can.channel
 
 
-def quiet_worker() -> None:
+def run_pool(workers: int) -> ProcessPoolExecutor:
+    """Processes for runs side by side: spawned fresh (no zenoh or bus state inherited), quiet."""
+    return ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_quiet_worker)
+
+
+def _quiet_worker() -> None:
     # Workers' warnings (every supervisor transition, every fault start) would interleave unreadably with
     # the progress lines; each case's summary.json keeps them.
     logging.basicConfig(level=logging.ERROR)

@@ -6,8 +6,8 @@ and a figure of the same."""
 from __future__ import annotations
 
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import ExitStack
 from dataclasses import dataclass
-from multiprocessing import get_context
 from pathlib import Path
 
 import msgspec
@@ -16,7 +16,7 @@ from drivers.resources import find
 from hil.bench.bench import Bench, load_bench
 from hil.run.pipeline import run
 from hil.run.scenario import Scenario
-from hil.suites.campaign import distributable, quiet_worker
+from hil.suites.campaign import distributable, run_pool
 from hil.suites.paper import LAWS, WITHIN, PaperTable, against, load_paper, mean_sd
 
 COLUMNS = (
@@ -136,22 +136,17 @@ def compare(
                 + (f", FELL: {row['fallen']}" if row["fallen"] else "")
             )
 
-    if pool is None and workers > 1 and distributable(bench):
-        with run_pool(workers) as own:
-            return compare(scenarios, riders, trials, progress, bench, workers, paper, own)
-    if pool is not None:
-        futures = {pool.submit(_row, name, s, bench): i for i, (name, s) in enumerate(jobs)}
-        for future in as_completed(futures):
-            done(futures[future], future.result())
-    else:
-        for i, (name, s) in enumerate(jobs):
-            done(i, _row(name, s, bench))
+    with ExitStack() as stack:
+        if pool is None and workers > 1 and distributable(bench):
+            pool = stack.enter_context(run_pool(workers))
+        if pool is None:
+            for i, (name, s) in enumerate(jobs):
+                done(i, _row(name, s, bench))
+        else:
+            futures = {pool.submit(_row, name, s, bench): i for i, (name, s) in enumerate(jobs)}
+            for future in as_completed(futures):
+                done(futures[future], future.result())
     return Comparison([r for r in rows if r is not None], paper)
-
-
-def run_pool(workers: int) -> ProcessPoolExecutor:
-    """Processes for runs side by side: spawned fresh (no zenoh or bus state inherited), quiet."""
-    return ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=quiet_worker)
 
 
 def _row(name: str, scenario: Scenario, bench: Bench) -> dict:
