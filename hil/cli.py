@@ -296,8 +296,8 @@ def _adversary(args: argparse.Namespace) -> int:
         print(f"pure-hil adversary: {exc}", file=sys.stderr)
         return 2
     print(
-        f"pure-hil adversary: {scenario.name} ({scenario.law}), objective {args.objective}, CMA-ES seed "
-        f"{args.seed}, {args.budget} lockstep runs, {args.workers} at a time"
+        f"pure-hil adversary: {scenario.name} ({scenario.law}), objective {args.objective}, sampler "
+        f"{args.sampler} seed {args.seed}, {args.budget} lockstep runs, {args.workers} at a time"
     )
     found = search(
         scenario,
@@ -307,6 +307,7 @@ def _adversary(args: argparse.Namespace) -> int:
         args.seed,
         bench,
         functools.partial(print, flush=True),
+        args.sampler,
     )
     out = Path(args.out) if args.out else Path("runs") / f"adversary-{time.strftime('%Y%m%d-%H%M%S')}"
     path = write_worst(found, out, bench)
@@ -648,12 +649,18 @@ def build_parser() -> argparse.ArgumentParser:
     add_bench_options(cal)
     cal.set_defaults(func=_calibrate)
 
-    adv = sub.add_parser("adversary", help="search the worst rider (CMA-ES) for an STL requirement")
+    adv = sub.add_parser("adversary", help="search the worst rider for an STL requirement")
     adv.add_argument("scenario", help="shipped scenario name or file")
     adv.add_argument("--objective", choices=("overspeed", "tilt", "rmse"), default="overspeed")
     adv.add_argument("--budget", type=int, default=50, help="lockstep runs")
     adv.add_argument("--workers", type=int, default=1, help="runs at a time, each in its own process")
     adv.add_argument("--seed", type=int, default=0, help="the search's seed: the same seed, the same search")
+    adv.add_argument(
+        "--sampler",
+        choices=("random", "qmc", "cmaes"),
+        default="random",
+        help="optuna's uniform random, Sobol or CMA-ES sampling (docs/riders.md: which finds it sooner)",
+    )
     adv.add_argument("--out", default=None)
     add_bench_options(adv)
     adv.set_defaults(func=_adversary)

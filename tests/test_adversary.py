@@ -1,4 +1,4 @@
-"""`pure-hil adversary`: CMA-ES finds a rider worse than the shipped one, reproducibly for a seed, and the
+"""`pure-hil adversary`: the search finds a rider worse than the shipped one, reproducibly for a seed, and the
 controller that resists riders better (iHACS) has the lower worst case."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ pytest.importorskip("optuna")
 from drivers.config import load_toml
 from hil.run.pipeline import load_scenario, run
 from hil.run.scenario import Scenario
-from hil.suites.adversary import SPACE, profile, search, write_worst
+from hil.suites.adversary import SPACE, profile, requirement, search, write_worst
 from plant.params import RiderParams
 from plant.rider import Ramp
 from tests.helpers import ROOT
@@ -41,6 +41,31 @@ def test_the_adversary_beats_the_shipped_rider_under_hacs_reproducibly_and_ihacs
     speed = max(result.metrics["pitch.max_speed"], result.metrics["roll.max_speed"])
     assert 0.5 - speed == pytest.approx(hacs.worst_robustness, abs=1e-9)  # the file reproduces it
     assert (tmp_path / "run" / "summary.json").exists()
+
+
+def test_the_robustness_is_the_stl_monitors_on_the_runs_trace():
+    """bound - max|v| over both planes is what rtamt, the field's STL monitor, gives for the formula."""
+    rtamt = pytest.importorskip("rtamt")
+    bench = private_bench().with_overrides(law="scenario")
+    scenario = _limiting("hacs")
+    req = requirement("overspeed", scenario, bench)
+    result = run(scenario, bench)
+    spec = rtamt.StlDiscreteTimeSpecification()
+    spec.declare_var("vx", "float")
+    spec.declare_var("vy", "float")
+    spec.spec = f"always((abs(vx) <= {req.bound}) and (abs(vy) <= {req.bound}))"
+    spec.set_sampling_period(1000.0 / scenario.tick_hz, "ms", 0.1)
+    spec.parse()
+    trace = result.trace
+    monitored = spec.evaluate(
+        {
+            "time": [round(float(t) * 1000.0, 3) for t in trace.t],
+            "vx": trace.velocity[:, 0].tolist(),
+            "vy": trace.velocity[:, 1].tolist(),
+        }
+    )[0][1]
+    assert monitored < 0  # the shipped rider does exceed the cap under HACS: a violation to agree on
+    assert req.robustness(result.metrics) == pytest.approx(monitored, abs=1e-9)
 
 
 def test_every_profile_stays_within_the_riders_body():

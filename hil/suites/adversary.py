@@ -1,13 +1,15 @@
 """`pure-hil adversary SCENARIO --objective overspeed|tilt|rmse`: the worst rider a controller and its
 supervisor face. A requirement written as a Signal Temporal Logic formula, always (|v| <= cap) or always
-(|tilt| <= limit), has a robustness (for "always": the smallest margin over the run; negative: violated);
-CMA-ES (optuna's CmaEsSampler) searches lean profiles within the rider's physical limits (amplitude, rate,
-timing, both planes) for the lowest robustness, each evaluation a lockstep run. The worst profile is written
-as a scenario file that reproduces it, with its run folder (docs/riders.md).
+(|tilt| <= limit), has a robustness (for "always": the smallest margin over the run; negative: violated;
+tests/test_adversary.py checks it against rtamt's); an optuna sampler searches lean profiles within the
+rider's physical limits (amplitude, rate, timing, both planes) for the lowest robustness, each evaluation a
+lockstep run. The worst profile is written as a scenario file that reproduces it, with its run folder
+(docs/riders.md; which sampler, and why: benchmarks/falsification.py).
 """
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +28,9 @@ from plant.params import RiderParams
 from plant.rider import Hold, Ramp
 
 Objective = Literal["overspeed", "tilt", "rmse"]
+SAMPLERS = ("random", "qmc", "cmaes")
+"""optuna samplers a search may use: uniform random (the default: it found the worst riders in the fewest
+runs, benchmarks/falsification.py), scrambled Sobol (quasi-random), CMA-ES."""
 
 SPACE = {
     "start": (0.5, 2.0),  # s before the rider begins
@@ -124,16 +129,17 @@ def search(
     seed: int = 0,
     bench: Bench | None = None,
     progress: Callable[[str], None] | None = None,
+    sampler: str = "random",
 ) -> Search:
-    """CMA-ES over SPACE for the lowest robustness of the objective's requirement, `budget` runs."""
+    """`sampler` (one of SAMPLERS) over SPACE for the lowest robustness of the objective's requirement,
+    `budget` runs."""
     import optuna
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     bench = (bench or load_bench()).with_overrides(clock="lockstep", law="scenario")
     rider = load_toml(find(scenario.rider, "riders"), RiderParams)
     req = requirement(objective, scenario, bench)
-    sampler = optuna.samplers.CmaEsSampler(seed=seed, warn_independent_sampling=False)
-    study = optuna.create_study(sampler=sampler, direction="minimize")
+    study = optuna.create_study(sampler=_sampler(sampler, seed), direction="minimize")
     candidates: dict[int, Scenario] = {}
     history: list[float] = []
     pool = run_pool(workers) if workers > 1 and distributable(bench) else None
@@ -159,6 +165,22 @@ def search(
         if pool is not None:
             pool.shutdown()
     return Search(req, candidates[study.best_trial.number], shipped, history)
+
+
+def _sampler(name: str, seed: int):
+    import optuna
+
+    if name == "cmaes":
+        return optuna.samplers.CmaEsSampler(seed=seed, warn_independent_sampling=False)
+    if name == "random":
+        return optuna.samplers.RandomSampler(seed=seed)
+    if name == "qmc":
+        with warnings.catch_warnings():  # "experimental" in optuna since 3.0: its interface may change
+            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+            return optuna.samplers.QMCSampler(
+                qmc_type="sobol", scramble=True, seed=seed, warn_independent_sampling=False
+            )
+    raise ValueError(f"sampler {name!r}: one of {', '.join(SAMPLERS)}")
 
 
 def _run_all(pool, scenarios: list[Scenario], bench: Bench) -> list[dict[str, float]]:
