@@ -267,7 +267,11 @@ def _calibrate(args: argparse.Namespace) -> int:
         moved = f"{', '.join(names)} (±{args.step:.0%})"
         print(f"pure-hil calibrate: how each cell of {args.target} moves with {moved}")
         result = sensitivity(target, names, bench, args.step, args.workers)
-        print("\n\n".join(result.table(m.name) for m in target.metric))
+        out = Path(args.out) if args.out else Path("runs") / f"sensitivity-{time.strftime('%Y%m%d-%H%M%S')}"
+        metrics = [m.name for m in target.metric]
+        result.write(out, metrics)
+        print("\n\n".join(result.table(m) for m in metrics))
+        print(f"outputs: {out}/sensitivity.md, sensitivity.json")
         return 0
     print(
         f"pure-hil calibrate: {', '.join(u.name for u in unknowns)} to {args.target} ({len(target.tasks)} "

@@ -59,7 +59,7 @@ def test_unknowns_and_their_bounds_are_checked():
         with_values(rider, {"rider.mass": -1.0}, "rider")
 
 
-def test_the_sensitivity_table_moves_the_chassis_tilt_as_physics_says():
+def test_the_sensitivity_table_moves_the_chassis_tilt_as_physics_says(tmp_path):
     """iHACS holds a leaning rider by tilting the chassis back until gravity on the robot balances the
     rider's torque: tilt ~ torque / (m g l). A heavier chassis needs less tilt, a lighter one more."""
     from hil.suites.calibrate import sensitivity
@@ -79,6 +79,15 @@ def test_the_sensitivity_table_moves_the_chassis_tilt_as_physics_says():
     assert tilt(lighter) > tilt(result.base) > tilt(heavier)
     table = result.table("pitch.max_tilt_deg")
     assert "robot.body.mass -20%" in table and "robot.body.mass +20%" in table
+    result.write(tmp_path, ["pitch.max_tilt_deg"])
+    assert table in (tmp_path / "sensitivity.md").read_text()
+    written = json.loads((tmp_path / "sensitivity.json").read_text())
+    (cell,) = [
+        c
+        for c in written["moved"]["robot.body.mass"]["-"]
+        if c["metric"] == "pitch.max_tilt_deg" and c["law"] == "ihacs"
+    ]
+    assert cell["mean"] == tilt(lighter)
 
 
 def test_a_world_carries_the_controllers_tuning_as_its_own_file(tmp_path):

@@ -351,6 +351,20 @@ class Sensitivity:
                 lines.append(f"| {name} {sign}{self.step:.0%} | {row} |")
         return "\n".join(lines)
 
+    def write(self, out: Path, metrics: list[str]) -> None:
+        """sensitivity.md (a table per metric) and sensitivity.json (every cell at each setting)."""
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "sensitivity.md").write_text("\n\n".join(self.table(m) for m in metrics) + "\n")
+        summary = {
+            "step": self.step,
+            "shipped": self.base.to_json()["cells"],
+            "moved": {
+                name: {sign: c.to_json()["cells"] for sign, c in zip("-+", pair, strict=True)}
+                for name, pair in self.moved.items()
+            },
+        }
+        (out / "sensitivity.json").write_bytes(msgspec.json.format(msgspec.json.encode(summary), indent=2))
+
 
 def sensitivity(
     target: PaperTable,
