@@ -133,6 +133,7 @@ class Monitors:
         self.imu_height = robot.body.imu_height
         jacobian = motor_jacobian(robot)
         self.to_relative = np.linalg.inv(jacobian)
+        self._to_relative_rows = tuple(tuple(float(x) for x in row) for row in self.to_relative)
         self._leave_one_out = _leave_one_out(jacobian)
         self.last: dict[str, float] = dict.fromkeys(STREAMS, -math.inf)
         self.drives = [Drive(i, config, robot, period) for i in (1, 2, 3)]
@@ -291,15 +292,23 @@ class Monitors:
             t - seen <= w.imu for seen in self._imu_seen.values()
         )
 
-    def _relative(self) -> np.ndarray:
-        return self.to_relative @ np.asarray([d.velocity for d in self.drives])
+    def _relative(self) -> tuple[float, float, float]:
+        """Ball-to-body rates from the three encoders (G⁻¹ m), as floats: numpy's per-call overhead
+        dominates a 3 x 3 product at 400 Hz."""
+        m1, m2, m3 = (d.velocity for d in self.drives)
+        r = self._to_relative_rows
+        return (
+            r[0][0] * m1 + r[0][1] * m2 + r[0][2] * m3,
+            r[1][0] * m1 + r[1][1] * m2 + r[1][2] * m3,
+            r[2][0] * m1 + r[2][1] * m2 + r[2][2] * m3,
+        )
 
     def speed(self) -> float | None:
         if not (math.isfinite(self.last["drives"]) and math.isfinite(self.last["imu"])):
             return None
         rate = self.imu[MessageName.IMU_RATE]
         rel = self._relative()
-        nominal = self.radius * math.hypot(float(rel[1]) + rate[1], float(rel[0]) + rate[0])
+        nominal = self.radius * math.hypot(rel[1] + rate[1], rel[0] + rate[0])
         if not self.degraded:
             return nominal
         velocities = [d.velocity for d in self.drives]
@@ -334,8 +343,8 @@ class Monitors:
         found.append(self.attitude_checks[0].update(roll, rate[0], coupling, dt))
         found.append(self.attitude_checks[1].update(pitch, rate[1], coupling, dt))
         rel = self._relative()
-        forward = self.radius * (float(rel[1]) + rate[1])
-        left = -self.radius * (float(rel[0]) + rate[0])
+        forward = self.radius * (rel[1] + rate[1])
+        left = -self.radius * (rel[0] + rate[0])
         h = self.imu_height
         ax, ay, _ = world_acceleration(self.imu[MessageName.IMU_ACCEL], roll, pitch)
         found.append(self.trend[0].update(forward + h * math.cos(pitch) * rate[1], ax, dt))
