@@ -407,10 +407,6 @@ class ZenohLink:
         self._subscriptions.append(sub)
         return sub
 
-    def wait_for(self, ready: Callable[[], object], timeout: float) -> bool:
-        """Wait until `ready()` is true or the timeout passes; returns ready()."""
-        return poll_until(ready, timeout)
-
     def close(self) -> None:
         for sub in self._subscriptions:
             sub.close()
@@ -446,7 +442,7 @@ class Fence:
 
     def wait(self, k: int, timeout: float) -> bool:
         """Wait until tick k's inputs are all here (True) or the timeout passes (False)."""
-        if self.link.wait_for(lambda: self._ready(k), timeout):
+        if poll_until(lambda: self._ready(k), timeout):
             return True
         if self.tick >= k:
             for s in self.reads:
