@@ -1,9 +1,8 @@
 """Which searcher finds the worst rider in fewer runs: `pure-hil adversary`'s optuna samplers (uniform
 random, Sobol, CMA-ES) against the two optimisers of PSY-TaLiRo (the Python S-TaLiRo), uniform random and
 dual annealing, on the same objective (the requirement's STL robustness of a lockstep run,
-hil/suites/adversary.py) over the same space of lean profiles, with the same budget and seeds. Also checks
-the adversary's robustness (bound - max |signal|) against rtamt's, the STL monitor PSY-TaLiRo uses, on the
-shipped rider's run.
+hil/suites/adversary.py) over the same space of lean profiles, with the same budget and seeds. (That the
+robustness is what rtamt, the STL monitor PSY-TaLiRo uses, computes: tests/test_adversary.py.)
 
     python benchmarks/falsification.py [SCENARIO (speed_limiting)] [--law hacs] [--objective overspeed]
                                        [--budget 50] [--seeds 3] [--workers 2] [--methods a,b,...] [--json]
@@ -29,7 +28,7 @@ import msgspec
 from drivers.config import load_toml
 from drivers.resources import find
 from hil.bench.bench import load_bench
-from hil.run.pipeline import load_scenario, run
+from hil.run.pipeline import load_scenario
 from hil.suites.adversary import SPACE, evaluate, profile, requirement, search
 from hil.suites.campaign import run_pool
 from plant.params import RiderParams
@@ -81,34 +80,6 @@ def one_search(method: str, name: str, law: str, objective: str, budget: int, se
     options = staliro.TestOptions(runs=1, iterations=budget, static_inputs=dict(SPACE), seed=seed)
     staliro.staliro(robustness, optimizer, options)
     return history[:budget]
-
-
-def rtamt_check(name: str, law: str, objective: str) -> tuple[float, float]:
-    """(ours, rtamt's) robustness of the overspeed requirement on the shipped rider's run."""
-    from staliro.specifications.rtamt import parse_discrete
-
-    scenario, bench, req = _setup(name, law, objective)
-    result = run(scenario, bench)
-    trace = result.trace
-    formula = f"always((abs(vx) <= {req.bound}) and (abs(vy) <= {req.bound}))"
-    # rtamt's discrete time wants a period it can round to 10 ms: every fourth tick of a 400 Hz run.
-    step = 4
-    states = {"vx": trace.velocity[::step, 0].tolist(), "vy": trace.velocity[::step, 1].tolist()}
-    times = [round(float(t), 3) for t in trace.t[::step]]
-    theirs = parse_discrete(formula).evaluate(_Trace(times, states)).value
-    ours = req.bound - max(abs(trace.velocity[::step, 0]).max(), abs(trace.velocity[::step, 1]).max())
-    return float(ours), float(theirs)
-
-
-class _Trace:
-    """What staliro's rtamt wrapper reads from a trace: times and one dict of floats per time."""
-
-    def __init__(self, times: list[float], states: dict[str, list[float]]):
-        self.times = times
-        self.states = [{k: v[i] for k, v in states.items()} for i in range(len(times))]
-
-    def __getitem__(self, t: float) -> dict[str, float]:
-        return self.states[self.times.index(t)]
 
 
 def runs_to(history: list[float], level: float) -> int | None:
@@ -170,9 +141,6 @@ def main() -> None:
             "runs_past_shipped": [runs_to(h, shipped - 1e-9) for h in runs],
             "runs_to_1pct_of_best": [runs_to(h, near) for h in runs],
         }
-    if has_staliro() and args.objective == "overspeed":
-        ours, theirs = rtamt_check(args.scenario, args.law, args.objective)
-        figures["rtamt"] = {"ours": ours, "rtamt": theirs}
     if args.json:
         print(json.dumps(figures))
         return
@@ -188,9 +156,6 @@ def main() -> None:
             f"  {m:<28}{med:>+14.3f}{_fmt(f['runs_past_shipped']):>20}{_fmt(f['runs_to_1pct_of_best']):>22}"
         )
     print("  (per seed; '-' = not within the budget)")
-    if "rtamt" in figures:
-        r = figures["rtamt"]
-        print(f"  STL check on the shipped run: ours {r['ours']:+.4f}, rtamt {r['rtamt']:+.4f} {req.unit}")
     if not has_staliro():
         print("  PSY-TaLiRo not installed (pip install '.[staliro]'): optuna's samplers only")
 

@@ -132,13 +132,13 @@ class Monitors:
         self.radius = robot.ball.radius
         self.imu_height = robot.body.imu_height
         jacobian = motor_jacobian(robot)
-        self.to_relative = np.linalg.inv(jacobian)
-        self._to_relative_rows = tuple(tuple(float(x) for x in row) for row in self.to_relative)
+        to_relative = np.linalg.inv(jacobian)
+        self._to_relative_rows = tuple(tuple(float(x) for x in row) for row in to_relative)
         self._leave_one_out = _leave_one_out(jacobian)
         self.last: dict[str, float] = dict.fromkeys(STREAMS, -math.inf)
         self.drives = [Drive(i, config, robot, period) for i in (1, 2, 3)]
         sensors = config.sensors
-        self.yaw = YawCheck(sensors, self.to_relative, period)
+        self.yaw = YawCheck(sensors, to_relative, period)
         self.attitude_checks = (AttitudeCheck("roll", sensors), AttitudeCheck("pitch", sensors))
         self.trend = (TrendCheck("forward", sensors, period), TrendCheck("left", sensors, period))
         self.seat = SeatCheck(
