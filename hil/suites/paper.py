@@ -20,9 +20,9 @@ WITHIN = 2.0
 UNKNOWNS = {
     "pitch.max_torso_deg": "the rider's lean amplitude and rate (RiderParams.lean_amplitude_deg, "
     "lean_rate_deg) and, under HACS, how much lean the robot needs to reach a speed (HACS authority)",
-    "pitch.max_tilt_deg": "how much lean the riders need under HACS to reach 1.4 m/s (not the chassis's "
-    "mass, COM height or inertia, nor the LQR-PI gains: ±20 % of each moves a cell < 0.2 deg; "
-    "docs/riders.md)",
+    "pitch.max_tilt_deg": "the brake (the rider swinging back sets the maximum tilt under both laws) and how "
+    "much lean the riders need under HACS to reach 1.4 m/s (not the chassis's mass, COM height or inertia, "
+    "nor the LQR-PI gains: ±20 % of each moves a cell < 0.2 deg; docs/riders.md)",
     "pitch.max_speed": "the rider's reaction (Until.reaction_time, sitting up) and, under HACS in "
     "speed limiting, how much lean the riders need to reach 1.4 m/s",
     "pitch.rmse_paper": "the trial window t0..tf, which the paper does not give (equation 2 grows with the "
