@@ -86,13 +86,19 @@ class SharedBus(can.BusABC):
         if not self._open:
             raise can.CanOperationError("Cannot operate on a closed bus")
 
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        # Frames were filtered when sent: BusABC.recv's filter loop and its per-frame debug log call would
+        # be all of the cost (0.41 -> 0.09 us a frame).
+        return self._recv_internal(timeout)[0]
+
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         self._check_if_open()
         try:
             if timeout is not None and timeout <= 0:
-                return self._queue.get_nowait(), True
+                # Every drain of the tick ends on an empty queue: not an exception raised and caught.
+                return (None if self._queue.empty() else self._queue.get_nowait()), True
             return self._queue.get(timeout=timeout), True
-        except queue.Empty:
+        except queue.Empty:  # timed out, or another reader of this bus took the frame
             return None, True
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
