@@ -169,6 +169,8 @@ class CanNode:
         self.stats = BusStats()
         self._protector = E2EProtector()
         self._checker = E2EChecker()
+        self._codecs = {c.frame_id: (c, is_protected(c)) for c in self.catalog}
+        """frame id -> (codec, E2E-protected): one lookup per received frame."""
         self._warned: set[tuple[str, int]] = set()
         self.tx_hook: Callable[[str, can.Message], Iterable[can.Message]] | None = None
         """Sees every frame `send` makes and returns the frames to put on the bus instead (fault injection:
@@ -213,14 +215,15 @@ class CanNode:
             return self._reject("remote", msg)
         if msg.is_extended_id:
             return self._reject("extended_id", msg)
-        codec = self.catalog.by_id(msg.arbitration_id)
-        if codec is None:
+        known = self._codecs.get(msg.arbitration_id)
+        if known is None:
             return self._reject("unknown_id", msg)
+        codec, protected = known
         try:
             signals = codec.decode(msg.data)
         except CanCodecError:
             return self._reject("wrong_length", msg)
-        event = self._check(codec, msg.data) if is_protected(codec) else None
+        event = self._check(codec, msg.data) if protected else None
         self.stats.received[codec.name] += 1
         return Received(codec.name, signals, msg.timestamp, event)
 

@@ -64,11 +64,6 @@ class _Signal:
     raw_max: int
     integer: bool  # scale 1, offset 0: decode to int
 
-    def to_raw(self, value: float) -> int:
-        raw = round((value - self.offset) / self.scale) if not self.integer else int(value)
-        # Out-of-range values saturate, as a real transmitter's fixed-point conversion would.
-        return min(max(raw, self.raw_min), self.raw_max)
-
 
 class MessageCodec:
     """Encode/decode one message; signals little-endian (Intel), as every message of the catalog."""
@@ -106,11 +101,15 @@ class MessageCodec:
 
     def encode_int(self, values: Mapping[str, float]) -> int:
         """The payload as a little-endian integer (the E2E layer adds counter and CRC before to_bytes)."""
-        raw = 0
+        raw, by_name = 0, self._by_name
         for name, v in values.items():
-            s = self._by_name.get(name)
+            s = by_name.get(name)
             if s is not None:
-                raw |= (s.to_raw(v) & s.mask) << s.shift
+                # Inline, not a method with min/max: half an encode's cost, a dozen encodes a tick.
+                r = int(v) if s.integer else round((v - s.offset) / s.scale)
+                # Out-of-range values saturate, as a real transmitter's fixed-point conversion would.
+                r = s.raw_min if r < s.raw_min else s.raw_max if r > s.raw_max else r
+                raw |= (r & s.mask) << s.shift
         return raw
 
     def decode(self, data: bytes | bytearray) -> dict[str, float | int]:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import NamedTuple
 
 from drivers.can_codec import MessageCodec
 
@@ -63,20 +64,24 @@ _layouts: dict[int, _Layout | None] = {}
 
 
 def _layout(codec: MessageCodec) -> _Layout | None:
-    if codec.frame_id not in _layouts:
-        counter, crc = codec.field_position(COUNTER), codec.field_position(CRC)
-        if counter is None or crc is None:
-            _layouts[codec.frame_id] = None
-        else:
-            if counter[1] != COUNTER_MODULO - 1 or crc[1] != 0xFF:
-                raise ValueError(f"{codec.name}: E2E needs a 4-bit {COUNTER} and an 8-bit {CRC} signal")
-            seed = _crc_continue(0xFF, codec.frame_id.to_bytes(2, "little"))
-            _layouts[codec.frame_id] = _Layout(counter[0], crc[0], ~(0xFF << crc[0]), seed, codec.length)
-    return _layouts[codec.frame_id]
+    try:
+        return _layouts[codec.frame_id]
+    except KeyError:
+        pass
+    counter, crc = codec.field_position(COUNTER), codec.field_position(CRC)
+    if counter is None or crc is None:
+        layout = None
+    else:
+        if counter[1] != COUNTER_MODULO - 1 or crc[1] != 0xFF:
+            raise ValueError(f"{codec.name}: E2E needs a 4-bit {COUNTER} and an 8-bit {CRC} signal")
+        seed = _crc_continue(0xFF, codec.frame_id.to_bytes(2, "little"))
+        layout = _Layout(counter[0], crc[0], ~(0xFF << crc[0]), seed, codec.length)
+    _layouts[codec.frame_id] = layout
+    return layout
 
 
 def is_protected(codec: MessageCodec) -> bool:
-    return _layout(codec) is not None
+    return (_layout(codec)) is not None
 
 
 class E2EStatus(IntEnum):
@@ -87,8 +92,9 @@ class E2EStatus(IntEnum):
     CRC_ERROR = 4
 
 
-@dataclass(frozen=True, slots=True)
-class E2EEvent:
+class E2EEvent(NamedTuple):
+    """One protected frame's classification (a tuple: one is made for every frame a node reads)."""
+
     message: str
     status: E2EStatus
     counter: int
