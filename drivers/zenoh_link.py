@@ -442,7 +442,7 @@ class Fence:
 
     def wait(self, k: int, timeout: float) -> bool:
         """Wait until tick k's inputs are all here (True) or the timeout passes (False)."""
-        if poll_until(lambda: self._ready(k), timeout):
+        if self._ready(k) or poll_until(lambda: self._ready(k), timeout):
             return True
         if self.tick >= k:
             for s in self.reads:

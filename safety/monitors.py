@@ -152,7 +152,8 @@ class Monitors:
         self._attitude_at_rate = (0.0, 0.0)
         self._imu_motion = 0.0
         """rad the chassis turned (|rates| × dt) since the last seat sample: evidence for the seat's."""
-        self._replay = {name: Replay(COUNTER_MODULO) for name in REPLAY_CHECKED}
+        self._replay = {name: (Replay(COUNTER_MODULO), f"{name} replay") for name in REPLAY_CHECKED}
+        self._stuck_key = {name: f"{name} stuck" for name in IMU_CHANNELS}
         self._found: dict[str, Finding | None] = {}
         """What the frame-driven checks found at their last frame, by check (None: nothing)."""
         self._checks_at: float | None = None
@@ -172,6 +173,15 @@ class Monitors:
         self.rejected_identity: Counter[str] = Counter()
         """SC requests and resets ignored because their source is not a configured operator."""
         self.sc = ScArbiter(config.sc)
+        self._readers = {
+            **dict.fromkeys(DRIVE_FEEDBACK, self._feedback),
+            **dict.fromkeys(DRIVE_COMMAND, self._commanded),
+            **dict.fromkeys(DRIVE_TORQUE, self._measured),
+            **dict.fromkeys(IMU_CHANNELS, self._imu_frame),
+            MessageName.CONTROLLER_HEARTBEAT: self._heartbeat,
+            MessageName.OPERATOR_ESTOP: self._button,
+        }
+        """What a trusted frame updates, by message: (name, signals, t, frames lost before it) -> None."""
 
     # ------------------------------------------------------------------------------------------ inputs
     def frame(self, rx: Received, t: float) -> None:
@@ -181,10 +191,10 @@ class Monitors:
         if not rx.ok:
             return
         s, name = rx.signals, rx.name
-        lost = 0 if e2e is None else e2e.lost
         if name in self._replay:
-            replayed = self._replay[name].frame(tuple(v for k, v in s.items() if k not in (COUNTER, CRC)))
-            self._found[f"{name} replay"] = (
+            replay, key = self._replay[name]
+            replayed = replay.frame(tuple(v for k, v in s.items() if k not in (COUNTER, CRC)))
+            self._found[key] = (
                 Finding(
                     Cause.SENSOR_STUCK,
                     f"{name} repeats its frames of {COUNTER_MODULO} frames ago: "
@@ -193,23 +203,31 @@ class Monitors:
                 if replayed
                 else None
             )
-        if name in DRIVE_FEEDBACK:
-            self.drives[MOTOR[name]].feedback(s, t, lost)
-            self.last["drives"] = min(d.seen for d in self.drives)
-        elif name in DRIVE_COMMAND:
-            self.torque_peak = max(self.torque_peak, abs(float(s["Torque"])))
-            self.drives[MOTOR[name]].commanded(s, t)
-        elif name in DRIVE_TORQUE:
-            self.drives[MOTOR[name]].measured(float(s["Torque"]))
-        elif name in IMU_CHANNELS and s["Valid"]:
-            self._imu_frame(name, s, t)
-        elif name == MessageName.CONTROLLER_HEARTBEAT:
-            self.controller_state = int(s["State"])
-            self.last["heartbeat"] = t
-        elif name == MessageName.OPERATOR_ESTOP:
-            self.button = bool(s["Request"])
+        read = self._readers.get(name)
+        if read is not None:
+            read(name, s, t, 0 if e2e is None else e2e.lost)
 
-    def _imu_frame(self, name: str, s, t: float) -> None:
+    def _feedback(self, name: str, s, t: float, lost: int) -> None:
+        self.drives[MOTOR[name]].feedback(s, t, lost)
+        self.last["drives"] = min(d.seen for d in self.drives)
+
+    def _commanded(self, name: str, s, t: float, lost: int) -> None:
+        self.torque_peak = max(self.torque_peak, abs(float(s["Torque"])))
+        self.drives[MOTOR[name]].commanded(s, t)
+
+    def _measured(self, name: str, s, t: float, lost: int) -> None:
+        self.drives[MOTOR[name]].measured(float(s["Torque"]))
+
+    def _heartbeat(self, name: str, s, t: float, lost: int) -> None:
+        self.controller_state = int(s["State"])
+        self.last["heartbeat"] = t
+
+    def _button(self, name: str, s, t: float, lost: int) -> None:
+        self.button = bool(s["Request"])
+
+    def _imu_frame(self, name: str, s, t: float, lost: int) -> None:
+        if not s["Valid"]:
+            return
         values, signals = self.imu[name], IMU_CHANNELS[name]
         for i, signal in enumerate(signals):
             values[i] = float(s[signal])
@@ -236,7 +254,7 @@ class Monitors:
             for i, (checker, moved) in enumerate(zip(self._imu_stuck[name], evidence, strict=True))
             if checker.sample(s[signals[i]], moved)
         ]
-        self._found[f"{name} stuck"] = (
+        self._found[self._stuck_key[name]] = (
             Finding(
                 Cause.SENSOR_STUCK,
                 f"{name}.{signals[stuck[0]]} frozen at {values[stuck[0]]:.4f} while other evidence moved",
