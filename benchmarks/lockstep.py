@@ -27,8 +27,8 @@ import hil.run.build as build_module
 import hil.run.rig as rig_module
 from drivers.can_bus import BusRecorder, CanNode, open_bus, private_channel
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, MessageName
-from drivers.e2e import COUNTER, CRC
 from drivers.dut import DutSpec
+from drivers.e2e import COUNTER, CRC
 from hil.bench.bench import load_bench
 from hil.run.build import RunOptions
 from hil.run.pipeline import load_scenario, run
