@@ -123,8 +123,8 @@ def frame_work(ticks: int, out: Path) -> float:
     """Seconds of the frame work the loop must keep, with nothing else: per tick the rig's 7 sensor frames
     and SYNC, the controller's 3 commands and heartbeat, the supervisor's SUPERVISOR_ESTOP every 4th tick,
     each encoded and sealed by its sender's CanNode, decoded and E2E-checked by every node that reads it
-    (the controller the rig's and the supervisor's, the supervisor all, the rig the others'), and written by
-    the CAN log recorder, on the in-process bus of the embedded bench."""
+    (the controller reads the rig's and the supervisor's frames, the supervisor every frame, the rig the
+    other two nodes'), and written by the CAN log recorder, on the in-process bus of the embedded bench."""
     config = load_bench().can
     config = msgspec.structs.replace(config, channel=private_channel("frames"))
     rig, controller, supervisor = (CanNode(open_bus(config), name=n) for n in ("rig", "ctl", "sup"))

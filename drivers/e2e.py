@@ -81,7 +81,7 @@ def _layout(codec: MessageCodec) -> _Layout | None:
 
 
 def is_protected(codec: MessageCodec) -> bool:
-    return (_layout(codec)) is not None
+    return _layout(codec) is not None
 
 
 class E2EStatus(IntEnum):
