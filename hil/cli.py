@@ -20,11 +20,15 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import msgspec
 
 from drivers.config import load_toml
 from drivers.resources import find
+
+if TYPE_CHECKING:
+    from hil.bench.bench import Bench
 
 WHERE = ("embedded", "spawned", "external")
 
@@ -103,6 +107,15 @@ def _progress(status) -> None:
     )
 
 
+def _out_folder(args: argparse.Namespace, bench: Bench, name: str) -> Path:
+    """`--out`, or a fresh NAME-TIMESTAMP folder under the bench's output folder (every command alike)."""
+    return (
+        Path(args.out)
+        if args.out
+        else Path(bench.outputs.folder) / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    )
+
+
 def _run(args: argparse.Namespace) -> int:
     from hil.bench.parts import check
     from hil.outputs.folder import format_table
@@ -112,7 +125,7 @@ def _run(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     bench = bench_from(args)
     check(bench)
-    out = Path(args.out or Path(bench.outputs.folder) / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}")
+    out = _out_folder(args, bench, scenario.name)
     show_progress = sys.stderr.isatty() and not args.quiet
     print(f"pure-hil run: {scenario.name} on bench {bench.name} -> {out}")
     stop = _stop_on_signals()  # Ctrl-C ends the run at the next tick; what ran is judged and written
@@ -154,7 +167,7 @@ def _campaign(args: argparse.Namespace) -> int:
         return 2
     bench = bench_from(args)
     check(bench)
-    out = Path(args.out or f"runs/campaign-{campaign.name}-{time.strftime('%Y%m%d-%H%M%S')}")
+    out = _out_folder(args, bench, f"campaign-{campaign.name}")
     out.mkdir(parents=True, exist_ok=True)
     where = f"the cluster at {args.scheduler}" if args.scheduler else f"{args.workers} worker(s)"
     print(f"campaign {campaign.name}: {len(cases)} cases on {where}, bench {bench.name} -> {out}")
@@ -238,7 +251,7 @@ def _compare(args: argparse.Namespace) -> int:
     finally:
         if bar is not None:
             bar.close()
-    out = Path(args.out) if args.out else Path("runs") / f"compare-{time.strftime('%Y%m%d-%H%M%S')}"
+    out = _out_folder(args, bench, "compare")
     write(result, out)
     if args.json:
         print(json.dumps(result.to_json()))
@@ -267,7 +280,7 @@ def _calibrate(args: argparse.Namespace) -> int:
         moved = f"{', '.join(names)} (±{args.step:.0%})"
         print(f"pure-hil calibrate: how each cell of {args.target} moves with {moved}")
         result = sensitivity(target, names, bench, args.step, args.workers)
-        out = Path(args.out) if args.out else Path("runs") / f"sensitivity-{time.strftime('%Y%m%d-%H%M%S')}"
+        out = _out_folder(args, bench, "sensitivity")
         metrics = [m.name for m in target.metric]
         result.write(out, metrics)
         print("\n\n".join(result.table(m) for m in metrics))
@@ -279,7 +292,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     )
     say = functools.partial(print, flush=True)
     calibration = calibrate(target, unknowns, bench, budget=args.budget, workers=args.workers, progress=say)
-    out = Path(args.out) if args.out else Path("runs") / f"calibrate-{time.strftime('%Y%m%d-%H%M%S')}"
+    out = _out_folder(args, bench, "calibrate")
     fitted = write(calibration, out)
     print(calibration.table())
     print(f"outputs: {out}/calibrate.md, calibrate.json; fitted files: {Path(fitted.robot).parent}")
@@ -313,7 +326,7 @@ def _adversary(args: argparse.Namespace) -> int:
         functools.partial(print, flush=True),
         args.sampler,
     )
-    out = Path(args.out) if args.out else Path("runs") / f"adversary-{time.strftime('%Y%m%d-%H%M%S')}"
+    out = _out_folder(args, bench, "adversary")
     path = write_worst(found, out, bench)
     print(summary(found))
     print(f"worst profile: {path} (pure-hil run {path}); its run folder: {out / 'run'}")

@@ -73,7 +73,8 @@ class RealtimePart(_Part):
 
 class OutputsPart(_Part):
     folder: str = "runs"
-    """Where `pure-hil run` puts run folders when no --out is given."""
+    """Where a command (run, campaign, compare, calibrate, adversary) puts its output folder when no --out
+    is given."""
     can_log: bool = True
     recording: bool = True
     plots: bool = True
