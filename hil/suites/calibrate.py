@@ -9,7 +9,9 @@ world it does not know, as on a real bench. docs/riders.md.
 
 from __future__ import annotations
 
+import functools
 import math
+import operator
 import tempfile
 from collections.abc import Callable
 from contextlib import ExitStack
@@ -75,10 +77,7 @@ def _apply(tree: dict, values: dict[str, float], head: str) -> dict:
     for name, value in values.items():
         first, *tables, key = name.split(".")
         if first == head:
-            section = tree
-            for table in tables:
-                section = section[table]
-            section[key] = value
+            functools.reduce(operator.getitem, tables, tree)[key] = value
     return tree
 
 
@@ -178,10 +177,7 @@ class Evaluations:
         out = {}
         for name in UNKNOWNS:
             head, *path = name.split(".")
-            value = trees[head]
-            for part in path:
-                value = value[part]
-            out[name] = float(value)
+            out[name] = float(functools.reduce(operator.getitem, path, trees[head]))
         return out
 
 
