@@ -29,7 +29,7 @@ from drivers.config import load_toml
 from drivers.resources import find
 from hil.bench.bench import load_bench
 from hil.run.pipeline import load_scenario
-from hil.suites.adversary import SPACE, evaluate, profile, requirement, search
+from hil.suites.adversary import SPACE, candidate, evaluate, requirement, search
 from hil.suites.campaign import run_pool
 from plant.params import RiderParams
 
@@ -72,8 +72,7 @@ def one_search(method: str, name: str, law: str, objective: str, budget: int, se
     @staliro.costfunc
     def robustness(inputs: staliro.Inputs) -> float:
         x = {name: float(inputs.static[name]) for name in SPACE}
-        candidate = msgspec.structs.replace(scenario, intent=profile(x, rider), criteria=[])
-        history.append(req.robustness(evaluate(candidate, bench)))
+        history.append(req.robustness(evaluate(candidate(scenario, x, rider), bench)))
         return history[-1]
 
     optimizer = UniformRandom() if method == "taliro-random" else DualAnnealing()

@@ -150,9 +150,7 @@ def search(
             batch = []
             for trial in trials:
                 x = {name: trial.suggest_float(name, lo, hi) for name, (lo, hi) in SPACE.items()}
-                candidates[trial.number] = msgspec.structs.replace(
-                    scenario, intent=profile(x, rider), name=f"{scenario.name}_adversary", criteria=[]
-                )
+                candidates[trial.number] = candidate(scenario, x, rider)
                 batch.append(candidates[trial.number])
             # Told in the order asked: the same seed gives the same search, however the runs finish.
             for trial, metrics in zip(trials, _run_all(pool, batch, bench), strict=True):
@@ -165,6 +163,14 @@ def search(
         if pool is not None:
             pool.shutdown()
     return Search(req, candidates[study.best_trial.number], shipped, history)
+
+
+def candidate(scenario: Scenario, x: dict[str, float], rider: RiderParams) -> Scenario:
+    """The scenario with the rider's intent the point `x` of SPACE describes (its pass criteria dropped:
+    the requirement judges it)."""
+    return msgspec.structs.replace(
+        scenario, intent=profile(x, rider), name=f"{scenario.name}_adversary", criteria=[]
+    )
 
 
 def _sampler(name: str, seed: int):
