@@ -152,10 +152,9 @@ class Monitors:
         self._attitude_at_rate = (0.0, 0.0)
         self._imu_motion = 0.0
         """rad the chassis turned (|rates| × dt) since the last seat sample: evidence for the seat's."""
-        self._replay = {name: (Replay(COUNTER_MODULO), f"{name} replay") for name in REPLAY_CHECKED}
-        self._stuck_key = {name: f"{name} stuck" for name in IMU_CHANNELS}
-        self._found: dict[str, Finding | None] = {}
-        """What the frame-driven checks found at their last frame, by check (None: nothing)."""
+        self._replay = {name: Replay(COUNTER_MODULO) for name in REPLAY_CHECKED}
+        self._found: dict[tuple[str, str], Finding | None] = {}
+        """What the frame-driven checks found at their last frame, by (message, check) (None: nothing)."""
         self._checks_at: float | None = None
         self.degraded = False
         """A sensor check failed: the speed estimate is the conservative one until a reset."""
@@ -192,9 +191,8 @@ class Monitors:
             return
         s, name = rx.signals, rx.name
         if name in self._replay:
-            replay, key = self._replay[name]
-            replayed = replay.frame(tuple(v for k, v in s.items() if k not in (COUNTER, CRC)))
-            self._found[key] = (
+            replayed = self._replay[name].frame(tuple(v for k, v in s.items() if k not in (COUNTER, CRC)))
+            self._found[name, "replay"] = (
                 Finding(
                     Cause.SENSOR_STUCK,
                     f"{name} repeats its frames of {COUNTER_MODULO} frames ago: "
@@ -254,7 +252,7 @@ class Monitors:
             for i, (checker, moved) in enumerate(zip(self._imu_stuck[name], evidence, strict=True))
             if checker.sample(s[signals[i]], moved)
         ]
-        self._found[self._stuck_key[name]] = (
+        self._found[name, "stuck"] = (
             Finding(
                 Cause.SENSOR_STUCK,
                 f"{name}.{signals[stuck[0]]} frozen at {values[stuck[0]]:.4f} while other evidence moved",
@@ -271,7 +269,7 @@ class Monitors:
             self.last["wrench"] = t
             attitude = self.imu[MessageName.IMU_ATTITUDE]
             vertical = world_acceleration(self.imu[MessageName.IMU_ACCEL], attitude[0], attitude[1])[2]
-            self._found["seat"] = self.seat.sample(
+            self._found["seat", "wrench"] = self.seat.sample(
                 w.force,
                 w.moment,
                 w.cop,
