@@ -37,6 +37,11 @@ class Keys:
         return f"{self.prefix}/safety/state"
 
     @property
+    def safety_alert(self) -> str:
+        """SafetyAlert: what the rider is told (slow down, stop and sit up)."""
+        return f"{self.prefix}/safety/alert"
+
+    @property
     def safety_estop(self) -> str:
         """EstopCommand: operator e-stop and reset."""
         return f"{self.prefix}/safety/estop"

@@ -28,7 +28,7 @@ Source = Annotated[str, msgspec.Meta(min_length=1, max_length=64, description="w
 Text = Annotated[str, msgspec.Meta(max_length=200)]
 
 ScMode = Literal["free", "idle", "limit"]
-SafetyStateName = Literal["NORMAL", "LIMITING", "STOPPING", "ESTOP"]
+SafetyStateName = Literal["NORMAL", "LIMITING", "STOPPING", "ESTOP", "RECOVERY"]
 
 
 class Payload(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -84,10 +84,23 @@ class SafetyState(Payload, frozen=True, kw_only=True):
 
 
 class EstopCommand(Payload, frozen=True, kw_only=True):
-    """Operator e-stop or reset (pure/safety/estop). A reset permits motion; it never causes it."""
+    """Operator e-stop or reset (pure/safety/estop). A reset permits motion; it never causes it.
+    `estop` stops without cutting power in motion (category 1: brake, or the recovery law, then power off at
+    rest); `cut_power` is the explicit category-0 request: power off at once, even in motion."""
 
-    action: Literal["estop", "reset"]
+    action: Literal["estop", "cut_power", "reset"]
     source: Source
+
+
+class SafetyAlert(Payload, frozen=True, kw_only=True):
+    """The supervisor's alert for the rider (pure/safety/alert), for a seat, handle or operator screen: on
+    every change and periodically."""
+
+    level: Annotated[int, msgspec.Meta(ge=0, le=2)]
+    """0 none; 1 slow down (a speed cap or a diagnosis holds); 2 stop: sit up and hold still (a stop or the
+    supervisor's recovery law is under way)."""
+    reason: Text
+    """The supervisor's cause (SafetyState.reason)."""
 
 
 class ControllerCommand(Payload, frozen=True, kw_only=True):

@@ -1,7 +1,8 @@
 """The supervisor's configuration (`configs/safety/default.toml`) and its own view of the robot.
 
-Like the controller, the supervisor decodes the robot file into its own types (only the geometry it needs
-to estimate speed), so it shares no code with the controller it watches: a bug in one is not a bug in both.
+Like the controller, the supervisor decodes the robot file into its own types (the geometry it needs to
+estimate speed, the masses its recovery law balances), so it shares no code with the controller it watches:
+a bug in one is not a bug in both.
 Every threshold has a documented default; docs/safety.md explains how they were chosen.
 """
 
@@ -27,9 +28,19 @@ class _Strict(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=T
 # --------------------------------------------------------------------- the robot, as the supervisor sees it
 class Ball(_Lenient):
     radius: Positive = 0.1145
+    mass: Positive = 3.6
+    inertia: Positive = 0.047
 
 
 class Body(_Lenient):
+    mass: Positive = 30.0
+    """kg of the chassis without ball and rider (the recovery law's model)."""
+    com_height: Positive = 0.25
+    """m above the ball centre."""
+    inertia_pitch: Positive = 0.5
+    inertia_roll: Positive = 0.5
+    top_height: Positive = 0.386
+    """m of the chassis top (the seat's base) above the ball centre."""
     imu_height: Positive = 0.2
     """m above the ball centre: the IMU's own acceleration includes the chassis' rotation about the ball."""
     seat_height: NonNegative = 0.03
@@ -227,6 +238,34 @@ class ScRules(_Strict):
     """Sources tracked at once; a request from one more is refused and counted."""
 
 
+class RecoveryRules(_Strict):
+    """The recovery law (safety/recovery.py): an LQR per plane on the supervisor's own model, weights on
+    [tilt, ball angle since the takeover, tilt rate, ball rate] (docs/safety.md "Fail-operational")."""
+
+    enabled: bool = True
+    """False: no takeover; a cause the controller cannot stop from cuts power at once (the supervisor as it
+    was before it could recover: a positive control for what the recovery law saves)."""
+    q_tilt: Positive = 500.0
+    q_position: Positive = 20.0
+    """Holds the robot near where the takeover began, so a leaning rider cannot drive it away."""
+    q_tilt_rate: Positive = 10.0
+    q_ball_rate: Positive = 5.0
+    r: Positive = 1.0
+    position_limit: Positive = 0.5
+    """m: how far from the anchor the position term pulls; beyond it the anchor follows the robot."""
+    yaw_gain: Positive = 10.0
+    """Nm of ball yaw torque per rad/s of yaw rate: the robot stops turning."""
+    rider_mass: Positive = 75.0
+    """kg assumed before the seat has said what the rider weighs."""
+    rider_com: Positive = 0.3
+    """m of the rider's centre of mass above the seat (a seated adult's trunk, head and arms)."""
+    attitude_filter: Positive = 2.0
+    """s: the integrated rates are pulled toward a trusted attitude with this time constant; once the
+    attitude is found faulty they carry it alone."""
+    rate_filter: Positive = 0.02
+    """s: low-pass on the attitude's derivative that stands in for a faulty or silent rate channel."""
+
+
 class Output(_Strict):
     estop_frame_period: Positive = 0.01
     """s between SUPERVISOR_ESTOP frames (the DBC's 100 Hz); also sent at once on every transition."""
@@ -256,4 +295,5 @@ class SupervisorConfig(_Strict):
     sensors: SensorRules = SensorRules()
     seat: SeatRules = SeatRules()
     sc: ScRules = ScRules()
+    recovery: RecoveryRules = RecoveryRules()
     output: Output = Output()

@@ -54,14 +54,16 @@ class Check:
 
     cause = Cause.SENSOR_DISAGREE
 
-    def __init__(self, name: str):
+    def __init__(self, name: str, inputs: tuple[str, ...] = ()):
         self.name = name
+        self.inputs = inputs
+        """The inputs a failure isolates by itself (empty: it needs other evidence, safety/monitors.py)."""
         self.peak = 0.0
 
     def judge(self, residual: float, bound: float, detail: str) -> Finding | None:
         ratio = abs(residual) / bound
         self.peak = max(self.peak, ratio)
-        return Finding(self.cause, f"{self.name}: {detail}") if ratio > 1.0 else None
+        return Finding(self.cause, f"{self.name}: {detail}", self.inputs) if ratio > 1.0 else None
 
 
 class Stuck:
@@ -110,7 +112,7 @@ class EncoderCheck(Check):
     """One drive: its position differentiated vs the velocity it reports, over a window of frames."""
 
     def __init__(self, index: int, rules: SensorRules, period: float, rad_per_count: float, wrap: int):
-        super().__init__(f"drive {index} position vs velocity")
+        super().__init__(f"drive {index} position vs velocity", (f"Encoder{index}",))
         self.rules, self.period, self.rad_per_count, self.wrap = rules, period, rad_per_count, wrap
         n = max(round(rules.window / period), 2)
         self.moved, self.integral, self.time, self.magnitude = Window(n), Window(n), Window(n), Window(n)

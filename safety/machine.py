@@ -43,6 +43,9 @@ class State(IntEnum):
     LIMITING = 1
     STOPPING = 2
     ESTOP = 3
+    RECOVERY = 4
+    """The supervisor's own recovery law holds the drives (Takeover) and brings the robot to rest; then
+    ESTOP at rest. Latched: the controller gets the drives back only through ESTOP and a reset."""
 
 
 class Cause(IntEnum):
@@ -86,6 +89,8 @@ class Cause(IntEnum):
     """In ESTOP a drive did not confirm it is off: the main contactor opened."""
     CONTACTOR_FAULT = 27
     """The main contactor was told to open and a drive still reports its DC bus live."""
+    OPERATOR_CUT = 28
+    """The operator's explicit category-0 request (`cut_power`): power off at once, even in motion."""
 
 
 CONTROLLED = frozenset(
@@ -119,9 +124,25 @@ IMMEDIATE = frozenset(
         Cause.STOP_INEFFECTIVE,
         Cause.DRIVE_NOT_DISABLED,
         Cause.CONTACTOR_FAULT,
+        Cause.OPERATOR_CUT,
     }
 )
-"""Causes that remove power at once."""
+"""Causes a healthy controller cannot be trusted to stop from: the supervisor's recovery law takes over (or,
+without the inputs it needs, power goes off at once)."""
+CUT_POWER = frozenset(
+    {
+        Cause.TILT,
+        Cause.DRIVES_SILENT,
+        Cause.DRIVE_NOT_DISABLED,
+        Cause.CONTACTOR_FAULT,
+        Cause.OPERATOR_CUT,
+    }
+)
+"""The only causes that cut power in motion: balance already lost (tilt beyond the recoverable bound), the
+drives themselves are the fault or cannot be reached, or the operator asked for category 0."""
+TAKEOVER_FINDINGS = frozenset({Cause.SENSOR_STUCK, Cause.SENSOR_DISAGREE})
+"""Findings that mean the controller balances on an input that lies: the recovery law, which drops the
+input the diagnosis names, takes over at once instead of a controlled stop through the controller."""
 FINDINGS = (
     Cause.SENSOR_STUCK,
     Cause.SENSOR_DISAGREE,
@@ -145,12 +166,17 @@ class Request:
     source: str
 
 
+INPUTS = ("Encoder1", "Encoder2", "Encoder3", "Roll", "Pitch", "RateX", "RateY", "RateZ", "Accel", "Seat")
+"""The inputs a diagnosis can name: SUPERVISOR_DIAGNOSIS's flags, spelled as its signals."""
+
+
 @dataclass(frozen=True, slots=True)
 class Finding:
-    """A diagnostic that fails now: its cause and what it saw."""
+    """A diagnostic that fails now: its cause, what it saw, and the inputs it isolates (in INPUTS)."""
 
     cause: Cause
     detail: str
+    inputs: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -197,6 +223,9 @@ class Observation:
     """Diagnostics failing now (FINDINGS causes)."""
     drives: tuple[DriveReport, ...] = ()
     """The three drives (empty: not known to this observer; a stop can then not be confirmed)."""
+    recoverable: bool = False
+    """The recovery law has what it needs to balance (attitude or rate per plane, and the ball's rates from
+    three encoders or two and the yaw rate, none of them found faulty). False: no takeover is possible."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -234,6 +263,10 @@ class Decision:
     since: float
     contactor_closed: bool = True
     """The main contactor may stay closed (SUPERVISOR_ESTOP.Contactor)."""
+    takeover: bool = False
+    """The recovery law holds the drives (SUPERVISOR_ESTOP.Takeover): they follow SUPERVISOR_RECOVERY only."""
+    alert: int = 0
+    """What the rider is told: 0 nothing, 1 slow down, 2 stop, sit up and hold still."""
 
 
 class Supervisor:
@@ -254,6 +287,8 @@ class Supervisor:
         self.permitted_since = 0.0
         """When the drives last got their permission (start-up or a reset)."""
         self.contactor_closed = True
+        self.takeover = False
+        """Latched from the entry to RECOVERY until a valid reset."""
         self._contactor_opened = -math.inf
         self._contactor_fault = False
         self.events: list[Event] = []
@@ -287,8 +322,10 @@ class Supervisor:
                 self._try_reset(obs)
             else:
                 self._second_path(obs)
+        elif self.state is State.RECOVERY:
+            self._recovering(obs, immediate)
         elif immediate is not None:
-            self._enter(State.ESTOP, immediate[0], obs, immediate[1])
+            self._take_over_or_cut(immediate[0], obs, immediate[1])
         elif self.state is State.STOPPING:
             self._stopping(obs)
         elif controlled is not None:
@@ -307,6 +344,8 @@ class Supervisor:
             age = ages.get(stream, math.inf)
             return age > timeout and (armed or age != math.inf)
 
+        if obs.operator == "cut_power":
+            return Cause.OPERATOR_CUT, f"by {obs.operator_source or '?'}"
         if silent("heartbeat", w.heartbeat):
             return Cause.HEARTBEAT_LOST, ""
         tripped = next((i for i, d in enumerate(obs.drives, 1) if d.watchdog), None)
@@ -383,9 +422,43 @@ class Supervisor:
         return ""
 
     def _stop(self, cause: Cause, detail: str, obs: Observation) -> None:
-        """A controlled stop if the controller is balancing and can brake; else power off now."""
+        """A controlled stop if the controller is balancing on inputs it can trust; else the recovery law."""
         healthy = obs.controller_state == BALANCING and obs.speed is not None
-        self._enter(State.STOPPING if healthy else State.ESTOP, cause, obs, detail)
+        if healthy and cause not in TAKEOVER_FINDINGS:
+            self._enter(State.STOPPING, cause, obs, detail)
+        else:
+            self._take_over_or_cut(cause, obs, detail)
+
+    def _take_over_or_cut(self, cause: Cause, obs: Observation, detail: str = "") -> None:
+        """The controller cannot stop the robot: the recovery law takes the drives; power goes off at once
+        only for a CUT_POWER cause or when the recovery law lacks the inputs to balance."""
+        if cause in CUT_POWER or not obs.recoverable:
+            self._enter(State.ESTOP, cause, obs, detail)
+        else:
+            self._enter(State.RECOVERY, cause, obs, detail)
+
+    def _recovering(self, obs: Observation, immediate: tuple[Cause, str] | None) -> None:
+        """The recovery law holds the drives: power off once at rest and upright, or at once when balance
+        is lost, the drives are the fault, the operator asks for category 0, or its inputs are gone. The
+        controller's own faults (heartbeat, torque) no longer matter: its commands are not followed."""
+        if immediate is not None and immediate[0] in CUT_POWER:
+            self._enter(State.ESTOP, immediate[0], obs, immediate[1])
+        elif not obs.recoverable:
+            self._enter(State.ESTOP, self.cause, obs, "the recovery law lost the inputs it needs")
+        elif self._at_rest(obs):
+            self._enter(State.ESTOP, self.cause, obs, detail="at rest under the recovery law: drives off")
+
+    def _at_rest(self, obs: Observation) -> bool:
+        """At standstill and upright for `standstill_time` (a robot tilted at rest would tip when its power
+        goes off: it keeps balancing until the rider sits up)."""
+        st = self.config.stop
+        still = obs.speed is not None and obs.speed <= st.standstill_speed
+        if still and obs.tilt is not None and obs.tilt <= self._standstill_tilt:
+            if self._still_since is None:
+                self._still_since = obs.t
+            return obs.t - self._still_since >= st.standstill_time
+        self._still_since = None
+        return False
 
     def _limit(self, obs: Observation) -> None:
         s = self.config.speed
@@ -446,7 +519,7 @@ class Supervisor:
                 self._failing_since = obs.t
             if obs.t - self._failing_since >= st.escalation_time - 1e-9:
                 cause = Cause.STOP_INEFFECTIVE if rising else Cause.MOTION_AFTER_STANDSTILL
-                self._enter(State.ESTOP, cause, obs)
+                self._take_over_or_cut(cause, obs)
             return
         self._failing_since = None
         if speed <= st.standstill_speed:
@@ -461,7 +534,7 @@ class Supervisor:
         else:
             self._still_since = None
             if not self._reached_standstill and obs.t - self.since > st.timeout:
-                self._enter(State.ESTOP, Cause.STOP_TIMEOUT, obs)
+                self._take_over_or_cut(Cause.STOP_TIMEOUT, obs)
 
     def _second_path(self, obs: Observation) -> None:
         """In ESTOP: open the main contactor when a drive does not confirm it is off within the bound, and
@@ -505,7 +578,7 @@ class Supervisor:
             return
         self.reset_by.append((obs.t, obs.operator_source))
         self._saturated_since = self._absent_since = self._over_since = None
-        self.contactor_closed, self.permitted_since = True, obs.t
+        self.contactor_closed, self.permitted_since, self.takeover = True, obs.t, False
         self._enter(State.NORMAL, Cause.RESET, obs, detail=f"reset by {obs.operator_source or '?'}")
 
     def reset_refusal(self, obs: Observation) -> str:
@@ -549,6 +622,7 @@ class Supervisor:
             self._log(obs, "transition", previous, previous_cause, detail)
             return
         self.since = obs.t
+        self.takeover = self.takeover or state is State.RECOVERY
         self._clear_timers()
         self._entry_speed = obs.speed or 0.0
         if state is State.NORMAL:
@@ -580,7 +654,7 @@ class Supervisor:
 
     def active_cap(self) -> float:
         """The cap the supervisor grants in its current state, m/s."""
-        if self.state in (State.STOPPING, State.ESTOP) or self.cause is Cause.OVER_CAP:
+        if self.state in (State.STOPPING, State.ESTOP, State.RECOVERY) or self.cause is Cause.OVER_CAP:
             return 0.0
         if self.cause is Cause.SC_SILENT:
             return self.config.speed.reduced_cap
@@ -606,7 +680,15 @@ class Supervisor:
             self.forward(obs.request, cap),
             self.since,
             self.contactor_closed,
+            self.takeover,
+            self.alert(),
         )
+
+    def alert(self) -> int:
+        """What the rider is told: slow down while limited, stop (sit up, hold still) from a stop on."""
+        if self.state is State.NORMAL:
+            return 0
+        return 1 if self.state is State.LIMITING else 2
 
     def forward(self, request: Request | None, cap: float) -> Forward:
         """The request clamped to `cap`: never above it, `free` becomes `limit` at the cap, 0 is idle."""

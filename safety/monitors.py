@@ -14,6 +14,7 @@ torque sample after its command) and at each observation where the sides come in
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import Counter, deque
 
@@ -38,6 +39,7 @@ from safety.diagnostics import (
     world_acceleration,
 )
 from safety.machine import STREAMS, Cause, DriveReport, Finding, Observation, Request
+from safety.recovery import ENCODERS, IsolatedEstimator, leave_one_out
 
 MOTOR = {
     name: motor for names in (DRIVE_FEEDBACK, DRIVE_COMMAND, DRIVE_TORQUE) for motor, name in enumerate(names)
@@ -50,6 +52,17 @@ IMU_CHANNELS = {
 }
 REPLAY_CHECKED = (*DRIVE_FEEDBACK, *DRIVE_TORQUE, *IMU_CHANNELS)
 """Sensor streams checked for a replay from one counter period back."""
+CHANNEL_INPUT = {
+    **{name: (f"Encoder{motor + 1}",) for name, motor in zip(DRIVE_FEEDBACK, range(3), strict=True)},
+    **{name: () for name in DRIVE_TORQUE},  # an actuator's read-back, not an input of balance
+    MessageName.IMU_ATTITUDE: ("Roll", "Pitch", ""),
+    MessageName.IMU_RATE: ("RateX", "RateY", "RateZ"),
+    MessageName.IMU_ACCEL: ("Accel", "Accel", "Accel"),
+}
+"""The inputs (safety.machine.INPUTS) each stream carries, per channel for the IMU ('': none: the yaw angle
+is used by no one)."""
+PLANES = (("roll", "Roll", "RateX"), ("pitch", "Pitch", "RateY"))
+"""Per plane: its checks' name, its attitude input, its rate input."""
 ATTITUDE_LSB = 1e-4
 """rad: IMU_ATTITUDE's resolution (the DBC); "it moved" means several of these."""
 MOVED = 3 * ATTITUDE_LSB
@@ -96,6 +109,7 @@ class Drive:
             Finding(
                 Cause.SENSOR_STUCK,
                 f"drive {self.index} velocity frozen at {self.velocity:.2f} rad/s while its position moved",
+                (f"Encoder{self.index}",),
             )
             if frozen
             else None
@@ -134,7 +148,9 @@ class Monitors:
         jacobian = motor_jacobian(robot)
         to_relative = np.linalg.inv(jacobian)
         self._to_relative_rows = tuple(tuple(float(x) for x in row) for row in to_relative)
-        self._leave_one_out = _leave_one_out(jacobian)
+        self._leave_one_out = leave_one_out(jacobian)
+        self.isolated = IsolatedEstimator(robot, config.recovery, period)
+        """The recovery law's state estimate, without the inputs the diagnosis names."""
         self.last: dict[str, float] = dict.fromkeys(STREAMS, -math.inf)
         self.drives = [Drive(i, config, robot, period) for i in (1, 2, 3)]
         sensors = config.sensors
@@ -158,6 +174,13 @@ class Monitors:
         self._checks_at: float | None = None
         self.degraded = False
         """A sensor check failed: the speed estimate is the conservative one until a reset."""
+        self.recovering = False
+        """The drives follow the recovery law (its commands, not the controller's, are checked)."""
+        self._named: set[str] = set()
+        """Inputs a check has isolated by itself (latched until a reset)."""
+        self._failed: set[str] = set()
+        """Cross-checks that need other evidence to isolate their input and have failed ('yaw', 'roll',
+        'pitch', 'roll trend', 'pitch trend'; latched until a reset)."""
         self.controller_state: int | None = None
         self.torque_peak = 0.0
         self.seat_load: float | None = None
@@ -197,6 +220,7 @@ class Monitors:
                     Cause.SENSOR_STUCK,
                     f"{name} repeats its frames of {COUNTER_MODULO} frames ago: "
                     "replayed (E2E's counter aliases)",
+                    tuple(i for i in dict.fromkeys(CHANNEL_INPUT[name]) if i),
                 )
                 if replayed
                 else None
@@ -211,7 +235,15 @@ class Monitors:
 
     def _commanded(self, name: str, s, t: float, lost: int) -> None:
         self.torque_peak = max(self.torque_peak, abs(float(s["Torque"])))
-        self.drives[MOTOR[name]].commanded(s, t)
+        if not self.recovering:
+            self.drives[MOTOR[name]].commanded(s, t)
+
+    def recovery_commanded(self, torques: tuple[float, float, float]) -> None:
+        """The recovery law holds the drives: its commands are the ones they follow (for the torque check),
+        not the controller's, until a reset."""
+        self.recovering = True
+        for drive, torque in zip(self.drives, torques, strict=True):
+            drive.command = (torque, True)
 
     def _measured(self, name: str, s, t: float, lost: int) -> None:
         self.drives[MOTOR[name]].measured(float(s["Torque"]))
@@ -256,6 +288,7 @@ class Monitors:
             Finding(
                 Cause.SENSOR_STUCK,
                 f"{name}.{signals[stuck[0]]} frozen at {values[stuck[0]]:.4f} while other evidence moved",
+                tuple(i for i in dict.fromkeys(CHANNEL_INPUT[name][c] for c in stuck) if i),
             )
             if stuck
             else None
@@ -269,13 +302,14 @@ class Monitors:
             self.last["wrench"] = t
             attitude = self.imu[MessageName.IMU_ATTITUDE]
             vertical = world_acceleration(self.imu[MessageName.IMU_ACCEL], attitude[0], attitude[1])[2]
-            self._found["seat", "wrench"] = self.seat.sample(
+            found = self.seat.sample(
                 w.force,
                 w.moment,
                 w.cop,
                 vertical if self._imu_seen[MessageName.IMU_ACCEL] > -math.inf else G0,
                 self._imu_motion,
             )
+            self._found["seat", "wrench"] = found and dataclasses.replace(found, inputs=("Seat",))
             self._imu_motion = 0.0
         else:
             self.stale_wrench += 1
@@ -299,7 +333,33 @@ class Monitors:
 
     def reset(self) -> None:
         """A reset was accepted: the sensors were found healthy again."""
-        self.degraded = False
+        self.degraded = self.recovering = False
+        self.isolated.clear()
+        self._named.clear()
+        self._failed.clear()
+
+    def suspects(self) -> frozenset[str]:
+        """The inputs the diagnosis names faulty (safety.machine.INPUTS), latched until a reset.
+
+        What a check isolates by itself (an encoder's position against its velocity, a frozen or replayed
+        channel) is named directly. A cross-check that fails names its likeliest input unless a direct
+        finding already explains it: the yaw check the one of the gyro and the three encoders whose
+        exclusion leaves the smoothest ball rates (safety/recovery.py `odd_one_out`); an attitude check
+        the plane's rate, or its attitude when the same plane's speed trend (accelerometer) disagrees
+        too: a wrong attitude rotates gravity into the trend, a wrong rate does not; a trend alone the
+        accelerometer."""
+        named = self._named
+        out = set(named)
+        failed = self._failed
+        if "yaw" in failed and not named & {"Encoder1", "Encoder2", "Encoder3", "RateZ"}:
+            out.add(self.isolated.odd_one_out())
+        for plane, attitude, rate in PLANES:
+            trend = f"{plane} trend" in failed
+            if plane in failed and not named & {attitude, rate}:
+                out.add(attitude if trend else rate)
+            elif trend and plane not in failed:
+                out.add("Accel")
+        return frozenset(out)
 
     # ----------------------------------------------------------------------------------------- observe
     def _fresh(self, t: float) -> bool:
@@ -327,6 +387,8 @@ class Monitors:
         nominal = self.radius * math.hypot(rel[1] + rate[1], rel[0] + rate[0])
         if not self.degraded:
             return nominal
+        if self._named & set(ENCODERS) and self.isolated.ready:
+            return self.isolated.speed  # the encoder that lies is known (its own position check): drop it
         velocities = [d.velocity for d in self.drives]
         estimates = [nominal]
         for solve, others in self._leave_one_out:
@@ -338,6 +400,8 @@ class Monitors:
     def tilt(self) -> float | None:
         if not math.isfinite(self._imu_seen[MessageName.IMU_ATTITUDE]):
             return None
+        if self._named & {"Roll", "Pitch"} and self.isolated.ready:
+            return self.isolated.tilt  # the attitude lies: the rates integrated from where it was good
         attitude = self.imu[MessageName.IMU_ATTITUDE]
         return max(abs(attitude[0]), abs(attitude[1]))
 
@@ -354,10 +418,12 @@ class Monitors:
         roll, pitch, _ = self.imu[MessageName.IMU_ATTITUDE]
         rate = self.imu[MessageName.IMU_RATE]
         velocities = [d.velocity for d in self.drives]
-        found = [self.yaw.update(velocities, rate[2], dt)]
         coupling = (abs(rate[0]) + abs(rate[1]) + abs(rate[2])) * math.tan(max(abs(roll), abs(pitch)))
-        found.append(self.attitude_checks[0].update(roll, rate[0], coupling, dt))
-        found.append(self.attitude_checks[1].update(pitch, rate[1], coupling, dt))
+        found = [
+            self.yaw.update(velocities, rate[2], dt),
+            self.attitude_checks[0].update(roll, rate[0], coupling, dt),
+            self.attitude_checks[1].update(pitch, rate[1], coupling, dt),
+        ]
         rel = self._relative()
         forward = self.radius * (rel[1] + rate[1])
         left = -self.radius * (rel[0] + rate[0])
@@ -365,6 +431,9 @@ class Monitors:
         ax, ay, _ = world_acceleration(self.imu[MessageName.IMU_ACCEL], roll, pitch)
         found.append(self.trend[0].update(forward + h * math.cos(pitch) * rate[1], ax, dt))
         found.append(self.trend[1].update(left - h * math.cos(roll) * rate[0], ay, dt))
+        for check, finding in zip(("yaw", "roll", "pitch", "pitch trend", "roll trend"), found, strict=True):
+            if finding is not None:
+                self._failed.add(check)
         return [f for f in found if f is not None]
 
     def findings(self, t: float) -> tuple[Finding, ...]:
@@ -374,7 +443,26 @@ class Monitors:
         found += [f for f in self._found.values() if f is not None]
         if any(f.cause in (Cause.SENSOR_STUCK, Cause.SENSOR_DISAGREE) for f in found):
             self.degraded = True
+        for f in found:
+            self._named.update(f.inputs)
         return tuple(found)
+
+    def _isolate(self, t: float) -> None:
+        """Feed the recovery law's estimator with the fresh trusted streams and what the diagnosis names."""
+        imu = self.config.watchdogs.imu
+        seen = self._imu_seen
+
+        def fresh(name: MessageName) -> list[float] | None:
+            return self.imu[name] if t - seen[name] <= imu else None
+
+        drives = self.config.watchdogs.drives
+        self.isolated.update(
+            t,
+            fresh(MessageName.IMU_ATTITUDE),
+            fresh(MessageName.IMU_RATE),
+            [d.velocity if t - d.seen <= drives else None for d in self.drives],
+            self.suspects(),
+        )
 
     def margins(self) -> dict[str, float]:
         """Each check's largest |residual| / bound so far (1: where it would fire)."""
@@ -393,6 +481,7 @@ class Monitors:
         ages = {k: t - v for k, v in self.last.items()}
         ages["sc"] = self.sc.age(t)
         findings = self.findings(t)
+        self._isolate(t)
         timeout = self.config.watchdogs.drives
         obs = Observation(
             t=t,
@@ -409,26 +498,8 @@ class Monitors:
             operator_source=self.operator_source,
             findings=findings,
             drives=tuple(d.report(t, timeout) for d in self.drives),
+            recoverable=self.config.recovery.enabled and self.isolated.ready,
         )
         self.torque_peak = 0.0
         self.operator, self.operator_source = None, ""
         return obs
-
-
-def _leave_one_out(jacobian: np.ndarray):
-    """For each drive, a solver for the ball-to-body rates (x, y) from the other two drives' velocities and
-    the yaw rate: what the speed is if that drive's encoder is the wrong one."""
-    solvers = []
-    for i in range(3):
-        others = [j for j in range(3) if j != i]
-        inverse = np.linalg.inv(jacobian[np.ix_(others, [0, 1])])
-        column = jacobian[others, 2]
-
-        def solve(known, yaw_rate, inverse=inverse, column=column):
-            # r2 = −ψ̇: each remaining motor's rate minus its yaw part, through the 2×2 inverse.
-            rhs = np.asarray(known) - column * (-yaw_rate)
-            x, y = inverse @ rhs
-            return float(x), float(y)
-
-        solvers.append((solve, others))
-    return solvers

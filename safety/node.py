@@ -2,8 +2,10 @@
 
 In: every CAN frame (drive feedback, IMU, torque commands and measured torques, heartbeat, the wired
 e-stop), and on zenoh the SC requests, operator e-stop/reset and the seat wrench. Out: SUPERVISOR_ESTOP
-(the drives' permission to run and the main contactor's command, every 10 ms and at once on a transition),
-pure/sc/command (the only SC input the controller reads), pure/safety/state, and the event log.
+(the drives' permission to run, the takeover and the main contactor's command, every 10 ms and at once on a
+transition), SUPERVISOR_DIAGNOSIS (the inputs found faulty and the rider alert, likewise), while the recovery
+law holds the drives SUPERVISOR_RECOVERY every update, pure/sc/command (the only SC input the controller
+reads), pure/safety/state, pure/safety/alert, and the event log.
 
 In the rig it updates once per tick after the controller has answered (`update(t, fence=k)`: in lockstep it
 first waits for the rig's fence of tick k, so every zenoh input of tick k has arrived, whatever a fault did
@@ -20,11 +22,12 @@ from collections.abc import Callable
 
 from drivers.can_bus import CanNode, Received
 from drivers.can_codec import MessageName
-from drivers.schemas import EstopCommand, SafetyState, ScCommand, ScRequest, TesWrench, encode
+from drivers.schemas import EstopCommand, SafetyAlert, SafetyState, ScCommand, ScRequest, TesWrench, encode
 from drivers.zenoh_link import Fence, ZenohLink
 from safety.config import RobotGeometry, SupervisorConfig
-from safety.machine import Decision, Event, Forward, Observation, State, Supervisor
+from safety.machine import INPUTS, Decision, Event, Forward, Observation, State, Supervisor
 from safety.monitors import Monitors
+from safety.recovery import RecoveryLaw
 
 log = logging.getLogger(__name__)
 
@@ -47,13 +50,16 @@ class SupervisorNode:
         self.can, self.link, self.keys = can, link, link.keys
         self.machine = Supervisor(config, robot.drive.torque_limit, robot.drive.watchdog_timeout)
         self.monitors = Monitors(config, robot, tick_hz)
+        self.recovery = RecoveryLaw(robot, config.recovery)
+        self.recovery_torques: tuple[float, float, float] | None = None
+        """What the recovery law commanded at the last update (None: it does not hold the drives)."""
         self.tick_hz, self.fence_wait, self.on_put = tick_hz, fence_wait, on_put
         keys = self.keys
         self.requests = link.subscribe(keys.sc_request, ScRequest, capacity=256)
         self.operator = link.subscribe(keys.safety_estop, EstopCommand, capacity=64)
         self.wrench = link.subscribe(keys.tes_wrench, TesWrench, capacity=64)
         self.fence = Fence(link, [self.requests, self.operator, self.wrench])
-        link.declare_publishers([keys.sc_command, keys.safety_state])
+        link.declare_publishers([keys.sc_command, keys.safety_state, keys.safety_alert])
         self.decision: Decision | None = None
         self.observation: Observation | None = None
         """What the last update saw (the rig records its speed estimate next to the truth)."""
@@ -61,7 +67,8 @@ class SupervisorNode:
         self.fence_misses = 0
         """Lockstep updates that went ahead without every zenoh input of their tick (the guard ran out)."""
         self._events_seen = 0
-        self._sc_seq = self._state_seq = 0
+        self._sc_seq = self._state_seq = self._alert_seq = 0
+        self._diagnosis: dict[str, int] = {}
         self._frame_sent = self._sc_sent = self._state_sent = -math.inf
         self._forwarded: Forward | None = None
 
@@ -101,6 +108,9 @@ class SupervisorNode:
         decision = self.machine.update(self.observation)
         new = self.machine.events[self._events_seen :]
         changed = any(e.kind == "transition" for e in new)
+        if any(e.kind == "transition" and e.to_state == State.RECOVERY.name for e in new):
+            self.monitors.isolated.engage()
+            self.recovery.design(self.monitors.seat_load)
         if any(e.kind == "transition" and e.cause == "RESET" for e in new):
             self.monitors.reset()
         refused = next((e.detail for e in reversed(new) if e.kind == "reset_refused"), "")
@@ -121,9 +131,13 @@ class SupervisorNode:
 
     def _emit(self, t: float, d: Decision, changed: bool, refused: str = "") -> None:
         out = self.config.output
-        if changed or t - self._frame_sent >= out.estop_frame_period - 1e-9:
-            self._send_frame(d.state, d.cause, d.contactor_closed)
+        diagnosis = self._diagnosis_signals(d)
+        if changed or diagnosis != self._diagnosis or t - self._frame_sent >= out.estop_frame_period - 1e-9:
+            self._send_frame(d.state, d.cause, d.contactor_closed, d.takeover)
+            self.can.send(MessageName.SUPERVISOR_DIAGNOSIS, diagnosis)
+            self._diagnosis = diagnosis
             self._frame_sent = t
+        self._recover(d)
         stamp = self._stamp(t)
         if d.command != self._forwarded or t - self._sc_sent >= out.sc_period - 1e-9:
             self._sc_seq += 1
@@ -154,13 +168,41 @@ class SupervisorNode:
                 ),
             )
             self._state_sent = t
+            self._alert_seq += 1
+            self._put(
+                self.keys.safety_alert,
+                SafetyAlert(seq=self._alert_seq, stamp=stamp, level=d.alert, reason=d.cause.name),
+            )
 
-    def _send_frame(self, state: State, cause, contactor_closed: bool) -> None:
+    def _diagnosis_signals(self, d: Decision) -> dict[str, int]:
+        suspects = self.monitors.suspects()
+        return {**{name: int(name in suspects) for name in INPUTS}, "Alert": d.alert}
+
+    def _recover(self, d: Decision) -> None:
+        """While the recovery law holds the drives: its torques for this tick, every update."""
+        if d.state is not State.RECOVERY:
+            self.recovery_torques = None
+            return
+        torques = self.recovery.torques(self.monitors.isolated)
+        self.recovery_torques = torques
+        self.monitors.recovery_commanded(torques)
+        self.can.send(
+            MessageName.SUPERVISOR_RECOVERY,
+            {
+                "Torque1": torques[0],
+                "Torque2": torques[1],
+                "Torque3": torques[2],
+                "Tick": (self.tick or 0) % TICK_MODULO,
+            },
+        )
+
+    def _send_frame(self, state: State, cause, contactor_closed: bool, takeover: bool = False) -> None:
         self.can.send(
             MessageName.SUPERVISOR_ESTOP,
             {
                 "Estop": int(state is State.ESTOP),
                 "Contactor": int(contactor_closed),
+                "Takeover": int(takeover),
                 "State": int(state),
                 "Reason": int(cause),
             },

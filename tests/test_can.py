@@ -201,17 +201,18 @@ def test_frame_bits_by_hand():
 
 def test_catalog_load_at_400_hz_by_hand():
     # Per tick: SYNC(2 B) 75 + 3 feedback 135 + 3 IMU 135 + 3 commands(6 B) 115 + heartbeat(4 B) 95
-    # = 1325 bits;
-    # periodic: e-stop(4 B) 95 @ 100 Hz, 3 torque(4 B) 95 @ 100 Hz, operator e-stop(3 B) 85 @ 10 Hz.
-    expected = 1325 * 400 + 95 * 100 + 3 * 95 * 100 + 85 * 10
+    # + the recovery law's command (8 B) 135 (worst case: it is sent only during a takeover) = 1460 bits;
+    # periodic: e-stop(4 B) 95 and diagnosis(4 B) 95 @ 100 Hz, 3 torque(4 B) 95 @ 100 Hz, operator
+    # e-stop(3 B) 85 @ 10 Hz.
+    expected = 1460 * 400 + 2 * 95 * 100 + 3 * 95 * 100 + 85 * 10
     load = bus_load(CATALOG, 400.0, 1_000_000)
     assert load.bits_per_second == expected
-    assert check_bus_load(CATALOG, 400.0, 1_000_000).fraction == pytest.approx(0.56885)
+    assert check_bus_load(CATALOG, 400.0, 1_000_000).fraction == pytest.approx(0.63235)
 
 
 def test_overloaded_configuration_is_refused_with_the_figure():
     with pytest.raises(
-        BusLoadError, match=r"worst-case bus load 83\.4% at 600 Hz tick on 1000 kbit/s exceeds the 70%"
+        BusLoadError, match=r"worst-case bus load 92\.4% at 600 Hz tick on 1000 kbit/s exceeds the 70%"
     ):
         check_bus_load(CATALOG, 600.0, 1_000_000)
     with pytest.raises(BusLoadError, match="exceeds the 50% bound"):

@@ -14,10 +14,12 @@ from safety.config import SupervisorConfig
 from safety.machine import (
     BALANCING,
     CONTROLLED,
+    CUT_POWER,
     FAULT,
     FINDINGS,
     IMMEDIATE,
     STREAMS,
+    TAKEOVER_FINDINGS,
     Cause,
     DriveReport,
     Finding,
@@ -181,7 +183,9 @@ CONTROLLED_CASES = {
 }
 
 
-@pytest.mark.parametrize("cause", list(CONTROLLED_CASES), ids=lambda c: c.name)
+@pytest.mark.parametrize(
+    "cause", [c for c in CONTROLLED_CASES if c not in TAKEOVER_FINDINGS], ids=lambda c: c.name
+)
 def test_controlled_causes_stop_under_control_while_the_controller_balances(cause):
     s = supervisor()
     kw = {"speed": 1.0, **CONTROLLED_CASES[cause]}
@@ -523,7 +527,7 @@ steps = st.lists(
             "seat_load": st.sampled_from([None, 0.0, 600.0]),
             "button": st.booleans(),
             "request": requests,
-            "operator": st.sampled_from([None, None, None, "estop", "reset"]),
+            "operator": st.sampled_from([None, None, None, "estop", "reset", "cut_power"]),
             "drives": st.sampled_from(
                 [
                     OFF3,
@@ -537,6 +541,7 @@ steps = st.lists(
                 ]
             ),
             "findings": st.sampled_from([(), (), (Finding(Cause.SENSOR_STUCK, "x"),)]),
+            "recoverable": st.booleans(),
         }
     ),
     max_size=60,
@@ -548,7 +553,7 @@ steps = st.lists(
 def test_properties_over_any_observation_sequence(sequence):
     s = Supervisor(CFG, LIMIT)
     t = 0.0
-    closed = True
+    closed, taken = True, False
     for step in sequence:
         t += step.pop("dt")
         o = Observation(t=t, **step)
@@ -570,10 +575,19 @@ def test_properties_over_any_observation_sequence(sequence):
         assert d.command.cap <= d.cap
         if d.command.mode == "idle":
             assert d.command.cap == 0.0
-        # Stopping and e-stop forward idle; only ESTOP takes the drives' permission away.
-        if d.state in (State.STOPPING, State.ESTOP):
+        # Stopping, the recovery law and e-stop forward idle; only ESTOP takes the drives' permission away.
+        if d.state in (State.STOPPING, State.ESTOP, State.RECOVERY):
             assert d.command.mode == "idle"
         assert d.drives_permitted == (d.state is not State.ESTOP)
+        # The recovery law holds the drives only from RECOVERY on, latched until a valid reset: the
+        # controller never gets them back while it is announced.
+        assert d.takeover == (d.state is State.RECOVERY or (d.state is State.ESTOP and taken))
+        taken = d.takeover
+        # Power is cut in motion only when balance is lost, the drives are the fault, the operator asks
+        # for category 0, or the recovery law has nothing to balance on.
+        moving = o.speed is not None and o.speed > CFG.stop.standstill_speed
+        if before is not State.ESTOP and d.state is State.ESTOP and moving and o.recoverable:
+            assert d.cause in CUT_POWER, d.cause
 
 
 def test_a_dropped_cap_is_enforced_along_a_braking_ramp():

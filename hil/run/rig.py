@@ -13,8 +13,10 @@ One tick k:
      missing, not waited for), and a controller that stayed silent for a whole wall-clock guard is not
      waited for again until it is heard from;
   6. the supervisor (in-process) updates from the same traffic; its SUPERVISOR_ESTOP frame is the drives'
-     permission to run (they turn off when it asserts e-stop or goes silent) and commands the main
-     contactor in their power feed (it opens on Contactor = 0 or a longer silence);
+     permission to run (they turn off when it asserts e-stop or goes silent), says who commands them
+     (Takeover: its recovery law's SUPERVISOR_RECOVERY instead of the controller's DRIVEn_COMMAND, never
+     both) and commands the main contactor in their power feed (it opens on Contactor = 0 or a longer
+     silence);
   7. the recorder keeps the tick (the CAN log written from this thread; the trace row by the loop).
 """
 
@@ -89,6 +91,10 @@ class TickStats:
     """When, in simulated time."""
     contactor_opened: int = 0
     """Times the main contactor opened (commanded open, or the supervisor's frame went silent)."""
+    recovery_commands: int = 0
+    """SUPERVISOR_RECOVERY frames the drives followed (the supervisor's takeover)."""
+    overridden_commands: int = 0
+    """The controller's commands the drives ignored because the recovery law held them."""
 
 
 class Rig:
@@ -151,6 +157,11 @@ class Rig:
         """An external supervisor let a whole guard pass without a frame: not waited for until heard."""
         self._estop_asserted = False
         self._contactor_commanded = False
+        self.takeover = False
+        """The last trusted SUPERVISOR_ESTOP announces the takeover: the drives follow SUPERVISOR_RECOVERY
+        and ignore the controller."""
+        self._recovery_tick = -1
+        """Tick tag of the last SUPERVISOR_RECOVERY the drives followed."""
         self.safety_state = -1
         """SUPERVISOR_ESTOP.State of the last trusted frame (-1: none yet)."""
         self.safety_states = None
@@ -228,6 +239,8 @@ class Rig:
             self.supervisor.update(plant.t, fence=k if lockstep else None)
         elif lockstep:
             self._await_supervisor(guard)
+            if self.takeover:
+                self._await_recovery(k, guard)
         self._drain_nowait()
         self.apply_permission()
         if self.recorder is not None:
@@ -362,6 +375,22 @@ class Rig:
             else:
                 self._other_frame(rx)
 
+    def _await_recovery(self, k: int, deadline: float) -> None:
+        """Lockstep beside a supervisor elsewhere that holds the drives: its recovery command for tick k is
+        an output the loop waits for, like the controller's."""
+        tag = k % TICK_MODULO
+        while self.takeover and self._recovery_tick != tag and not self._supervisor_silent:
+            rx = self.can.recv(timeout=max(deadline - time.monotonic(), 0.0))
+            if rx is None:
+                if time.monotonic() >= deadline:
+                    self._supervisor_silent = True
+                    return
+                continue
+            if rx.name in COMMANDS:
+                self.stats.late_commands += 1
+            else:
+                self._other_frame(rx)
+
     def _other_frame(self, rx: Received) -> None:
         if rx.name == MessageName.CONTROLLER_HEARTBEAT:
             self.stats.controller_states[int(rx.signals["State"])] += 1
@@ -370,7 +399,24 @@ class Rig:
             self._supervisor_silent = False
             self._estop_asserted = bool(rx.signals["Estop"])
             self._contactor_commanded = bool(rx.signals["Contactor"])
+            self.takeover = bool(rx.signals["Takeover"])
             self.safety_state = int(rx.signals["State"])
+        elif rx.name == MessageName.SUPERVISOR_RECOVERY and rx.ok and self.takeover:
+            self._recover(rx.signals)
+
+    def _recover(self, signals) -> None:
+        """The recovery law's torques, applied like a command (fresh ones only: no older than the drives'
+        own watchdog, in ticks)."""
+        tag = int(signals["Tick"])
+        age = (self.plant.tick - tag) % TICK_MODULO
+        if age * self.plant.dt > self.plant.robot.drive.watchdog_timeout:
+            self.stats.late_commands += 1
+            return
+        self._recovery_tick = tag
+        self.stats.recovery_commands += 1
+        now = self.plant.t
+        for drive, name in zip(self.plant.drives.motors, ("Torque1", "Torque2", "Torque3"), strict=True):
+            drive.set_command(signals[name], True, now)
 
     def apply_permission(self) -> None:
         """The drives run only on a fresh SUPERVISOR_ESTOP frame that does not assert e-stop; the main
@@ -442,6 +488,9 @@ class Rig:
             self._silent = True
 
     def _command(self, drive, torque: float, enable: bool) -> None:
+        if self.takeover:
+            self.stats.overridden_commands += 1  # one master at a time: the recovery law holds the drives
+            return
         if not drive.permitted and enable:
             self.stats.refused_commands += 1
         drive.set_command(torque, enable, self.plant.t)

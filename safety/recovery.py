@@ -1,0 +1,261 @@
+"""The supervisor's recovery channel (Simplex): its own state estimate, which drops every input the diagnosis
+names, and a small balancing law that brings the robot to rest when the controller cannot be trusted to.
+
+Pure: no I/O, no clock (the monitors feed the estimator; the node sends the law's torques on
+SUPERVISOR_RECOVERY while the takeover is announced). It shares no code with the controller: its model is
+the planar ballbot linearised from the supervisor's own view of the robot file, with the rider lumped into
+the body (mass from the seat's load), and an LQR per plane on [tilt, ball angle since the takeover, tilt
+rate, ball rate] brings the robot to rest near where the takeover began (docs/safety.md "Fail-operational").
+
+Which input stands in for which (the redundancy PURE has):
+- tilt: the IMU's attitude; once that is found faulty, the body rates integrated from the last trusted
+  attitude (a complementary filter runs all along, so the integral starts where the attitude was good);
+- tilt rate: the IMU's rate; when that is faulty or silent, the attitude's derivative (low-passed);
+- ball rates: the three encoders; with one found faulty or silent, the other two and the gyro's yaw rate;
+- yaw rate (to stop turning): the gyro, or the encoders when the gyro is the faulty one.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import solve_continuous_are
+
+from safety.config import RecoveryRules, RobotGeometry
+from safety.diagnostics import motor_jacobian
+
+G0 = 9.80665
+ENCODERS = ("Encoder1", "Encoder2", "Encoder3")
+ODD_ONE_OUT_TICKS = 40
+"""Ticks (100 ms at 400 Hz) over which a yaw disagreement's hypotheses are compared: the yaw check's window
+(25 ms) and the fault's onset before it."""
+
+
+def leave_one_out(jacobian: np.ndarray):
+    """For each drive, a solver for the ball-to-body rates (x, y) from the other two drives' velocities and
+    the yaw rate: what the rates are if that drive's encoder is the wrong one."""
+    solvers = []
+    for i in range(3):
+        others = [j for j in range(3) if j != i]
+        inverse = np.linalg.inv(jacobian[np.ix_(others, [0, 1])])
+        column = jacobian[others, 2]
+
+        def solve(known, yaw_rate, inverse=inverse, column=column):
+            # r2 = −ψ̇: each remaining motor's rate minus its yaw part, through the 2×2 inverse.
+            rhs = np.asarray(known) - column * (-yaw_rate)
+            x, y = inverse @ rhs
+            return float(x), float(y)
+
+        solvers.append((solve, others))
+    return solvers
+
+
+@dataclass(slots=True)
+class Plane:
+    """One plane's state as the recovery law sees it (roll: about x; pitch: about y; docs/physics.md)."""
+
+    tilt: float = 0.0
+    tilt_rate: float = 0.0
+    ball_rate: float = 0.0
+    """φ̇: the ball's absolute rate, rad/s (relative rate + tilt rate)."""
+    ball_angle: float = 0.0
+    """φ since the takeover began, rad."""
+    integrated: float | None = None
+    """The complementary filter's tilt: rates integrated, pulled toward a trusted attitude."""
+    derivative: float = 0.0
+    """The attitude's derivative, low-passed."""
+    last_attitude: float | None = None
+
+
+class IsolatedEstimator:
+    """The state the recovery law needs, from the inputs the diagnosis has not named."""
+
+    def __init__(self, robot: RobotGeometry, rules: RecoveryRules, period: float):
+        jacobian = motor_jacobian(robot)
+        self._to_relative = np.linalg.inv(jacobian)
+        self._leave_one_out = leave_one_out(jacobian)
+        self.radius, self.rules, self.period = robot.ball.radius, rules, period
+        self.planes = (Plane(), Plane())
+        """(roll, pitch)."""
+        self.yaw_rate = 0.0
+        self._candidates: list[tuple[float, float]] | None = None
+        """The ball rates (x, y) under each single-fault hypothesis: the gyro wrong (three encoders), or
+        encoder 1, 2 or 3 wrong (the other two and the gyro)."""
+        self._roughness = [deque(maxlen=ODD_ONE_OUT_TICKS) for _ in range(4)]
+        self._odd: str | None = None
+        self.ready = False
+        """The inputs needed to balance are there: attitude or rate per plane, and the ball rates from three
+        trusted encoders or two and a trusted gyro yaw rate."""
+        self._t: float | None = None
+
+    def update(
+        self,
+        t: float,
+        attitude: Sequence[float] | None,
+        rate: Sequence[float] | None,
+        velocities: Sequence[float | None],
+        suspects: frozenset[str],
+    ) -> None:
+        """One observation: the last trusted attitude (roll, pitch) and rates (x, y, z) if fresh (None:
+        silent), each motor's velocity if fresh (None: silent), and the inputs the diagnosis names."""
+        dt = self.period if self._t is None else max(t - self._t, 0.0)
+        self._t = t
+        rules = self.rules
+        planes_ok = True
+        for i, (plane, attitude_name, rate_name) in enumerate(
+            zip(self.planes, ("Roll", "Pitch"), ("RateX", "RateY"), strict=True)
+        ):
+            measured = None if attitude is None or attitude_name in suspects else attitude[i]
+            body_rate = None if rate is None or rate_name in suspects else rate[i]
+            if attitude is not None and dt > 0.0:
+                if plane.last_attitude is not None:
+                    raw = (attitude[i] - plane.last_attitude) / dt
+                    plane.derivative += (raw - plane.derivative) * min(dt / rules.rate_filter, 1.0)
+                plane.last_attitude = attitude[i]
+            plane.tilt_rate = body_rate if body_rate is not None else plane.derivative
+            if plane.integrated is None:
+                plane.integrated = measured
+            elif dt > 0.0:
+                plane.integrated += plane.tilt_rate * dt
+                if measured is not None:
+                    plane.integrated += (measured - plane.integrated) * min(dt / rules.attitude_filter, 1.0)
+            if measured is not None:
+                plane.tilt = measured
+            elif plane.integrated is not None:
+                plane.tilt = plane.integrated
+            # A faulty rate is replaced by the attitude's derivative; both missing: nothing to balance on.
+            has_rate = body_rate is not None or (measured is not None and attitude is not None)
+            planes_ok = planes_ok and plane.integrated is not None and has_rate
+        self._track_hypotheses(velocities, rate)
+        relative = self._relative(velocities, rate, suspects)
+        self.ready = planes_ok and relative is not None
+        if relative is None:
+            return
+        gyro_z = None if rate is None or "RateZ" in suspects else rate[2]
+        self.yaw_rate = gyro_z if gyro_z is not None else -relative[2]
+        for plane, rel in zip(self.planes, relative[:2], strict=True):
+            plane.ball_rate = rel + plane.tilt_rate
+            plane.ball_angle += plane.ball_rate * dt
+
+    def _track_hypotheses(self, velocities, rate) -> None:
+        """How much each hypothesis' ball rates jumped tick to tick over the last ticks: a sensor that
+        steps, flips or drifts makes every estimate that uses it jump; the one without it stays smooth."""
+        if rate is None or any(v is None for v in velocities):
+            return
+        r = self._to_relative @ np.asarray(velocities, dtype=float)
+        candidates = [(float(r[0]), float(r[1]))]
+        for solve, others in self._leave_one_out:
+            candidates.append(solve([velocities[j] for j in others], -rate[2]))
+        if self._candidates is not None:
+            for rough, now, before in zip(self._roughness, candidates, self._candidates, strict=True):
+                rough.append(abs(now[0] - before[0]) + abs(now[1] - before[1]))
+        self._candidates = candidates
+
+    def odd_one_out(self) -> str:
+        """Which of the gyro's RateZ and the three encoders a yaw disagreement blames: the one whose
+        exclusion leaves the smoothest ball rates over the last ODD_ONE_OUT_TICKS ticks (latched until
+        `clear`). Four measurements of three unknowns detect one fault but cannot say which by themselves;
+        the fault's onset can."""
+        if self._odd is None:
+            scores = [sum(r) for r in self._roughness]
+            self._odd = ("RateZ", *ENCODERS)[scores.index(min(scores))]
+        return self._odd
+
+    def clear(self) -> None:
+        """A reset: the sensors were found healthy again."""
+        self._odd = None
+
+    def _relative(self, velocities, rate, suspects) -> tuple[float, float, float] | None:
+        """Ball-to-body rates (x, y, z) from the trusted encoders (and the gyro's yaw rate if one is not)."""
+        bad = [
+            i
+            for i, (v, name) in enumerate(zip(velocities, ENCODERS, strict=True))
+            if v is None or name in suspects
+        ]
+        if not bad:
+            r = self._to_relative @ np.asarray(velocities, dtype=float)
+            return float(r[0]), float(r[1]), float(r[2])
+        if len(bad) > 1 or rate is None or "RateZ" in suspects:
+            return None
+        solve, others = self._leave_one_out[bad[0]]
+        x, y = solve([velocities[j] for j in others], -rate[2])
+        return x, y, -rate[2]
+
+    def engage(self) -> None:
+        """The takeover begins: the ball angle counts from here."""
+        for plane in self.planes:
+            plane.ball_angle = 0.0
+
+    @property
+    def speed(self) -> float:
+        roll, pitch = self.planes
+        return self.radius * math.hypot(roll.ball_rate, pitch.ball_rate)
+
+    @property
+    def tilt(self) -> float:
+        roll, pitch = self.planes
+        return max(abs(roll.tilt), abs(pitch.tilt))
+
+
+def plane_gain(robot: RobotGeometry, rules: RecoveryRules, rider_mass: float, inertia: float) -> np.ndarray:
+    """LQR gain K (τ = −K s, s = [θ, φ, θ̇, φ̇]) of the planar ballbot linearised upright (Fankhauser &
+    Gwerder's model, the rider a point mass `rider_com` above the seat, the drivetrain's inertia left out:
+    under 1 % of the body's here)."""
+    ball, body = robot.ball, robot.body
+    seat = body.top_height + body.seat_height + rules.rider_com
+    mass = body.mass + rider_mass
+    com = (body.mass * body.com_height + rider_mass * seat) / mass
+    theta_b = inertia + body.mass * (body.com_height - com) ** 2 + rider_mass * (seat - com) ** 2
+    r = ball.radius
+    m11 = ball.mass * r**2 + ball.inertia + mass * r**2
+    m12 = mass * r * com
+    m22 = theta_b + mass * com**2
+    det = m11 * m22 - m12**2
+    gravity = mass * G0 * com
+    a = np.zeros((4, 4))
+    a[0, 2] = a[1, 3] = 1.0
+    a[2, 0] = m11 * gravity / det
+    a[3, 0] = -m12 * gravity / det
+    b = np.array([[0.0], [0.0], [-(m11 + m12) / det], [(m22 + m12) / det]])
+    q = np.diag([rules.q_tilt, rules.q_position, rules.q_tilt_rate, rules.q_ball_rate])
+    rr = np.array([[rules.r]])
+    p = solve_continuous_are(a, b, q, rr)
+    return (np.linalg.solve(rr, b.T @ p))[0]
+
+
+class RecoveryLaw:
+    """τ = −K s per plane, the yaw rate damped, mapped onto the three motors and held to their limit."""
+
+    def __init__(self, robot: RobotGeometry, rules: RecoveryRules):
+        self.robot, self.rules = robot, rules
+        self._to_motor = np.linalg.inv(motor_jacobian(robot).T)
+        self.limit = robot.drive.torque_limit
+        self.gains = self.design(None)
+
+    def design(self, seat_load: float | None) -> tuple[np.ndarray, np.ndarray]:
+        """The (roll, pitch) gains for the rider the seat weighs (N; None: the configured rider mass)."""
+        rider = self.rules.rider_mass if seat_load is None else min(max(seat_load / G0, 0.0), 200.0)
+        body = self.robot.body
+        self.gains = (
+            plane_gain(self.robot, self.rules, rider, body.inertia_roll),
+            plane_gain(self.robot, self.rules, rider, body.inertia_pitch),
+        )
+        return self.gains
+
+    def torques(self, estimate: IsolatedEstimator) -> tuple[float, float, float]:
+        limit_angle = self.rules.position_limit / estimate.radius
+        ball = []
+        for plane, gain in zip(estimate.planes, self.gains, strict=True):
+            # Anti-windup: beyond the limit the anchor moves with the robot, so a rider who leaned it away
+            # and then sits up is not driven back further than the limit.
+            plane.ball_angle = min(max(plane.ball_angle, -limit_angle), limit_angle)
+            state = (plane.tilt, plane.ball_angle, plane.tilt_rate, plane.ball_rate)
+            ball.append(-sum(k * x for k, x in zip(gain, state, strict=True)))
+        ball.append(self.rules.yaw_gain * estimate.yaw_rate)
+        motor = self._to_motor @ np.asarray(ball)
+        limit = self.limit
+        return tuple(min(max(float(m), -limit), limit) for m in motor)  # type: ignore[return-value]

@@ -1,0 +1,196 @@
+"""Fail-operational (docs/safety.md "Fail-operational"): the supervisor's recovery law takes the drives when
+the controller cannot be trusted to stop the robot, and power goes off in motion only when balance is lost,
+the drives are the fault, or the operator asks for category 0. The state machine's rules, then whole lockstep
+runs with the reference controller, the plant's truth the referee and the CAN log the wire's."""
+
+import math
+
+import can
+import msgspec
+import numpy as np
+import pytest
+
+from drivers.can_codec import Catalog, MessageName
+from drivers.config import load_toml
+from hil.faults import parse_fault
+from hil.run import pipeline
+from hil.run.scenario import Scenario
+from safety.config import RobotGeometry, SupervisorConfig
+from safety.machine import (
+    BALANCING,
+    CUT_POWER,
+    IMMEDIATE,
+    TAKEOVER_FINDINGS,
+    Cause,
+    State,
+)
+from safety.recovery import plane_gain
+from tests.helpers import ROOT
+from tests.test_safety_machine import CONTROLLED_CASES, DT, IMMEDIATE_CASES, LIMIT, hold, obs, supervisor
+from tests.zenoh_helpers import private_bench
+
+CFG = SupervisorConfig()
+STANDSTILL_TILT = math.radians(CFG.stop.standstill_tilt_deg)
+
+
+# ------------------------------------------------------------------------------------------ decisions
+@pytest.mark.parametrize("cause", list(IMMEDIATE_CASES), ids=lambda c: c.name)
+def test_a_cause_the_controller_cannot_stop_from_hands_the_drives_to_the_recovery_law(cause):
+    s = supervisor()
+    d = s.update(obs(t=5.0, speed=1.4, recoverable=True, **IMMEDIATE_CASES[cause]))
+    if cause in CUT_POWER:
+        assert (d.state, d.drives_permitted, d.takeover) == (State.ESTOP, False, False)
+    else:
+        assert (d.state, d.cause, d.drives_permitted, d.takeover) == (State.RECOVERY, cause, True, True)
+        assert (d.command.mode, d.alert) == ("idle", 2)
+
+
+def test_only_balance_lost_the_drives_or_the_operator_cut_power_in_motion():
+    assert {Cause.TILT, Cause.DRIVES_SILENT, Cause.DRIVE_NOT_DISABLED, Cause.CONTACTOR_FAULT} < CUT_POWER
+    assert Cause.OPERATOR_CUT in CUT_POWER and CUT_POWER <= IMMEDIATE
+    s = supervisor()
+    d = s.update(obs(t=2.0, speed=1.4, recoverable=True, operator="cut_power", operator_source="op"))
+    assert (d.state, d.cause, d.drives_permitted) == (State.ESTOP, Cause.OPERATOR_CUT, False)
+    s = supervisor()
+    d = s.update(obs(t=2.0, speed=1.4, recoverable=True, operator="estop"))
+    assert (d.state, d.drives_permitted) == (State.STOPPING, True), "an e-stop alone is category 1"
+
+
+@pytest.mark.parametrize("cause", sorted(TAKEOVER_FINDINGS), ids=lambda c: c.name)
+def test_a_lying_sensor_is_taken_over_at_once_not_stopped_through_the_controller_that_uses_it(cause):
+    d = supervisor().update(obs(speed=1.0, recoverable=True, **CONTROLLED_CASES[cause]))
+    assert (d.state, d.cause, d.takeover) == (State.RECOVERY, cause, True)
+    # Without the inputs to balance on, power goes off (the positive control of the rule above).
+    d = supervisor().update(obs(speed=1.0, recoverable=False, **CONTROLLED_CASES[cause]))
+    assert (d.state, d.takeover) == (State.ESTOP, False)
+
+
+def test_a_stop_that_does_not_take_escalates_to_the_recovery_law_not_to_power_off():
+    s = supervisor()
+    s.update(obs(t=1.0, speed=1.0, operator="estop", recoverable=True))
+    d, _ = hold(s, 1.0 + DT, CFG.stop.escalation_time + 2 * DT, speed=1.5, recoverable=True)
+    assert (d.state, d.cause, d.drives_permitted) == (State.RECOVERY, Cause.STOP_INEFFECTIVE, True)
+
+
+def test_the_recovery_law_powers_off_only_at_rest_and_upright_and_latches_until_a_reset():
+    s = supervisor()
+    s.update(obs(t=1.0, speed=1.4, ages={"heartbeat": 1.0}, recoverable=True))
+    assert s.state is State.RECOVERY
+    # At standstill but tilted (a rider still leaning): it keeps balancing, however long.
+    d, t = hold(s, 1.0 + DT, 5.0, speed=0.0, tilt=STANDSTILL_TILT + 0.01, recoverable=True)
+    assert (d.state, d.drives_permitted) == (State.RECOVERY, True)
+    d, t = hold(s, t, CFG.stop.standstill_time - 2 * DT, speed=0.0, tilt=0.0, recoverable=True)
+    assert d.state is State.RECOVERY
+    d, t = hold(s, t, 3 * DT, speed=0.0, tilt=0.0, recoverable=True)
+    expected = (State.ESTOP, Cause.HEARTBEAT_LOST, False, True)
+    assert (d.state, d.cause, d.drives_permitted, d.takeover) == expected
+    d = s.update(obs(t=t + 1.0, operator="reset", operator_source="op"))
+    assert (d.state, d.takeover) == (State.NORMAL, False)
+
+
+def test_in_recovery_balance_lost_the_operators_cut_or_lost_inputs_cut_power():
+    for kw in (
+        {"tilt": math.radians(CFG.motion.tilt_limit_deg) + 0.01},
+        {"operator": "cut_power"},
+        {"recoverable": False},
+    ):
+        s = supervisor()
+        s.update(obs(t=1.0, speed=1.4, controller_state=4, recoverable=True))
+        assert s.state is State.RECOVERY
+        d = s.update(obs(t=1.1, speed=1.0, **{"recoverable": True, **kw}))
+        assert (d.state, d.drives_permitted) == (State.ESTOP, False), kw
+    # The controller's own faults no longer matter once its commands are not followed.
+    s = supervisor()
+    s.update(obs(t=1.0, speed=1.4, controller_state=4, recoverable=True))
+    d, _ = hold(s, 1.1, 1.0, speed=1.0, controller_state=4, torque_peak=LIMIT * 2, recoverable=True)
+    assert d.state is State.RECOVERY
+
+
+# ------------------------------------------------------------------------------------- the law itself
+@pytest.mark.parametrize("rider_mass", [0.0, 45.0, 75.0, 120.0])
+def test_the_recovery_law_stabilises_its_plane_model_for_riders_from_none_to_heavy(rider_mass):
+    robot = load_toml(ROOT / "configs/robot/pure.toml", RobotGeometry)
+    rules = CFG.recovery
+    gain = plane_gain(robot, rules, rider_mass, robot.body.inertia_pitch)
+    # An upright tilt pushes the ball under the body (the sign a balancing law must have): τ on the ball
+    # relative to the body accelerates the ball forward for a forward tilt.
+    assert gain[0] < 0
+    assert all(np.isfinite(gain))
+
+
+# ------------------------------------------------------------------------------------------ whole runs
+BRAKING = load_toml(ROOT / "configs/scenarios/braking.toml", Scenario)
+SPEED_LIMITING = load_toml(ROOT / "configs/scenarios/speed_limiting.toml", Scenario)
+
+
+def run(base, faults, tmp_path, safety=None, duration=None):
+    scenario = msgspec.structs.replace(
+        base,
+        duration=duration or base.duration,
+        faults=[parse_fault(f) for f in faults],
+        safety={**base.safety, **(safety or {})},
+        criteria=[],
+    )
+    return pipeline.run(scenario, private_bench(), out=tmp_path).trace
+
+
+def frames(folder):
+    catalog = Catalog()
+    out = []
+    for msg in can.LogReader(str(folder / "can.log")):
+        codec = catalog.by_id(msg.arbitration_id)
+        if codec is not None and codec.name in (
+            MessageName.SUPERVISOR_ESTOP,
+            MessageName.SUPERVISOR_RECOVERY,
+            MessageName.SUPERVISOR_DIAGNOSIS,
+        ):
+            out.append((codec.name, codec.decode(bytes(msg.data))))
+    return out
+
+
+def at_rest_upright(trace) -> bool:
+    speed = np.hypot(trace.velocity[-1, 0], trace.velocity[-1, 1])
+    return trace.fallen is None and speed < CFG.stop.standstill_speed and np.abs(trace.tilt[-1]).max() < 0.09
+
+
+KILL_AT_SPEED = [{"kind": "process.kill", "target": "controller", "at": 4.5}]
+"""braking: the rider has leaned the robot to ~1.4 m/s by 4.5 s."""
+
+
+def test_a_controller_killed_at_speed_ends_at_rest_and_upright_under_the_recovery_law(tmp_path):
+    tr = run(BRAKING, KILL_AT_SPEED, tmp_path)
+    i = np.searchsorted(tr.t, 4.5)
+    assert np.hypot(*tr.velocity[i]) > 1.2, "the fault comes at speed"
+    takeover = next(e for e in tr.safety_events if e.to_state == "RECOVERY")
+    assert takeover.cause == "HEARTBEAT_LOST" and takeover.t - 4.5 < 0.05
+    assert at_rest_upright(tr), "upright and at rest at the end"
+    assert not tr.powered[-1], "power off, at rest"
+    assert tr.stats.recovery_commands > 0
+    # The wire: a recovery command only while the last SUPERVISOR_ESTOP announces the takeover.
+    announced = False
+    for name, signals in frames(tmp_path):
+        if name == MessageName.SUPERVISOR_ESTOP:
+            announced = bool(signals["Takeover"])
+        elif name == MessageName.SUPERVISOR_RECOVERY:
+            assert announced, "SUPERVISOR_RECOVERY without the takeover announced"
+    # Positive control: the supervisor without its recovery law cuts power at speed, and the robot falls.
+    tr = run(BRAKING, KILL_AT_SPEED, tmp_path / "control", safety={"recovery": {"enabled": False}})
+    assert tr.fallen is not None
+
+
+def test_a_sign_flipped_wheel_in_motion_is_named_and_ridden_to_rest_without_it(tmp_path):
+    fault = [{"kind": "sensor.sign_flip", "channel": "drive2.velocity", "at": 4.0}]
+    tr = run(BRAKING, fault, tmp_path)
+    assert tr.fallen is None
+    named = [s for name, s in frames(tmp_path) if name == MessageName.SUPERVISOR_DIAGNOSIS and s["Encoder2"]]
+    assert named, "the diagnosis names encoder 2"
+    assert not any(s["Encoder1"] or s["Encoder3"] or s["RateZ"] for s in named)
+    assert any(e.to_state == "RECOVERY" for e in tr.safety_events)
+    assert at_rest_upright(tr)
+
+
+def test_a_controller_that_balances_at_standstill_on_healthy_inputs_is_never_taken_over(tmp_path):
+    tr = run(BRAKING, [], tmp_path)
+    assert tr.stats.recovery_commands == 0 and tr.stats.overridden_commands == 0
+    assert not any(e.to_state == "RECOVERY" for e in tr.safety_events)
+    assert BALANCING in tr.stats.controller_states
