@@ -1,12 +1,14 @@
 """The supervisor's cost per tick and its reaction latency on the bus.
 
 1. Decision cost: the whole per-tick work without I/O, by stage (a moving robot's frames into the
-   monitors with their per-frame checks; observe with the cross-checks; the state machine), against the
-   plant's own tick measured in the same run (the rig's budget is 2500 µs per tick at 400 Hz).
+   monitors with their per-frame checks; observe with the cross-checks and the isolated estimate the
+   recovery law would balance on; the state machine; the recovery law's torques as during a takeover),
+   against the plant's own tick measured in the same run (the rig's budget is 2500 µs per tick at 400 Hz).
 2. Reaction latency in real time: the standalone supervisor on its own 400 Hz timer (as `pure-hil
    supervisor` runs it) beside a stand-in robot sending healthy traffic at 400 Hz on a virtual bus; a
    CONTROLLER_HEARTBEAT reporting FAULT is sent at a random moment and the time until SUPERVISOR_ESTOP
-   with Estop=1 is received is measured; then the heartbeat recovers, the operator resets, and again.
+   with Takeover=1 (the recovery law holds the drives) or Estop=1 is received is measured; then the
+   heartbeat recovers, the operator resets, and again.
    Baseline in the same run: a bare frame round trip through a thread that echoes it.
 
     python benchmarks/supervisor.py [--ticks N] [--trips N]
@@ -39,6 +41,7 @@ from plant.rider import Ramp
 from safety.config import RobotGeometry, SupervisorConfig
 from safety.machine import BALANCING, FAULT, Supervisor
 from safety.monitors import Monitors
+from safety.recovery import RecoveryLaw
 
 ROBOT = find("pure", "robot")
 
@@ -100,7 +103,8 @@ def decision_cost(ticks: int) -> None:
     plant = Plant(robot, load_toml(find("ref_60kg_180", "riders"), RiderParams), SimParams())
     recorded = recorded_ticks(ticks)
     config, geometry = SupervisorConfig(), load_toml(ROBOT, RobotGeometry)
-    stages = {"frames": 0.0, "observe": 0.0, "update": 0.0}
+    stages = {"frames": 0.0, "observe": 0.0, "update": 0.0, "recovery": 0.0}
+    law = RecoveryLaw(geometry, config.recovery)
     best = dict.fromkeys(stages, float("inf"))
     for _ in range(5):
         monitors, machine = Monitors(config, geometry), Supervisor(config, robot.drive.torque_limit)
@@ -117,9 +121,12 @@ def decision_cost(ticks: int) -> None:
             t2 = time.perf_counter_ns()
             machine.update(obs)
             t3 = time.perf_counter_ns()
+            law.torques(monitors.isolated)
+            t4 = time.perf_counter_ns()
             stages["frames"] += t1 - t0
             stages["observe"] += t2 - t1
             stages["update"] += t3 - t2
+            stages["recovery"] += t4 - t3
         for stage, ns in stages.items():
             best[stage] = min(best[stage], ns / len(recorded) / 1e3)
         assert machine.state.name == "NORMAL", f"the healthy recording tripped it: {machine.events[-1]}"
@@ -128,8 +135,9 @@ def decision_cost(ticks: int) -> None:
     frames = sum(len(f) for f, _ in recorded) / len(recorded)
     print(f"decision cost per tick, a moving robot's {frames:.0f} frames + seat sample (best of 5 runs)")
     print(f"  frames -> monitors (per-frame checks)  {best['frames']:7.1f} µs")
-    print(f"  observe (cross-checks, speed, drives)  {best['observe']:7.1f} µs")
+    print(f"  observe (cross-checks, isolation, ...) {best['observe']:7.1f} µs")
     print(f"  state machine update                   {best['update']:7.1f} µs")
+    print(f"  recovery law (only during a takeover)  {best['recovery']:7.1f} µs")
     print(f"  supervisor total                       {total:7.1f} µs")
     print(
         f"  plant step (baseline, same run)        {plant_us:7.1f} µs"
@@ -191,7 +199,9 @@ def reaction_latency(trips: int) -> None:
                 rx = robot.recv(timeout=remaining)
                 if rx is not None and rx.name == "SUPERVISOR_ESTOP":
                     state["permitted"], state["bus"] = not rx.signals["Estop"], bool(rx.signals["Contactor"])
-                if rx is not None and rx.name == "SUPERVISOR_ESTOP" and rx.signals["Estop"]:
+                # The reaction: the recovery law takes the drives (Takeover) or they lose their permission.
+                reacted = rx is not None and rx.name == "SUPERVISOR_ESTOP"
+                if reacted and (rx.signals["Estop"] or rx.signals["Takeover"]):
                     with lock:
                         if state["tripped_at"] is not None and state["heartbeat"] == FAULT:
                             latencies.append(time.perf_counter() - state["tripped_at"])
@@ -252,7 +262,7 @@ def reaction_latency(trips: int) -> None:
     base = np.array(rtt) * 1e3
     print(
         f"reaction latency, real time ({len(ms)} trips): "
-        "FAULT heartbeat on the bus -> SUPERVISOR_ESTOP Estop=1"
+        "FAULT heartbeat on the bus -> SUPERVISOR_ESTOP Takeover=1 or Estop=1"
     )
     print(
         f"  p50 {np.percentile(ms, 50):6.2f} ms   p99 {np.percentile(ms, 99):6.2f} ms   "

@@ -84,7 +84,9 @@ class ControllerNode:
         elif rx.name == MessageName.IMU_RATE and s["Valid"]:
             est.imu_rate(s["RateX"], s["RateY"], s["RateZ"], t)
         elif rx.name == MessageName.SUPERVISOR_ESTOP:
-            self.estop = bool(s["Estop"])
+            # The supervisor's recovery law holding the drives is an e-stop for this controller: its commands
+            # are ignored, and it waits for an operator's enable after the reset (docs/contract.md).
+            self.estop = bool(s["Estop"]) or bool(s["Takeover"])
             if int(s["Reason"]) in self._seat_flags:
                 self.seat_flagged = True
             elif int(s["State"]) == 0:  # NORMAL again (a reset)

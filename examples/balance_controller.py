@@ -136,8 +136,9 @@ class BalanceController:
         elif name.startswith("DRIVE") and name.endswith("_FEEDBACK"):
             self.velocity[int(name[5]) - 1] = s["Velocity"]
         elif name == "SUPERVISOR_ESTOP":
-            self.permitted = not s["Estop"]
-            if s["Estop"] and self.state == BALANCING:
+            # Takeover: the supervisor's recovery law holds the drives; stop commanding, as after an e-stop.
+            self.permitted = not (s["Estop"] or s["Takeover"])
+            if not self.permitted and self.state == BALANCING:
                 self.state = DISABLED  # stays disabled: a reset permits motion, it never causes it
         elif name == "SYNC":
             self.synced = True

@@ -344,21 +344,19 @@ class Monitors:
         What a check isolates by itself (an encoder's position against its velocity, a frozen or replayed
         channel) is named directly. A cross-check that fails names its likeliest input unless a direct
         finding already explains it: the yaw check the one of the gyro and the three encoders whose
-        exclusion leaves the smoothest ball rates (safety/recovery.py `odd_one_out`); an attitude check
-        the plane's rate, or its attitude when the same plane's speed trend (accelerometer) disagrees
-        too: a wrong attitude rotates gravity into the trend, a wrong rate does not; a trend alone the
-        accelerometer."""
+        exclusion leaves the smoothest ball rates (safety/recovery.py `odd_one_out`); an attitude or
+        speed-trend check the plane's attitude, rate or accelerometer by the accelerometer's own tilt
+        (safety/recovery.py `blame`)."""
         named = self._named
         out = set(named)
         failed = self._failed
         if "yaw" in failed and not named & {"Encoder1", "Encoder2", "Encoder3", "RateZ"}:
             out.add(self.isolated.odd_one_out())
-        for plane, attitude, rate in PLANES:
+        for i, (plane, attitude, rate) in enumerate(PLANES):
             trend = f"{plane} trend" in failed
-            if plane in failed and not named & {attitude, rate}:
-                out.add(attitude if trend else rate)
-            elif trend and plane not in failed:
-                out.add("Accel")
+            if (plane in failed or trend) and not named & {attitude, rate, "Accel"}:
+                blamed = self.isolated.blame(i, accel_suspect=plane not in failed)
+                out.add({"attitude": attitude, "rate": rate, "accel": "Accel"}[blamed])
         return frozenset(out)
 
     # ----------------------------------------------------------------------------------------- observe
@@ -462,6 +460,7 @@ class Monitors:
             fresh(MessageName.IMU_RATE),
             [d.velocity if t - d.seen <= drives else None for d in self.drives],
             self.suspects(),
+            fresh(MessageName.IMU_ACCEL),
         )
 
     def margins(self) -> dict[str, float]:

@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.linalg import solve_continuous_are
@@ -30,6 +30,12 @@ from safety.diagnostics import motor_jacobian
 
 G0 = 9.80665
 ENCODERS = ("Encoder1", "Encoder2", "Encoder3")
+ATTITUDE_WINDOW = 40
+"""Ticks (100 ms) over which the IMU point's acceleration is taken for the accelerometer's tilt."""
+ATTITUDE_VOTE = 0.05
+"""s: time constant of each attitude hypothesis' error (below)."""
+ACCEL_AGREES = math.radians(2.0)
+"""rad: a tilt hypothesis the accelerometer confirms (its noise over the window is a few tenths of this)."""
 ODD_ONE_OUT_TICKS = 40
 """Ticks (100 ms at 400 Hz) over which a yaw disagreement's hypotheses are compared: the yaw check's window
 (25 ms) and the fault's onset before it."""
@@ -69,6 +75,14 @@ class Plane:
     derivative: float = 0.0
     """The attitude's derivative, low-passed."""
     last_attitude: float | None = None
+    history: deque = field(default_factory=lambda: deque(maxlen=ATTITUDE_WINDOW + 1))
+    """Per tick: the IMU point's velocity if the rate is right, if the attitude is right; the specific
+    force (forward, up) in the plane."""
+    error_if_rate_wrong: float = 0.0
+    """The attitude against the accelerometer's tilt (taking the tilt rate from the attitude), low-passed."""
+    error_if_attitude_wrong: float = 0.0
+    """The integrated rates against the accelerometer's tilt (taking the tilt rate from the gyro)."""
+    blamed: str | None = None
 
 
 class IsolatedEstimator:
@@ -76,6 +90,7 @@ class IsolatedEstimator:
 
     def __init__(self, robot: RobotGeometry, rules: RecoveryRules, period: float):
         jacobian = motor_jacobian(robot)
+        self.imu_height = robot.body.imu_height
         self._to_relative = np.linalg.inv(jacobian)
         self._leave_one_out = leave_one_out(jacobian)
         self.radius, self.rules, self.period = robot.ball.radius, rules, period
@@ -99,9 +114,11 @@ class IsolatedEstimator:
         rate: Sequence[float] | None,
         velocities: Sequence[float | None],
         suspects: frozenset[str],
+        accel: Sequence[float] | None = None,
     ) -> None:
-        """One observation: the last trusted attitude (roll, pitch) and rates (x, y, z) if fresh (None:
-        silent), each motor's velocity if fresh (None: silent), and the inputs the diagnosis names."""
+        """One observation: the last trusted attitude (roll, pitch), rates (x, y, z) and specific force
+        (x, y, z) if fresh (None: silent), each motor's velocity if fresh (None: silent), and the inputs the
+        diagnosis names."""
         dt = self.period if self._t is None else max(t - self._t, 0.0)
         self._t = t
         rules = self.rules
@@ -135,6 +152,8 @@ class IsolatedEstimator:
         self.ready = planes_ok and relative is not None
         if relative is None:
             return
+        if attitude is not None and rate is not None and accel is not None and relative is not None:
+            self._vote_attitude(attitude, rate, accel, relative, dt)
         gyro_z = None if rate is None or "RateZ" in suspects else rate[2]
         self.yaw_rate = gyro_z if gyro_z is not None else -relative[2]
         for plane, rel in zip(self.planes, relative[:2], strict=True):
@@ -155,6 +174,64 @@ class IsolatedEstimator:
                 rough.append(abs(now[0] - before[0]) + abs(now[1] - before[1]))
         self._candidates = candidates
 
+    def _vote_attitude(self, attitude, rate, accel, relative, dt: float) -> None:
+        """Per plane, the accelerometer's tilt under each hypothesis, against the tilt that hypothesis keeps.
+
+        The specific force in the plane (body forward, up) rotated by the true tilt θ is the IMU point's
+        horizontal acceleration a (the encoders' ball speed plus the chassis turning about the ball,
+        differentiated): cos θ f_fwd + sin θ f_up = a, so θ = asin(a / |f|) − atan2(f_fwd, f_up), a third
+        tilt independent of both IMU channels. The tilt rate in a depends on which channel lies: taken from
+        the attitude's derivative it tests "the rate is wrong", from the gyro "the attitude is wrong"."""
+        h, r = self.imu_height, self.radius
+        up = accel[2]
+        for i, plane in enumerate(self.planes):
+            forward = accel[0] if i == 1 else -accel[1]  # the roll plane's forward is body −y
+            rel = relative[i]
+            cos = math.cos(attitude[i])
+            v_rate = r * (rel + rate[i]) + h * cos * rate[i]
+            v_attitude = r * (rel + plane.derivative) + h * cos * plane.derivative
+            plane.history.append((v_rate, v_attitude, forward, up))
+            if len(plane.history) <= ATTITUDE_WINDOW or dt <= 0.0:
+                continue
+            first, span = plane.history[0], ATTITUDE_WINDOW * self.period
+            n = len(plane.history)
+            f_fwd = sum(x[2] for x in plane.history) / n
+            f_up = sum(x[3] for x in plane.history) / n
+            norm = math.hypot(f_fwd, f_up)
+            if norm < 1.0:
+                continue  # free fall or a dead accelerometer: no tilt to be had
+            offset = math.atan2(f_fwd, f_up)
+
+            def tilt(a: float, norm=norm, offset=offset) -> float:
+                return math.asin(min(max(a / norm, -1.0), 1.0)) - offset
+
+            tilt_if_rate_wrong = tilt((v_attitude - first[1]) / span)
+            tilt_if_attitude_wrong = tilt((v_rate - first[0]) / span)
+            # The accelerometer's tilt is the window's mean: compare with the tilt half a window ago.
+            k = min(dt / ATTITUDE_VOTE, 1.0)
+            lag = rate[i] * span / 2
+            plane.error_if_rate_wrong += (
+                abs(attitude[i] - lag - tilt_if_rate_wrong) - plane.error_if_rate_wrong
+            ) * k
+            integrated = plane.integrated if plane.integrated is not None else attitude[i]
+            plane.error_if_attitude_wrong += (
+                abs(integrated - lag - tilt_if_attitude_wrong) - plane.error_if_attitude_wrong
+            ) * k
+
+    def blame(self, plane: int, accel_suspect: bool) -> str:
+        """Which channel of a plane a disagreement blames: 'attitude' or 'rate', the one whose hypothesis
+        leaves the accelerometer's tilt further from the tilt it keeps; with `accel_suspect` (only the
+        speed trend, which rests on the accelerometer, disagrees) 'accel' unless one hypothesis agrees
+        with the accelerometer within ACCEL_AGREES. Latched until `clear`."""
+        p = self.planes[plane]
+        if p.blamed is None:
+            rate_wrong, attitude_wrong = p.error_if_rate_wrong, p.error_if_attitude_wrong
+            if accel_suspect and min(rate_wrong, attitude_wrong) > ACCEL_AGREES:
+                p.blamed = "accel"
+            else:
+                p.blamed = "attitude" if rate_wrong > attitude_wrong else "rate"
+        return p.blamed
+
     def odd_one_out(self) -> str:
         """Which of the gyro's RateZ and the three encoders a yaw disagreement blames: the one whose
         exclusion leaves the smoothest ball rates over the last ODD_ONE_OUT_TICKS ticks (latched until
@@ -168,6 +245,8 @@ class IsolatedEstimator:
     def clear(self) -> None:
         """A reset: the sensors were found healthy again."""
         self._odd = None
+        for plane in self.planes:
+            plane.blamed = None
 
     def _relative(self, velocities, rate, suspects) -> tuple[float, float, float] | None:
         """Ball-to-body rates (x, y, z) from the trusted encoders (and the gyro's yaw rate if one is not)."""

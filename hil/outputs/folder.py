@@ -16,6 +16,7 @@ import numpy as np
 from hil.run.judge import RunResult
 from hil.run.measurements import unavailable
 from hil.run.trace import Trace
+from safety.machine import State
 
 
 def versions() -> dict[str, str]:
@@ -102,15 +103,16 @@ def safety_summary(tr: Trace) -> dict:
             }
         )
     error = np.abs(tr.safety_speed - truth_speed)
-    names = ("NORMAL", "LIMITING", "STOPPING", "ESTOP")
     final = int(tr.safety_state[-1]) if len(tr.safety_state) else -1
     return {
-        "final_state": names[final] if 0 <= final < len(names) else "none",
+        "final_state": State(final).name if final in State._value2member_map_ else "none",
         "events": events,
         "speed_estimate_error_max": None if np.isnan(error).all() else round(float(np.nanmax(error)), 6),
         "drives_refused_commands": tr.stats.refused_commands,
         "drives_permission_lost": tr.stats.permission_lost,
         "contactor_opened": tr.stats.contactor_opened,
+        "recovery_commands": tr.stats.recovery_commands,
+        "overridden_commands": tr.stats.overridden_commands,
         "fence_misses": tr.fence_misses,
         "identity_rejected": tr.identity_rejected,
         "sc_arbitration": tr.sc_arbitration,
