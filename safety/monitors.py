@@ -391,7 +391,7 @@ class Monitors:
         estimates = [nominal]
         for solve, others in self._leave_one_out:
             known = [velocities[j] for j in others]
-            x, y = solve(known, -rate[2])
+            x, y = solve(known, rate[2])
             estimates.append(self.radius * math.hypot(y + rate[1], x + rate[0]))
         return max(estimates)
 

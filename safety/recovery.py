@@ -43,18 +43,20 @@ ODD_ONE_OUT_TICKS = 40
 
 def leave_one_out(jacobian: np.ndarray):
     """For each drive, a solver for the ball-to-body rates (x, y) from the other two drives' velocities and
-    the yaw rate: what the rates are if that drive's encoder is the wrong one."""
+    the yaw rate: what the rates are if that drive's encoder is the wrong one. Scalar arithmetic: numpy's
+    per-call overhead dominates a 2 x 2 solve, and the supervisor runs four of them every tick."""
     solvers = []
     for i in range(3):
         others = [j for j in range(3) if j != i]
         inverse = np.linalg.inv(jacobian[np.ix_(others, [0, 1])])
-        column = jacobian[others, 2]
+        (a, b), (c, d) = ((float(x) for x in row) for row in inverse)
+        c0, c1 = (float(x) for x in jacobian[others, 2])
 
-        def solve(known, yaw_rate, inverse=inverse, column=column):
-            # r2 = −ψ̇: each remaining motor's rate minus its yaw part, through the 2×2 inverse.
-            rhs = np.asarray(known) - column * (-yaw_rate)
-            x, y = inverse @ rhs
-            return float(x), float(y)
+        def solve(known, yaw_rate, a=a, b=b, c=c, d=d, c0=c0, c1=c1):
+            # yaw_rate is the body's ψ̇ (the gyro's RateZ) and r2 = −ψ̇: each remaining motor's rate minus
+            # its yaw part, through the 2×2 inverse.
+            m0, m1 = known[0] + c0 * yaw_rate, known[1] + c1 * yaw_rate
+            return a * m0 + b * m1, c * m0 + d * m1
 
         solvers.append((solve, others))
     return solvers
@@ -92,6 +94,7 @@ class IsolatedEstimator:
         jacobian = motor_jacobian(robot)
         self.imu_height = robot.body.imu_height
         self._to_relative = np.linalg.inv(jacobian)
+        self._rows = tuple(tuple(float(x) for x in row) for row in self._to_relative)
         self._leave_one_out = leave_one_out(jacobian)
         self.radius, self.rules, self.period = robot.ball.radius, rules, period
         self.planes = (Plane(), Plane())
@@ -165,10 +168,11 @@ class IsolatedEstimator:
         steps, flips or drifts makes every estimate that uses it jump; the one without it stays smooth."""
         if rate is None or any(v is None for v in velocities):
             return
-        r = self._to_relative @ np.asarray(velocities, dtype=float)
-        candidates = [(float(r[0]), float(r[1]))]
+        (r00, r01, r02), (r10, r11, r12) = self._rows[:2]
+        m0, m1, m2 = velocities
+        candidates = [(r00 * m0 + r01 * m1 + r02 * m2, r10 * m0 + r11 * m1 + r12 * m2)]
         for solve, others in self._leave_one_out:
-            candidates.append(solve([velocities[j] for j in others], -rate[2]))
+            candidates.append(solve([velocities[j] for j in others], rate[2]))
         if self._candidates is not None:
             for rough, now, before in zip(self._roughness, candidates, self._candidates, strict=True):
                 rough.append(abs(now[0] - before[0]) + abs(now[1] - before[1]))
@@ -234,11 +238,13 @@ class IsolatedEstimator:
 
     def odd_one_out(self) -> str:
         """Which of the gyro's RateZ and the three encoders a yaw disagreement blames: the one whose
-        exclusion leaves the smoothest ball rates over the last ODD_ONE_OUT_TICKS ticks (latched until
+        exclusion leaves the ball rates without a jump over the last ODD_ONE_OUT_TICKS ticks (latched until
         `clear`). Four measurements of three unknowns detect one fault but cannot say which by themselves;
         the fault's onset can."""
         if self._odd is None:
-            scores = [sum(r) for r in self._roughness]
+            # The largest single-tick jump: a step or a flip stands out of the sensors' noise by orders of
+            # magnitude, where a sum over the window would add the noise up.
+            scores = [max(r, default=0.0) for r in self._roughness]
             self._odd = ("RateZ", *ENCODERS)[scores.index(min(scores))]
         return self._odd
 
@@ -256,12 +262,12 @@ class IsolatedEstimator:
             if v is None or name in suspects
         ]
         if not bad:
-            r = self._to_relative @ np.asarray(velocities, dtype=float)
-            return float(r[0]), float(r[1]), float(r[2])
+            m0, m1, m2 = velocities
+            return tuple(r0 * m0 + r1 * m1 + r2 * m2 for r0, r1, r2 in self._rows)  # type: ignore[return-value]
         if len(bad) > 1 or rate is None or "RateZ" in suspects:
             return None
         solve, others = self._leave_one_out[bad[0]]
-        x, y = solve([velocities[j] for j in others], -rate[2])
+        x, y = solve([velocities[j] for j in others], rate[2])
         return x, y, -rate[2]
 
     def engage(self) -> None:

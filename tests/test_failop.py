@@ -194,3 +194,35 @@ def test_a_controller_that_balances_at_standstill_on_healthy_inputs_is_never_tak
     assert tr.stats.recovery_commands == 0 and tr.stats.overridden_commands == 0
     assert not any(e.to_state == "RECOVERY" for e in tr.safety_events)
     assert BALANCING in tr.stats.controller_states
+
+
+# ------------------------------------------------------------------------------------------ isolation
+def _estimator():
+    from safety.diagnostics import motor_jacobian
+    from safety.recovery import IsolatedEstimator
+
+    robot = load_toml(ROOT / "configs/robot/pure.toml", RobotGeometry)
+    return IsolatedEstimator(robot, CFG.recovery, DT), motor_jacobian(robot)
+
+
+@pytest.mark.parametrize("faulty", ["Encoder1", "Encoder2", "Encoder3", "RateZ"])
+@pytest.mark.parametrize("kind", ["sign_flip", "step"])
+def test_a_yaw_disagreement_is_blamed_on_the_one_sensor_whose_exclusion_keeps_the_ball_rates_smooth(
+    faulty, kind
+):
+    est, g = _estimator()
+    rng = np.random.default_rng(1)
+    for k in range(160):  # the yaw check fires within its 25 ms window (10 ticks) of the fault
+        t = k * DT
+        # A robot accelerating forward and turning, with the drives' velocity noise (robot file: 0.05 rad/s).
+        rel = np.array([0.2 * math.sin(t), 5.0 + 2.0 * t, -0.4])
+        motors = g @ rel + rng.normal(0.0, 0.05, 3)
+        yaw = -rel[2]
+        if k >= 150:  # the fault
+            if faulty == "RateZ":
+                yaw = -yaw if kind == "sign_flip" else yaw + 0.3
+            else:
+                i = int(faulty[-1]) - 1
+                motors[i] = -motors[i] if kind == "sign_flip" else motors[i] + 3.0
+        est.update(t, (0.0, 0.0), (0.0, 0.0, yaw), list(motors), frozenset())
+    assert est.odd_one_out() == faulty

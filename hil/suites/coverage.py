@@ -193,13 +193,25 @@ class Classification:
         return self.label in ("DETECTED", "BENIGN")
 
 
-OPERATOR_CAUSES = frozenset(c.name for c in (Cause.OPERATOR_ESTOP, Cause.BUTTON_ESTOP, Cause.RESET))
+OPERATOR_CAUSES = frozenset(
+    c.name for c in (Cause.OPERATOR_ESTOP, Cause.BUTTON_ESTOP, Cause.OPERATOR_CUT, Cause.RESET)
+)
 """What an operator does to the supervisor: never a trip of its own."""
+ESCALATIONS = frozenset(
+    c.name for c in (Cause.STOP_TIMEOUT, Cause.STOP_INEFFECTIVE, Cause.MOTION_AFTER_STANDSTILL)
+)
+"""A stop under way that does not take is handed to the recovery law: after an operator's stop, that is the
+operator's stop carried out, not a trip of the supervisor's own."""
 
 
 def false_trip(o: Outcome) -> str:
     """Why a fault-free run counts as a false trip ('' if it does not): the supervisor acted on its own."""
-    own = [x for x in o.transitions if x[2] not in OPERATOR_CAUSES]
+    stopped = False
+    own = []
+    for x in o.transitions:
+        stopped = stopped or x[2] in OPERATOR_CAUSES - {Cause.RESET.name}
+        if x[2] not in OPERATOR_CAUSES and not (stopped and x[2] in ESCALATIONS):
+            own.append(x)
     if own:
         t, state, cause = own[0]
         return f"{state}/{cause} at {t:.3f} s without a fault"
