@@ -54,16 +54,16 @@ class Check:
 
     cause = Cause.SENSOR_DISAGREE
 
-    def __init__(self, name: str, inputs: tuple[str, ...] = ()):
+    def __init__(self, name: str, parts: tuple[str, ...] = ()):
         self.name = name
-        self.inputs = inputs
-        """The inputs a failure isolates by itself (empty: it needs other evidence, safety/monitors.py)."""
+        self.parts = parts
+        """The parts a failure isolates by itself (empty: it needs other evidence, safety/monitors.py)."""
         self.peak = 0.0
 
     def judge(self, residual: float, bound: float, detail: str) -> Finding | None:
         ratio = abs(residual) / bound
         self.peak = max(self.peak, ratio)
-        return Finding(self.cause, f"{self.name}: {detail}", self.inputs) if ratio > 1.0 else None
+        return Finding(self.cause, f"{self.name}: {detail}", self.parts) if ratio > 1.0 else None
 
 
 class Stuck:
@@ -245,7 +245,7 @@ class TorqueCheck(Check):
     cause = Cause.ACTUATOR_MISMATCH
 
     def __init__(self, index: int, tolerance: float, relative: float, samples: int, limit: float):
-        super().__init__(f"drive {index} torque")
+        super().__init__(f"drive {index} torque", (f"Drive{index}",))
         self.tolerance, self.relative, self.samples, self.limit = tolerance, relative, samples, limit
         self.over = 0
 

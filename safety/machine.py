@@ -132,17 +132,21 @@ without the inputs it needs, power goes off at once)."""
 CUT_POWER = frozenset(
     {
         Cause.TILT,
-        Cause.DRIVES_SILENT,
         Cause.DRIVE_NOT_DISABLED,
         Cause.CONTACTOR_FAULT,
         Cause.OPERATOR_CUT,
     }
 )
 """The only causes that cut power in motion: balance already lost (tilt beyond the recoverable bound), the
-drives themselves are the fault or cannot be reached, or the operator asked for category 0."""
-TAKEOVER_FINDINGS = frozenset({Cause.SENSOR_STUCK, Cause.SENSOR_DISAGREE})
-"""Findings that mean the controller balances on an input that lies: the recovery law, which drops the
-input the diagnosis names, takes over at once instead of a controlled stop through the controller."""
+drives themselves are the fault (power that cannot be switched off), or the operator asked for category 0.
+Drives that cannot be heard (DRIVES_SILENT) are the recovery law's to judge: it balances without one
+encoder, and without two it is not `recoverable`."""
+TAKEOVER_CAUSES = frozenset(
+    {Cause.SENSOR_STUCK, Cause.SENSOR_DISAGREE, Cause.ACTUATOR_MISMATCH, Cause.DRIVE_FAULT}
+)
+"""Controlled causes the controller cannot stop from: it balances on a sensor that lies, or drives a drive
+that does not do what it is told (or does not hear it). The recovery law, which drops what the diagnosis
+names (and reaches the drives on a frame of its own), takes over at once instead."""
 FINDINGS = (
     Cause.SENSOR_STUCK,
     Cause.SENSOR_DISAGREE,
@@ -166,17 +170,21 @@ class Request:
     source: str
 
 
-INPUTS = ("Encoder1", "Encoder2", "Encoder3", "Roll", "Pitch", "RateX", "RateY", "RateZ", "Accel", "Seat")
-"""The inputs a diagnosis can name: SUPERVISOR_DIAGNOSIS's flags, spelled as its signals."""
+PARTS = (
+    *("Encoder1", "Encoder2", "Encoder3", "Roll", "Pitch", "RateX", "RateY", "RateZ", "Accel", "Seat"),
+    *("Drive1", "Drive2", "Drive3"),
+)
+"""What a diagnosis can name faulty, the sensors' channels, the seat and the drives: SUPERVISOR_DIAGNOSIS's
+flags, spelled as its signals."""
 
 
 @dataclass(frozen=True, slots=True)
 class Finding:
-    """A diagnostic that fails now: its cause, what it saw, and the inputs it isolates (in INPUTS)."""
+    """A diagnostic that fails now: its cause, what it saw, and the parts it isolates (in PARTS)."""
 
     cause: Cause
     detail: str
-    inputs: tuple[str, ...] = ()
+    parts: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -424,7 +432,7 @@ class Supervisor:
     def _stop(self, cause: Cause, detail: str, obs: Observation) -> None:
         """A controlled stop if the controller is balancing on inputs it can trust; else the recovery law."""
         healthy = obs.controller_state == BALANCING and obs.speed is not None
-        if healthy and cause not in TAKEOVER_FINDINGS:
+        if healthy and cause not in TAKEOVER_CAUSES:
             self._enter(State.STOPPING, cause, obs, detail)
         else:
             self._take_over_or_cut(cause, obs, detail)

@@ -59,7 +59,7 @@ CHANNEL_INPUT = {
     MessageName.IMU_RATE: ("RateX", "RateY", "RateZ"),
     MessageName.IMU_ACCEL: ("Accel", "Accel", "Accel"),
 }
-"""The inputs (safety.machine.INPUTS) each stream carries, per channel for the IMU ('': none: the yaw angle
+"""The parts (safety.machine.PARTS) each stream carries, per channel for the IMU ('': none: the yaw angle
 is used by no one)."""
 PLANES = (("roll", "Roll", "RateX"), ("pitch", "Pitch", "RateY"))
 """Per plane: its checks' name, its attitude input, its rate input."""
@@ -176,8 +176,10 @@ class Monitors:
         """A sensor check failed: the speed estimate is the conservative one until a reset."""
         self.recovering = False
         """The drives follow the recovery law (its commands, not the controller's, are checked)."""
+        self.named: frozenset[str] = frozenset()
+        """What the diagnosis named at the last observation (`suspects`)."""
         self._named: set[str] = set()
-        """Inputs a check has isolated by itself (latched until a reset)."""
+        """Parts a check has isolated by itself (latched until a reset)."""
         self._failed: set[str] = set()
         """Cross-checks that need other evidence to isolate their input and have failed ('yaw', 'roll',
         'pitch', 'roll trend', 'pitch trend'; latched until a reset)."""
@@ -309,7 +311,7 @@ class Monitors:
                 vertical if self._imu_seen[MessageName.IMU_ACCEL] > -math.inf else G0,
                 self._imu_motion,
             )
-            self._found["seat", "wrench"] = found and dataclasses.replace(found, inputs=("Seat",))
+            self._found["seat", "wrench"] = found and dataclasses.replace(found, parts=("Seat",))
             self._imu_motion = 0.0
         else:
             self.stale_wrench += 1
@@ -335,11 +337,12 @@ class Monitors:
         """A reset was accepted: the sensors were found healthy again."""
         self.degraded = self.recovering = False
         self.isolated.clear()
+        self.named = frozenset()
         self._named.clear()
         self._failed.clear()
 
     def suspects(self) -> frozenset[str]:
-        """The inputs the diagnosis names faulty (safety.machine.INPUTS), latched until a reset.
+        """The parts the diagnosis names faulty (safety.machine.PARTS), latched until a reset.
 
         What a check isolates by itself (an encoder's position against its velocity, a frozen or replayed
         channel) is named directly. A cross-check that fails names its likeliest input unless a direct
@@ -385,7 +388,7 @@ class Monitors:
         nominal = self.radius * math.hypot(rel[1] + rate[1], rel[0] + rate[0])
         if not self.degraded:
             return nominal
-        if self._named & set(ENCODERS) and self.isolated.ready:
+        if self.named & set(ENCODERS) and self.isolated.ready:
             return self.isolated.speed  # the encoder that lies is known (its own position check): drop it
         velocities = [d.velocity for d in self.drives]
         estimates = [nominal]
@@ -398,7 +401,7 @@ class Monitors:
     def tilt(self) -> float | None:
         if not math.isfinite(self._imu_seen[MessageName.IMU_ATTITUDE]):
             return None
-        if self._named & {"Roll", "Pitch"} and self.isolated.ready:
+        if self.named & {"Roll", "Pitch"} and self.isolated.ready:
             return self.isolated.tilt  # the attitude lies: the rates integrated from where it was good
         attitude = self.imu[MessageName.IMU_ATTITUDE]
         return max(abs(attitude[0]), abs(attitude[1]))
@@ -442,8 +445,20 @@ class Monitors:
         if any(f.cause in (Cause.SENSOR_STUCK, Cause.SENSOR_DISAGREE) for f in found):
             self.degraded = True
         for f in found:
-            self._named.update(f.inputs)
+            self._named.update(f.parts)
+        for drive in self.drives:
+            if drive.fault:
+                self._named.add(f"Drive{drive.index}")
         return tuple(found)
+
+    def dead_drive(self) -> int | None:
+        """The drive (0-2) the diagnosis names, if one: the recovery law balances on the other two."""
+        named = [i for i, d in enumerate(self.drives) if f"Drive{d.index}" in self.named]
+        return named[0] if len(named) == 1 else None
+
+    def _drives_left(self) -> bool:
+        """At least two drives not named faulty: two omniwheels can still balance the ball."""
+        return sum(f"Drive{d.index}" in self.named for d in self.drives) <= 1
 
     def _isolate(self, t: float) -> None:
         """Feed the recovery law's estimator with the fresh trusted streams and what the diagnosis names."""
@@ -454,13 +469,15 @@ class Monitors:
             return self.imu[name] if t - seen[name] <= imu else None
 
         drives = self.config.watchdogs.drives
+        self.named = self.suspects()
         self.isolated.update(
             t,
             fresh(MessageName.IMU_ATTITUDE),
             fresh(MessageName.IMU_RATE),
             [d.velocity if t - d.seen <= drives else None for d in self.drives],
-            self.suspects(),
+            self.named,
             fresh(MessageName.IMU_ACCEL),
+            frozenset(a for p, a, _ in PLANES if p in self._failed or f"{p} trend" in self._failed),
         )
 
     def margins(self) -> dict[str, float]:
@@ -497,7 +514,7 @@ class Monitors:
             operator_source=self.operator_source,
             findings=findings,
             drives=tuple(d.report(t, timeout) for d in self.drives),
-            recoverable=self.config.recovery.enabled and self.isolated.ready,
+            recoverable=self.config.recovery.enabled and self.isolated.ready and self._drives_left(),
         )
         self.torque_peak = 0.0
         self.operator, self.operator_source = None, ""

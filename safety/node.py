@@ -25,7 +25,7 @@ from drivers.can_codec import MessageName
 from drivers.schemas import EstopCommand, SafetyAlert, SafetyState, ScCommand, ScRequest, TesWrench, encode
 from drivers.zenoh_link import Fence, ZenohLink
 from safety.config import RobotGeometry, SupervisorConfig
-from safety.machine import INPUTS, Decision, Event, Forward, Observation, State, Supervisor
+from safety.machine import PARTS, Decision, Event, Forward, Observation, State, Supervisor
 from safety.monitors import Monitors
 from safety.recovery import RecoveryLaw
 
@@ -175,15 +175,15 @@ class SupervisorNode:
             )
 
     def _diagnosis_signals(self, d: Decision) -> dict[str, int]:
-        suspects = self.monitors.suspects()
-        return {**{name: int(name in suspects) for name in INPUTS}, "Alert": d.alert}
+        named = self.monitors.named
+        return {**{name: int(name in named) for name in PARTS}, "Alert": d.alert}
 
     def _recover(self, d: Decision) -> None:
         """While the recovery law holds the drives: its torques for this tick, every update."""
         if d.state is not State.RECOVERY:
             self.recovery_torques = None
             return
-        torques = self.recovery.torques(self.monitors.isolated)
+        torques = self.recovery.torques(self.monitors.isolated, self.monitors.dead_drive())
         self.recovery_torques = torques
         self.monitors.recovery_commanded(torques)
         self.can.send(

@@ -36,6 +36,8 @@ ATTITUDE_VOTE = 0.05
 """s: time constant of each attitude hypothesis' error (below)."""
 ACCEL_AGREES = math.radians(2.0)
 """rad: a tilt hypothesis the accelerometer confirms (its noise over the window is a few tenths of this)."""
+DECISIVE = math.radians(1.5)
+"""rad between the two hypotheses' errors that settles which channel of a plane is wrong."""
 ODD_ONE_OUT_TICKS = 40
 """Ticks (100 ms at 400 Hz) over which a yaw disagreement's hypotheses are compared: the yaw check's window
 (25 ms) and the fault's onset before it."""
@@ -118,10 +120,12 @@ class IsolatedEstimator:
         velocities: Sequence[float | None],
         suspects: frozenset[str],
         accel: Sequence[float] | None = None,
+        doubted: frozenset[str] = frozenset(),
     ) -> None:
         """One observation: the last trusted attitude (roll, pitch), rates (x, y, z) and specific force
         (x, y, z) if fresh (None: silent), each motor's velocity if fresh (None: silent), and the inputs the
-        diagnosis names."""
+        diagnosis names; `doubted`: channels a check has implicated without settling it yet (a doubted
+        attitude still counts, but the integrated rates are no longer pulled toward it)."""
         dt = self.period if self._t is None else max(t - self._t, 0.0)
         self._t = t
         rules = self.rules
@@ -141,7 +145,7 @@ class IsolatedEstimator:
                 plane.integrated = measured
             elif dt > 0.0:
                 plane.integrated += plane.tilt_rate * dt
-                if measured is not None:
+                if measured is not None and attitude_name not in doubted:
                     plane.integrated += (measured - plane.integrated) * min(dt / rules.attitude_filter, 1.0)
             if measured is not None:
                 plane.tilt = measured
@@ -226,15 +230,20 @@ class IsolatedEstimator:
         """Which channel of a plane a disagreement blames: 'attitude' or 'rate', the one whose hypothesis
         leaves the accelerometer's tilt further from the tilt it keeps; with `accel_suspect` (only the
         speed trend, which rests on the accelerometer, disagrees) 'accel' unless one hypothesis agrees
-        with the accelerometer within ACCEL_AGREES. Latched until `clear`."""
+        with the accelerometer within ACCEL_AGREES. A slow fault (a drift) is seen before the evidence is
+        clear: the answer is the best guess until the two hypotheses differ by DECISIVE, then latched until
+        `clear`."""
         p = self.planes[plane]
-        if p.blamed is None:
-            rate_wrong, attitude_wrong = p.error_if_rate_wrong, p.error_if_attitude_wrong
-            if accel_suspect and min(rate_wrong, attitude_wrong) > ACCEL_AGREES:
-                p.blamed = "accel"
-            else:
-                p.blamed = "attitude" if rate_wrong > attitude_wrong else "rate"
-        return p.blamed
+        if p.blamed is not None:
+            return p.blamed
+        rate_wrong, attitude_wrong = p.error_if_rate_wrong, p.error_if_attitude_wrong
+        if accel_suspect and min(rate_wrong, attitude_wrong) > ACCEL_AGREES:
+            guess = "accel"
+        else:
+            guess = "attitude" if rate_wrong > attitude_wrong else "rate"
+        if abs(rate_wrong - attitude_wrong) > DECISIVE:
+            p.blamed = guess
+        return guess
 
     def odd_one_out(self) -> str:
         """Which of the gyro's RateZ and the three encoders a yaw disagreement blames: the one whose
@@ -313,11 +322,22 @@ def plane_gain(robot: RobotGeometry, rules: RecoveryRules, rider_mass: float, in
 
 
 class RecoveryLaw:
-    """τ = −K s per plane, the yaw rate damped, mapped onto the three motors and held to their limit."""
+    """τ = −K s per plane, the yaw rate damped, mapped onto the motors and held to their limit. Without one
+    drive (found not to make its torque) the other two make the two balancing torques and the yaw is left
+    free: a ballbot can balance on two omniwheels while it turns."""
 
     def __init__(self, robot: RobotGeometry, rules: RecoveryRules):
         self.robot, self.rules = robot, rules
-        self._to_motor = np.linalg.inv(motor_jacobian(robot).T)
+        transpose = motor_jacobian(robot).T
+        self._to_motor = np.linalg.inv(transpose)
+        self._without = tuple(
+            (
+                [j for j in range(3) if j != i],
+                np.linalg.inv(transpose[np.ix_([0, 1], [j for j in range(3) if j != i])]),
+            )
+            for i in range(3)
+        )
+        """Per drive: the other two, and the map from the balancing torques (x, y) onto them."""
         self.limit = robot.drive.torque_limit
         self.gains = self.design(None)
 
@@ -331,7 +351,8 @@ class RecoveryLaw:
         )
         return self.gains
 
-    def torques(self, estimate: IsolatedEstimator) -> tuple[float, float, float]:
+    def torques(self, estimate: IsolatedEstimator, without: int | None = None) -> tuple[float, float, float]:
+        """The motor torques for the estimate; `without`: a drive (0-2) that makes no torque."""
         limit_angle = self.rules.position_limit / estimate.radius
         ball = []
         for plane, gain in zip(estimate.planes, self.gains, strict=True):
@@ -340,7 +361,12 @@ class RecoveryLaw:
             plane.ball_angle = min(max(plane.ball_angle, -limit_angle), limit_angle)
             state = (plane.tilt, plane.ball_angle, plane.tilt_rate, plane.ball_rate)
             ball.append(-sum(k * x for k, x in zip(gain, state, strict=True)))
-        ball.append(self.rules.yaw_gain * estimate.yaw_rate)
-        motor = self._to_motor @ np.asarray(ball)
+        if without is None:
+            ball.append(self.rules.yaw_gain * estimate.yaw_rate)
+            motor = self._to_motor @ np.asarray(ball)
+        else:
+            others, inverse = self._without[without]
+            motor = np.zeros(3)
+            motor[others] = inverse @ np.asarray(ball)
         limit = self.limit
         return tuple(min(max(float(m), -limit), limit) for m in motor)  # type: ignore[return-value]

@@ -20,7 +20,7 @@ from safety.machine import (
     BALANCING,
     CUT_POWER,
     IMMEDIATE,
-    TAKEOVER_FINDINGS,
+    TAKEOVER_CAUSES,
     Cause,
     State,
 )
@@ -46,7 +46,7 @@ def test_a_cause_the_controller_cannot_stop_from_hands_the_drives_to_the_recover
 
 
 def test_only_balance_lost_the_drives_or_the_operator_cut_power_in_motion():
-    assert {Cause.TILT, Cause.DRIVES_SILENT, Cause.DRIVE_NOT_DISABLED, Cause.CONTACTOR_FAULT} < CUT_POWER
+    assert {Cause.TILT, Cause.DRIVE_NOT_DISABLED, Cause.CONTACTOR_FAULT} < CUT_POWER
     assert Cause.OPERATOR_CUT in CUT_POWER and CUT_POWER <= IMMEDIATE
     s = supervisor()
     d = s.update(obs(t=2.0, speed=1.4, recoverable=True, operator="cut_power", operator_source="op"))
@@ -56,7 +56,7 @@ def test_only_balance_lost_the_drives_or_the_operator_cut_power_in_motion():
     assert (d.state, d.drives_permitted) == (State.STOPPING, True), "an e-stop alone is category 1"
 
 
-@pytest.mark.parametrize("cause", sorted(TAKEOVER_FINDINGS), ids=lambda c: c.name)
+@pytest.mark.parametrize("cause", sorted(TAKEOVER_CAUSES), ids=lambda c: c.name)
 def test_a_lying_sensor_is_taken_over_at_once_not_stopped_through_the_controller_that_uses_it(cause):
     d = supervisor().update(obs(speed=1.0, recoverable=True, **CONTROLLED_CASES[cause]))
     assert (d.state, d.cause, d.takeover) == (State.RECOVERY, cause, True)
