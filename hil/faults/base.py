@@ -34,7 +34,7 @@ class Expect(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tr
     stays at or below it (m/s) from the fault's start on."""
 
     reaction: Literal["none", "supervisor"] | None = None
-    state: Literal["LIMITING", "STOPPING", "ESTOP"] | None = None
+    state: Literal["LIMITING", "STOPPING", "ESTOP", "RECOVERY"] | None = None
     cause: str | None = None
     within: Positive = 0.1
     fall: bool | None = None

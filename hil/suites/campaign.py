@@ -48,6 +48,9 @@ class FaultSetEntry(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_
     keep_criteria: bool = False
     """Judge the case by the scenario's own criteria too. By default a faulty case is judged by what its
     faults expect (the scenario's criteria describe the healthy run: an e-stop would fail them)."""
+    unrecoverable: dict[str, str] = {}
+    """Scenario name -> why nothing can balance the robot after this fault there (a measurement): a fall
+    after the detection does not fail the case. docs/safety.md names each."""
 
 
 class FaultFree(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -114,6 +117,8 @@ class Case:
     twin_faults: str = "none"
     """The fault set of this case's twin: `none`, or for a set with operator actions its own twin (the
     same actions, no faults)."""
+    unrecoverable: str = ""
+    """Why nothing can balance the robot after this case's fault (its set's `unrecoverable` entry)."""
 
     @property
     def id(self) -> str:
@@ -182,6 +187,7 @@ def expand(campaign: Campaign, select: list[str] | None = None) -> list[Case]:
                                 role,
                                 coverage,
                                 twin,
+                                fault_set.unrecoverable.get(Path(scenario_path).stem, ""),
                             )
                         )
     for entry in campaign.fault_free:
@@ -254,7 +260,7 @@ class CaseResult:
         lines = []
         if self.coverage is not None and not self.coverage.passed:
             c = self.coverage
-            lines.append(f"{c.label}: {c.cause or 'no reaction of its own'}; {c.note}".rstrip("; "))
+            lines.append(f"{c.name}: {c.cause or 'no reaction of its own'}; {c.note}".rstrip("; "))
         if self.false_trip:
             lines.append(f"false trip: {self.false_trip}")
         for v in self.failed:
@@ -297,6 +303,8 @@ def run_case(case: Case, out: Path | None = None, bench: Bench | None = None) ->
         twin=case.twin_id,
         outcome=outcome(result) if judged else None,
     )
+    if res.outcome is not None:
+        res.outcome.unrecoverable = case.unrecoverable
     if case.role in ("twin", "fault_free"):
         res.false_trip = false_trip(res.outcome)
         res.passed = res.passed and not res.false_trip
@@ -404,6 +412,9 @@ def coverage_report(results: list[CaseResult]) -> str:
     if not faulty and not fault_free:
         return ""
     classes = Counter(r.coverage.label if r.coverage else "ERROR" for r in faulty)
+    afters = [r.coverage.after for r in faulty if r.coverage and r.coverage.after]
+    ended = Counter(a.ended for a in afters)
+    excused = sum(bool(a.excused) for a in afters)
     detected, missed = classes["DETECTED"] + classes["LATE"], classes["MISSED"]
     trips = [r for r in fault_free if r.false_trip or r.error]
     by_id = {r.case_id: r for r in results}
@@ -418,28 +429,49 @@ def coverage_report(results: list[CaseResult]) -> str:
         f"- reaction: median {np.median(reactions) * 1e3:.1f} ms, max {max(reactions) * 1e3:.1f} ms"
         if reactions
         else "- reaction: none",
+        "- after the detection: "
+        + ", ".join(f"{k} {v}" for k, v in sorted(ended.items()))
+        + (f" ({excused} of the falls unrecoverable, named in the campaign)" if excused else ""),
         f"- false trips: {len(trips)} of {len(fault_free)} fault-free runs",
         f"- wall time of a faulty run vs its twin: max {max(ratios):.2f}x" if ratios else "",
         "",
-        "| class | case | cause | reaction ms | departed ms | bound ms | note |",
-        "|---|---|---|---|---|---|---|",
+        "| class | case | cause | reaction ms | departed ms | bound ms | to rest s | peak speed m/s "
+        "| peak tilt deg | modes | drives held by | note |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     order = {"ERROR": 0, "MISSED": 1, "LATE": 2, "DETECTED": 3, "BENIGN": 4}
-    for r in sorted(faulty, key=lambda r: (order[r.coverage.label if r.coverage else "ERROR"], r.case_id)):
+    for r in sorted(
+        faulty,
+        key=lambda r: (
+            r.coverage is not None and r.coverage.passed,
+            order[r.coverage.label if r.coverage else "ERROR"],
+            r.case_id,
+        ),
+    ):
         c = r.coverage
         if c is None:
             lines.append(
-                f"| ERROR | {r.case_id} |  |  |  |  | {r.error.splitlines()[0][:120] if r.error else ''} |"
+                f"| ERROR | {r.case_id} |  |  |  |  |  |  |  |  |  "
+                f"| {r.error.splitlines()[0][:120] if r.error else ''} |"
             )
             continue
         reaction = "" if c.reaction is None else f"{c.reaction * 1e3:.1f}"
         departed = "" if c.departed is None else f"{c.departed * 1e3:.1f}"
         bound = f"{r.outcome.detect_within * 1e3:.0f}" if r.outcome else ""
+        a = c.after
+        after = (
+            f"{'' if a.to_rest is None else f'{a.to_rest:.1f}'} | {a.peak_speed:.2f} | {a.peak_tilt_deg:.1f} "
+            f"| {a.modes} | {a.held_by}"
+            if a
+            else " |  |  |  | "
+        )
+        note = "; ".join(x for x in (c.note, a and a.excused and f"unrecoverable: {a.excused}") if x)
         lines.append(
-            f"| {c.label} | {r.case_id} | {c.cause} | {reaction} | {departed} | {bound} | {c.note} |"
+            f"| {c.name} | {r.case_id} | {c.cause} | {reaction} | {departed} | {bound} | {after} | {note} |"
         )
     for r in trips:
-        lines.append(f"| FALSE TRIP | {r.case_id} |  |  |  |  | {r.false_trip or r.error.splitlines()[0]} |")
+        why = r.false_trip or r.error.splitlines()[0]
+        lines.append(f"| FALSE TRIP | {r.case_id} |  |  |  |  |  |  |  |  |  | {why} |")
     return "\n".join(line for line in lines if line is not None) + "\n"
 
 

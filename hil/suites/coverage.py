@@ -13,6 +13,12 @@
 The bound counts from the fault's onset: its start, or the moment the faulty run first departs from its
 twin (speed by `onset_speed`, tilt by `onset_tilt_deg`) if that is later. A fault that changes nothing yet
 (a stuck encoder on a wheel that does not turn) has no evidence to see and does no harm until it does.
+- After a detection, what the robot did: AT_REST (standstill and upright at the end), FELL, or MOVING
+  (upright, not at rest: a rider still driving it); with the time from the fault to rest, the peak speed and
+  tilt after the detection, the supervisor's modes (e.g. RECOVERY>ESTOP) and who held the drives (the
+  controller, the supervisor's recovery law, or nobody: power cut in motion). A fall after a detection fails
+  the case unless the campaign names the fault unrecoverable in that scenario (a measurement shows that
+  nothing can balance the robot; docs/safety.md lists each).
 - MISSED: anything else: a hazard (a fall, the speed above the supervisor's cap plus its margin, a drive
   powered longer than `powered_after_estop` after an e-stop) or a departure from the twin beyond the
   benign bound, with no reaction of the supervisor's own before it. Reactions to consequences (tilt,
@@ -102,6 +108,10 @@ class Outcome:
     """s: the longest a drive stayed powered after an e-stop was entered."""
     hazard_speed: float = math.inf
     """m/s above which the speed is a hazard: the supervisor's absolute cap plus its margin."""
+    standstill_speed: float = 0.05
+    """m/s at or below which the robot is at rest (the supervisor's)."""
+    unrecoverable: str = ""
+    """Why nothing can balance the robot after this fault in this scenario ('' : it must end upright)."""
 
     def departs(self, twin: Outcome, start: float, bounds: Bounds) -> float | None:
         """When this run first departs from its twin after `start` (None: never)."""
@@ -152,6 +162,7 @@ def outcome(result: RunResult) -> Outcome:
         detect_within=min((f.detect_within for f in faults), default=0.25),
         powered_after_estop=_powered_after_estop(tr),
         hazard_speed=safety.absolute_cap + safety.margin,
+        standstill_speed=result.safety.stop.standstill_speed,
     )
 
 
@@ -177,6 +188,50 @@ def _powered_after_estop(tr) -> float:
     return longest
 
 
+UPRIGHT_DEG = 5.0
+"""deg: at rest means within this of upright (the rider's feet and the stand catch the robot there)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Aftermath:
+    """What the robot did after the supervisor saw the fault."""
+
+    ended: str
+    """AT_REST, FELL or MOVING."""
+    to_rest: float | None
+    """s from the fault's start until the robot stood still to the end (None: it did not)."""
+    peak_speed: float
+    peak_tilt_deg: float
+    modes: str
+    """The supervisor's states from the fault on, e.g. RECOVERY>ESTOP."""
+    held_by: str
+    """Who held the drives: controller, recovery law, or nobody (power cut in motion)."""
+    excused: str = ""
+    """Why a fall does not fail the case: the fault is unrecoverable in this scenario."""
+
+
+def aftermath(o: Outcome, start: float, seen: float) -> Aftermath:
+    t, speed, tilt = np.asarray(o.t), np.asarray(o.speed), np.asarray(o.tilt_deg)
+    moving = np.nonzero(speed > o.standstill_speed)[0]
+    rest = o.fell_at is None and len(t) and speed[-1] <= o.standstill_speed and tilt[-1] <= UPRIGHT_DEG
+    to_rest = None
+    if rest:
+        last = moving[-1] + 1 if len(moving) else 0
+        to_rest = max(float(t[min(last, len(t) - 1)]) - start, 0.0)
+    peak_speed, peak_tilt, _ = o.peaks_after(seen)
+    after = [(when, state) for when, state, _ in o.transitions if when >= start - 1e-9]
+    modes = ">".join(state for _, state in after)
+    if any(state == "RECOVERY" for _, state in after):
+        held_by = "recovery law"
+    else:
+        cut = next((when for when, state in after if state == "ESTOP"), None)
+        i = None if cut is None else min(int(np.searchsorted(t, cut)), len(t) - 1)
+        held_by = "nobody" if i is not None and speed[i] > o.standstill_speed else "controller"
+    ended = "FELL" if o.fell_at is not None else "AT_REST" if rest else "MOVING"
+    excused = o.unrecoverable if ended == "FELL" else ""
+    return Aftermath(ended, to_rest, peak_speed, peak_tilt, modes, held_by, excused)
+
+
 @dataclass(frozen=True, slots=True)
 class Classification:
     label: str
@@ -187,10 +242,18 @@ class Classification:
     departed: float | None = None
     """s from the fault's start (or the demand) to the run's departure from its twin, if that came first."""
     note: str = ""
+    after: Aftermath | None = None
+    """DETECTED and LATE: what the robot did after the detection."""
 
     @property
     def passed(self) -> bool:
-        return self.label in ("DETECTED", "BENIGN")
+        fell = self.after is not None and self.after.ended == "FELL" and not self.after.excused
+        return self.label in ("DETECTED", "BENIGN") and not fell
+
+    @property
+    def name(self) -> str:
+        """The class with what followed a detection: DETECTED+AT_REST, DETECTED+FELL, ..."""
+        return self.label if self.after is None else f"{self.label}+{self.after.ended}"
 
 
 OPERATOR_CAUSES = frozenset(
@@ -240,7 +303,12 @@ def classify(o: Outcome, twin: Outcome, bounds: Bounds) -> Classification:
         late = not first and seen - max(start, departed) > o.detect_within + 1e-9
         note = f"then {hazard}" if hazard else ""
         return Classification(
-            "LATE" if late else "DETECTED", cause, seen - start, None if first else departed - start, note
+            "LATE" if late else "DETECTED",
+            cause,
+            seen - start,
+            None if first else departed - start,
+            note,
+            aftermath(o, start, seen),
         )
     if hazard:
         return Classification("MISSED", note=f"{hazard} with no reaction of the supervisor's own before it")
