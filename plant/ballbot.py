@@ -18,7 +18,7 @@ from plant.drives import DriveArray
 from plant.omniwheel import motor_jacobian, wheel_inertia_equivalents
 from plant.params import RiderParams, RobotParams, SimParams
 from plant.plane import G0, STICK_TIME_CONSTANT, PlaneDynamics, PlaneParams, Wrench
-from plant.rider import LeanStyle, Profile, Segment, TorsoController, TwistController
+from plant.rider import LeanStyle, Profile, Segment, Step, TorsoController, TwistController
 from plant.sensors import DriveFeedback, DriveFeedbackModel, ImuModel, ImuSample, TesModel, TesSample
 
 PITCH, ROLL = 0, 1
@@ -158,6 +158,10 @@ class Plant:
         self.external_yaw = 0.0
         self.ball_torque = (0.0, 0.0, 0.0)
         self.fallen: str | None = None
+        self.heeds_alert = False
+        """The rider sits up on the supervisor's alert (`alert`); False: the scripted rider ignores it."""
+        self._alerted: float | None = None
+        """When the rider acts on the alert (s), once noticed."""
         self.resting = False
         self._powered = False
         """Power off at standstill: the rider's feet (the seat is at chair height) or the parking stand
@@ -165,6 +169,13 @@ class Plant:
         self._outputs_tick = self._wrench_tick = -1
         self._wrench: tuple[float, ...] = (0.0,) * 6
         self._accel_cache: tuple[tuple[float, ...], tuple[float, float]] = ((0.0,) * 6, (0.0, 0.0))
+
+    def alert(self, level: int) -> None:
+        """The supervisor's alert reaches the rider (0 none, 1 slow down, 2 stop). A rider who heeds it
+        (`heeds_alert`) sits up and holds still `alert_reaction_time` after the first alert: the intent
+        becomes upright and no twist, at the rider's own rates. One who does not, goes on as scripted."""
+        if level > 0 and self.heeds_alert and self._alerted is None and self.rider is not None:
+            self._alerted = self.t + self.rider.alert_reaction_time
 
     def set_intent(self, intent: RiderIntent) -> None:
         """Replace the rider's intent from now on; each profile starts where the rider is."""
@@ -206,6 +217,9 @@ class Plant:
     # ------------------------------------------------------------------------------------------ one tick
     def step(self) -> None:
         """Advance one tick: the rider decides, drives act (ZOH + current lag), RK4 substeps, fall check."""
+        if self._alerted is not None and self.t >= self._alerted:
+            self._alerted = math.inf  # acted on: once
+            self.set_intent(RiderIntent(pitch=[Step(to=0.0)], roll=[Step(to=0.0)], twist=[Step(to=0.0)]))
         if self.torso is not None:
             for k in (PITCH, ROLL):
                 self.torso[k].update(self.t, self.dt, self.velocity[k])

@@ -187,6 +187,10 @@ class RiderParams(_Record):
     lean_rate_deg: Positive = 4.0
     """How fast this rider leans in such a trial, deg/s. Default from the paper's Table II and Fig. 4
     (docs/riders.md)."""
+    alert_reaction_time: Positive = 1.0
+    """s from the supervisor's alert to this rider starting to sit up, when the scenario's rider heeds it:
+    a driver's brake reaction to an expected signal is ~0.7 s, to an unexpected but common one ~1.25 s
+    (Green 2000; docs/riders.md)."""
     max_lean_accel_deg: Positive = 400.0
     """Fastest change of the intended lean's rate, deg/s² [EST]: a trunk cannot change its angular velocity
     at once (40 deg/s is reached in 0.1 s), so the hip torque and the seat's load change smoothly."""

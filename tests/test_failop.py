@@ -226,3 +226,43 @@ def test_a_yaw_disagreement_is_blamed_on_the_one_sensor_whose_exclusion_keeps_th
                 motors[i] = -motors[i] if kind == "sign_flip" else motors[i] + 3.0
         est.update(t, (0.0, 0.0), (0.0, 0.0, yaw), list(motors), frozenset())
     assert est.odd_one_out() == faulty
+
+
+# ---------------------------------------------------------------------------------------------- rider
+def _leaning_plant(heeds: bool):
+    from plant.ballbot import Plant, RiderIntent
+    from plant.params import RiderParams, RobotParams, SimParams
+    from plant.rider import Ramp
+
+    rider = load_toml(ROOT / "configs/riders/s07_abi_73kg_176.toml", RiderParams)
+    plant = Plant(
+        load_toml(ROOT / "configs/robot/pure.toml", RobotParams),
+        rider,
+        SimParams(),
+        RiderIntent(pitch=[Ramp(to=20.0, duration=1.0)]),
+    )
+    plant.heeds_alert = heeds
+    plant.clamped = True  # the chassis held upright: the rider's torso alone
+    return plant, rider
+
+
+def test_a_rider_who_heeds_the_alert_sits_up_after_the_reaction_time_and_a_scripted_one_does_not():
+    for heeds in (True, False):
+        plant, rider = _leaning_plant(heeds)
+        while plant.t < 1.5:
+            plant.step()
+        plant.alert(2)
+        alerted = plant.t
+        lean = []
+        while plant.t < alerted + rider.alert_reaction_time + 2.0:
+            plant.step()
+            lean.append((plant.t, math.degrees(plant.torso[0].lean_cmd)))
+        before = [v for t, v in lean if t < alerted + rider.alert_reaction_time - 1e-9]
+        assert min(before) == pytest.approx(20.0), "nothing changes before the reaction time"
+        if heeds:
+            assert lean[-1][1] == pytest.approx(0.0, abs=1e-6), "upright again"
+            # Sitting up is the rider's own motion: never faster than their lean rate.
+            rates = np.diff([v for _, v in lean]) / DT
+            assert np.abs(rates).max() <= rider.max_lean_rate_deg + 1e-6
+        else:
+            assert lean[-1][1] == pytest.approx(20.0), "the scripted rider ignores the alert"

@@ -124,6 +124,7 @@ def build(
     intent = RiderIntent(list(scenario.intent.pitch), list(scenario.intent.roll), list(scenario.intent.twist))
     tilt = tuple(math.radians(a) for a in scenario.initial_tilt_deg)
     plant = Plant(load_toml(robot_path, RobotParams), load_toml(rider_path, RiderParams), sim, intent, tilt)
+    plant.heeds_alert = scenario.intent.heeds_alert
     law, clock = law_of(bench, scenario), clock_of(bench, scenario)
     lockstep = clock == "lockstep"
     safety = supervisor_config(bench, scenario)

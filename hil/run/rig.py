@@ -403,6 +403,9 @@ class Rig:
             self.safety_state = int(rx.signals["State"])
         elif rx.name == MessageName.SUPERVISOR_RECOVERY and rx.ok and self.takeover:
             self._recover(rx.signals)
+        elif rx.name == MessageName.SUPERVISOR_DIAGNOSIS and rx.ok:
+            # What a seat, a handle or an operator's screen tells the rider.
+            self.plant.alert(int(rx.signals["Alert"]))
 
     def _recover(self, signals) -> None:
         """The recovery law's torques, applied like a command (fresh ones only: no older than the drives'

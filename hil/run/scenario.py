@@ -49,6 +49,9 @@ class Intent(_Record):
     pitch: list[Segment] = []
     roll: list[Segment] = []
     twist: list[Segment] = []
+    heeds_alert: bool = False
+    """The rider sits up and holds still `alert_reaction_time` (the rider file) after the supervisor's first
+    alert, as a rider instructed to would. False: exactly as scripted, whatever the supervisor says."""
 
 
 Metric = Literal[tuple(MEASUREMENTS)]  # type: ignore[valid-type]
