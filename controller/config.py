@@ -51,6 +51,9 @@ class ModelDrivetrain(_Lenient):
 
 class ModelDrive(_Lenient):
     torque_limit: Positive = 3.75
+    permission_timeout: Positive = 0.05
+    """s of silence of SUPERVISOR_ESTOP after which the supervisor is lost: this controller then stops on
+    its own (the drives follow it for their grace)."""
 
 
 class ModelFriction(_Lenient):

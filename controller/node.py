@@ -11,6 +11,7 @@ it never waits.
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 
@@ -34,6 +35,9 @@ SHORT_WAIT = 0.005
 """s the lockstep controller waits for the rig's fence once it has been late LATE_RUN ticks in a row."""
 BOOT_PERIOD = 0.1
 """s between boot-up heartbeats (State INIT) until the first SYNC: the rig's start-up handshake."""
+REST_SPEED, REST_TILT, REST_TIME = 0.05, math.radians(3.0), 0.3
+"""Without a supervisor this controller turns its drives off once it has stood still (m/s) and upright
+(rad) this long (s): where the supervisor's own controlled stop would."""
 
 
 class ControllerNode:
@@ -58,6 +62,11 @@ class ControllerNode:
         fence_reads.append(self.tes)
         self.estop = False
         self.seat_flagged = False
+        self.supervisor_seen: float | None = None
+        """When the last SUPERVISOR_ESTOP arrived (controller time; None: never)."""
+        self._still_since: float | None = None
+        self.stopped_alone = False
+        """The supervisor was lost and this controller stopped the robot itself: disabled until an enable."""
         reasons = can.catalog[MessageName.SUPERVISOR_ESTOP].values("Reason")
         self._seat_flags = frozenset(code for code, name in reasons.items() if name in SEAT_FLAGGED)
         self.tick: int | None = None
@@ -87,6 +96,7 @@ class ControllerNode:
             # The supervisor's recovery law holding the drives is an e-stop for this controller: its commands
             # are ignored, and it waits for an operator's enable after the reset (docs/contract.md).
             self.estop = bool(s["Estop"]) or bool(s["Takeover"])
+            self.supervisor_seen = t
             if int(s["Reason"]) in self._seat_flags:
                 self.seat_flagged = True
             elif int(s["State"]) == 0:  # NORMAL again (a reset)
@@ -107,8 +117,10 @@ class ControllerNode:
             wrench = Wrench(self._wrench.force, self._wrench.moment)
             age = max(t - self._wrench.stamp, 0.0)
         sc = None if self._sc is None else ScInput(self._sc.mode, self._sc.speed_cap, self._sc.stamp)
+        if self._supervisor_lost(t):
+            sc = ScInput("idle", 0.0, t)  # no supervisor: brake to rest, then off (docs/contract.md)
         try:
-            out = self.controller.step(t, wrench, age, sc, self.estop)
+            out = self.controller.step(t, wrench, age, sc, self.estop or self.stopped_alone)
         except Exception:  # a bug in the controller must fail safe (drives off), not kill the node
             log.exception("controller step failed at tick %d: drives disabled", self.tick)
             self.controller.state, self.controller.fault = State.FAULT, Fault.INTERNAL
@@ -136,10 +148,31 @@ class ControllerNode:
         self.last_output = out
         return out
 
+    def _supervisor_lost(self, t: float) -> bool:
+        """The supervisor's frame has gone silent: stop on our own, and once still and upright for
+        REST_TIME turn the drives off (latched until an operator's enable)."""
+        timeout = self.controller.robot.drive.permission_timeout
+        if self.supervisor_seen is None or t - self.supervisor_seen <= timeout:
+            self._still_since = None
+            return False
+        if not self.stopped_alone and self.controller.state is State.BALANCING:
+            estimate = self.controller.estimator.estimate(t)
+            pitch, roll = estimate.planes
+            speed = self.controller.robot.ball.radius * math.hypot(pitch.ball_rate, roll.ball_rate)
+            if speed <= REST_SPEED and max(abs(pitch.tilt), abs(roll.tilt)) <= REST_TILT:
+                self._still_since = t if self._still_since is None else self._still_since
+                if t - self._still_since >= REST_TIME:
+                    log.warning("supervisor lost: stopped and at rest at t=%.3f, drives off", t)
+                    self.stopped_alone = True
+            else:
+                self._still_since = None
+        return True
+
     def _update_zenoh(self, tick: int) -> None:
         for cmd in self.operator.drain():
             if cmd.action == "enable":
                 self.controller.request_enable()
+                self.stopped_alone = False
         if self.fence is not None:
             # A rig that stopped putting its fence (none on this bus) must not stall every tick.
             wait = self.tes_wait if self._late_run < LATE_RUN else SHORT_WAIT

@@ -9,8 +9,13 @@ CAN alone would). Per tick it follows the contract:
   - on SYNC(k): estimate (tilt and tilt rate from the IMU, ball rates from the three motor velocities through
     the omniwheel map), one state feedback per plane, ball torques -> motor torques, then DRIVE1..3_COMMAND
     tagged k, then CONTROLLER_HEARTBEAT (always after the commands);
-  - Enable = 1 only while balancing and the supervisor's last SUPERVISOR_ESTOP says Estop 0; after an
-    e-stop it stays disabled (an operator's enable comes over zenoh, which this example does not read).
+  - Enable = 1 only while balancing and the supervisor's last SUPERVISOR_ESTOP says Estop 0 and Takeover 0;
+    after an e-stop or a takeover it stays disabled (an operator's enable comes over zenoh, which this
+    example does not read);
+  - SUPERVISOR_DIAGNOSIS: an encoder it names is left out (the other two and the gyro's yaw rate give the
+    ball's rates), a rate channel it names is replaced by the attitude's derivative;
+  - the supervisor lost (SUPERVISOR_ESTOP silent for 50 ms, 20 ticks): it stops on its own and, standing
+    still and upright for 0.3 s, disables its drives (the drives follow it meanwhile).
 
     python examples/balance_controller.py --can socketcan:vcan0
     pure-hil run configs/scenarios/balance.toml --controller external --can socketcan:vcan0
@@ -48,6 +53,10 @@ YAW_GAIN = 20.0  # Nm of ball yaw torque per rad/s of yaw rate
 
 INIT, DISABLED, BALANCING = 0, 1, 3  # CONTROLLER_HEARTBEAT.State
 BOOT_PERIOD = 0.1  # s between boot-up heartbeats until the first SYNC
+TICK = 1.0 / 400  # s between SYNCs
+SUPERVISOR_LOST = 20  # ticks of silence of SUPERVISOR_ESTOP: the drives' permission timeout, 50 ms
+REST_SPEED, REST_TILT, REST_TICKS = 0.05, math.radians(3.0), 120  # m/s, rad, 0.3 s: at rest, drives off
+NAMED = ("Encoder1", "Encoder2", "Encoder3", "RateX", "RateY")  # the diagnosis' flags this controller acts on
 
 
 def motor_jacobian() -> np.ndarray:
@@ -127,27 +136,54 @@ class BalanceController:
         self.rate: tuple[float, float, float] | None = None
         self.velocity: list[float | None] = [None, None, None]
         self.synced = False
+        self.last_tick = 0
+        self.named: set[str] = set()  # what SUPERVISOR_DIAGNOSIS names faulty
+        self.derivative = [0.0, 0.0]  # the attitude's derivative (roll, pitch), low-passed
+        self.supervisor_tick: int | None = None
+        self.still = 0  # ticks at rest while the supervisor is lost
 
     def frame(self, name: str, s: dict) -> None:
         if name == "IMU_ATTITUDE" and s["Valid"]:
+            if self.attitude is not None:  # low-passed over ~20 ms: stands in for a faulty rate channel
+                for i, now in enumerate((s["Roll"], s["Pitch"])):
+                    self.derivative[i] += ((now - self.attitude[i]) / TICK - self.derivative[i]) * 0.125
             self.attitude = (s["Roll"], s["Pitch"])
         elif name == "IMU_RATE" and s["Valid"]:
             self.rate = (s["RateX"], s["RateY"], s["RateZ"])
         elif name.startswith("DRIVE") and name.endswith("_FEEDBACK"):
             self.velocity[int(name[5]) - 1] = s["Velocity"]
+        elif name == "SUPERVISOR_DIAGNOSIS":
+            self.named = {part for part in NAMED if s[part]}
         elif name == "SUPERVISOR_ESTOP":
+            self.supervisor_tick = self.last_tick
             # Takeover: the supervisor's recovery law holds the drives; stop commanding, as after an e-stop.
             self.permitted = not (s["Estop"] or s["Takeover"])
             if not self.permitted and self.state == BALANCING:
                 self.state = DISABLED  # stays disabled: a reset permits motion, it never causes it
         elif name == "SYNC":
             self.synced = True
-            self.tick(int(s["Tick"]))
+            self.last_tick = int(s["Tick"])
+            self.tick(self.last_tick)
+
+    def relative(self, rate_z: float) -> np.ndarray:
+        """Ball-to-body rates (x, y, z) from the encoders, without one the supervisor named faulty."""
+        bad = [i for i in range(3) if f"Encoder{i + 1}" in self.named]
+        if not bad:
+            return TO_RELATIVE @ np.array(self.velocity)
+        others = [i for i in range(3) if i != bad[0]]
+        # Each remaining motor rate less its yaw part (the third relative rate is minus the yaw rate).
+        known = np.array([self.velocity[i] for i in others]) + G[others, 2] * rate_z
+        x, y = np.linalg.solve(G[np.ix_(others, [0, 1])], known)
+        return np.array([x, y, -rate_z])
 
     def torques(self) -> tuple[float, float, float]:
         roll, pitch = self.attitude
         rate_x, rate_y, rate_z = self.rate
-        relative = TO_RELATIVE @ np.array(self.velocity)
+        if "RateX" in self.named:
+            rate_x = self.derivative[0]
+        if "RateY" in self.named:
+            rate_y = self.derivative[1]
+        relative = self.relative(rate_z)
         k_tilt, k_rate, k_ball = GAINS
         # Ball rate per plane = ball-to-body rate + body rate; the roll plane turns about +x, pitch about +y.
         tau_x = k_tilt * roll + k_rate * rate_x + k_ball * (relative[0] + rate_x)
@@ -160,6 +196,8 @@ class BalanceController:
         ready = self.attitude is not None and self.rate is not None and None not in self.velocity
         if self.state == INIT and ready:
             self.state = BALANCING
+        if self.state == BALANCING and self.supervisor_lost(k):
+            self.state = DISABLED  # stopped on its own: at rest, drives off
         balancing = self.state == BALANCING
         torques = self.torques() if balancing else (0.0, 0.0, 0.0)
         enable = int(balancing and self.permitted)
@@ -167,6 +205,17 @@ class BalanceController:
             command = {"Torque": torque if enable else 0.0, "Tick": k, "Enable": enable}
             self.wire.send(f"DRIVE{i}_COMMAND", command)
         self.wire.send("CONTROLLER_HEARTBEAT", {"State": self.state, "Mode": 0, "FaultCode": 0})
+
+    def supervisor_lost(self, k: int) -> bool:
+        """True once the supervisor has been silent and the robot has stood still and upright for 0.3 s."""
+        if self.supervisor_tick is None or (k - self.supervisor_tick) % 65536 <= SUPERVISOR_LOST:
+            self.still = 0
+            return False
+        relative = self.relative(self.rate[2])
+        speed = BALL_RADIUS * math.hypot(relative[0] + self.rate[0], relative[1] + self.rate[1])
+        still = speed <= REST_SPEED and max(abs(a) for a in self.attitude) <= REST_TILT
+        self.still = self.still + 1 if still else 0
+        return self.still >= REST_TICKS
 
     def run(self, stop: threading.Event) -> None:
         next_boot = time.monotonic()

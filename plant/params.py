@@ -77,10 +77,14 @@ class Drive(_Record):
     watchdog_timeout: Positive = 0.02
     """The drive disables itself when no command arrives for this long, s."""
     permission_timeout: Positive = 0.05
-    """The drive turns off when the supervisor's SUPERVISOR_ESTOP frame (100 Hz) is silent this long, s."""
+    """The supervisor is lost when its SUPERVISOR_ESTOP frame (100 Hz) is silent this long, s."""
+    supervisor_lost_grace: Positive = 30.0
+    """s the drives go on following the controller once the supervisor is lost (its frame silent, not an
+    e-stop): cutting power in motion tips a ballbot, and the controller, which sees the silence too, brakes
+    to rest and turns them off itself (docs/contract.md). Then off whatever the controller does."""
     contactor_timeout: Positive = 0.1
-    """The main contactor opens when SUPERVISOR_ESTOP is silent this long, s: the second channel, slower
-    than the drives' own permission so that the first acts first."""
+    """The main contactor opens when SUPERVISOR_ESTOP has been silent this long after the drives' grace, s:
+    the second channel, slower than the drives' own so that the first acts first."""
     torque_noise: NonNegative = 0.005
     """1σ of the measured-torque feedback, Nm."""
     velocity_noise: NonNegative = 0.05

@@ -68,7 +68,7 @@ def test_a_latent_fault_counts_from_its_demand_and_a_drive_left_powered_is_a_haz
 
 
 def test_a_dead_supervisors_reaction_is_the_drives_own_watchdog():
-    c = classify(run(transitions=[(3.045, "ESTOP", "PERMISSION_TIMEOUT")]), TWIN, BOUNDS)
+    c = classify(run(transitions=[(3.045, "SUPERVISOR_LOST", "PERMISSION_TIMEOUT")]), TWIN, BOUNDS)
     assert (c.label, c.cause) == ("DETECTED", "PERMISSION_TIMEOUT")
 
 

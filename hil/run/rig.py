@@ -89,6 +89,9 @@ class TickStats:
     """Times the drives lost their permission (e-stop asserted or the supervisor's frame went silent)."""
     permission_lost_at: list[float] = field(default_factory=list)
     """When, in simulated time."""
+    supervisor_lost_at: list[float] = field(default_factory=list)
+    """When the supervisor's frame went silent (the drives then follow the controller's own stop for
+    `drive.supervisor_lost_grace`), in simulated time."""
     contactor_opened: int = 0
     """Times the main contactor opened (commanded open, or the supervisor's frame went silent)."""
     recovery_commands: int = 0
@@ -152,6 +155,8 @@ class Rig:
         several guards to warm up, especially on an emulated CPU)."""
         drive = plant.robot.drive
         self.permission_timeout, self.contactor_timeout = drive.permission_timeout, drive.contactor_timeout
+        self.supervisor_lost_grace = drive.supervisor_lost_grace
+        self._supervisor_lost = False
         self._permission_seen = -math.inf
         self._supervisor_silent = False
         """An external supervisor let a whole guard pass without a frame: not waited for until heard."""
@@ -422,18 +427,25 @@ class Rig:
             drive.set_command(signals[name], True, now)
 
     def apply_permission(self) -> None:
-        """The drives run only on a fresh SUPERVISOR_ESTOP frame that does not assert e-stop; the main
-        contactor stays closed only on a fresh-enough one that says so (its own, longer timeout). Called
-        every tick, and once before the first so the drives take the controller's first commands."""
+        """The drives run only while the last trusted SUPERVISOR_ESTOP does not assert e-stop, and turn off
+        `supervisor_lost_grace` after it went silent (before, the controller brakes to rest and turns them
+        off itself); the main contactor stays closed only on one that says so, until its own timeout after
+        the grace. Called every tick, and once before the first so the drives take the first commands."""
         drives, age = self.plant.drives, self.plant.t - self._permission_seen
-        permitted = age <= self.permission_timeout + 1e-9 and not self._estop_asserted
+        lost = math.isfinite(age) and age > self.permission_timeout + 1e-9
+        if lost and not self._supervisor_lost:
+            self.stats.supervisor_lost_at.append(self.plant.t)
+        self._supervisor_lost = lost
+        # A lost supervisor is not an e-stop: the drives follow the controller's own stop for the grace.
+        grace = self.permission_timeout + self.supervisor_lost_grace
+        permitted = age <= grace + 1e-9 and not self._estop_asserted
         if permitted != self._permitted:
             if not permitted:
                 self.stats.permission_lost += 1
                 self.stats.permission_lost_at.append(self.plant.t)
             drives.set_permission(permitted)
             self._permitted = permitted
-        closed = age <= self.contactor_timeout + 1e-9 and self._contactor_commanded
+        closed = age <= grace + self.contactor_timeout + 1e-9 and self._contactor_commanded
         if closed != drives.contactor_closed:
             drives.set_contactor(closed)
             self.stats.contactor_opened += not drives.contactor_closed

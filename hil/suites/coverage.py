@@ -3,8 +3,9 @@
 - DETECTED: the supervisor's first transition after the fault started (after the demand, for a latent
   fault: its first e-stop) names a cause of its own evidence (a watchdog, E2E, a diagnostic), before any
   hazard, within the fault kind's bound (250 ms; a drive's fault 50 ms). A supervisor that cannot act (it
-  was killed) is replaced by the drives' own watchdog on its frame: their permission timing out without
-  an e-stop counts as the reaction PERMISSION_TIMEOUT.
+  was killed, or its frames are lost) is replaced by the drives' own watchdog on its frame: their
+  permission timing out (the mode SUPERVISOR_LOST: they follow the controller's own stop) counts as the
+  reaction PERMISSION_TIMEOUT.
 - LATE: the same, after the bound.
 - BENIGN: no such reaction, no hazard, and the run stays within `benign_speed` and `benign_tilt_deg` of
   its twin's peak speed and tilt from the fault's start on. A disturbance (a push, the rider's weight
@@ -41,6 +42,8 @@ from safety.machine import Cause
 if TYPE_CHECKING:
     from hil.run.judge import RunResult
 
+SUPERVISOR_LOST = "SUPERVISOR_LOST"
+"""The mode in a run's path when the supervisor's frame went silent (the drives' own evidence)."""
 OWN_EVIDENCE = frozenset(
     {
         Cause.HEARTBEAT_LOST,
@@ -168,9 +171,10 @@ def outcome(result: RunResult) -> Outcome:
 
 def _reactions(tr) -> list[tuple[float, str, str]]:
     out = [(e.t, e.to_state, e.cause) for e in tr.safety_events if e.kind == "transition"]
-    for lost in tr.stats.permission_lost_at:
-        if not any(state == "ESTOP" and lost - 0.1 <= t <= lost + 1e-9 for t, state, _ in out):
-            out.append((lost, "ESTOP", "PERMISSION_TIMEOUT"))
+    for lost in tr.stats.supervisor_lost_at:
+        # The supervisor cannot act (killed, or its frames lost): the drives see its permission time out
+        # and follow the controller's own stop (docs/safety.md "Fail-operational").
+        out.append((lost, SUPERVISOR_LOST, "PERMISSION_TIMEOUT"))
     return sorted(out)
 
 
