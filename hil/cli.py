@@ -154,9 +154,18 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _campaign(args: argparse.Namespace) -> int:
-    """A campaign's cases in parallel processes: progress, a report (worst first) and JUnit XML."""
+    """A campaign's cases in parallel processes: progress, a report (worst first; Markdown, JSON, HTML) and
+    JUnit XML."""
     from hil.bench.parts import check
-    from hil.suites.campaign import distributable, expand, junit_xml, load_campaign, report, run_campaign
+    from hil.suites.campaign import (
+        distributable,
+        expand,
+        junit_xml,
+        load_campaign,
+        report,
+        report_json,
+        run_campaign,
+    )
     from hil.suites.html_report import html_report
 
     try:
@@ -210,10 +219,12 @@ def _campaign(args: argparse.Namespace) -> int:
             bar.close()
     text = report(campaign.name, results)
     (out / "report.md").write_text(text)
+    (out / "report.json").write_bytes(report_json(campaign.name, results))
     (out / "junit.xml").write_bytes(junit_xml(campaign.name, results))
     (out / "report.html").write_text(html_report(campaign.name, results, out))
     print(text)
-    print(f"report: {out / 'report.md'}  {out / 'report.html'}  junit: {out / 'junit.xml'}")
+    reports = "  ".join(str(out / name) for name in ("report.md", "report.json", "report.html"))
+    print(f"report: {reports}  junit: {out / 'junit.xml'}")
     return 0 if all(r.passed for r in results) else 1
 
 

@@ -139,28 +139,17 @@ def missed_campaign(tmp_path):
     return path
 
 
+def campaign_cli(path, out, *options: str) -> subprocess.CompletedProcess:
+    """`pure-hil campaign` on two workers, as a user runs it."""
+    command = [sys.executable, "-m", "hil.cli", "campaign", str(path), "--workers", "2", "--out", str(out)]
+    return subprocess.run([*command, *options], capture_output=True, text=True, timeout=600, cwd=ROOT)
+
+
 def test_cli_runs_a_campaign_on_workers_and_fails_on_a_missed_reaction(missed_campaign, tmp_path):
     """A supervisor blind to a silent seat: the case fails, the report and JUnit say what was missed."""
     out = tmp_path / "out"
-    proc = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "hil.cli",
-            "campaign",
-            str(missed_campaign),
-            "--workers",
-            "2",
-            "--law",
-            "ihacs",  # the scenario's own is hacs: the option must reach the workers
-            "--out",
-            str(out),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=600,
-        cwd=ROOT,
-    )
+    # The scenario's own law is hacs: the option must reach the workers.
+    proc = campaign_cli(missed_campaign, out, "--law", "ihacs")
     assert proc.returncode == 1, proc.stderr[-2000:]
     assert "[2/2]" in proc.stdout and WHY in proc.stdout
     text = (out / "report.md").read_text()
@@ -288,3 +277,72 @@ def test_on_a_terminal_a_campaign_shows_a_progress_bar_with_counts_and_elsewhere
     assert proc.returncode == 0, stdout[-2000:] + terminal[-2000:]
     assert "6/6" in terminal and "passed=6" in terminal and ("case/s" in terminal or "s/case" in terminal)
     assert "[1/6]" not in stdout and "6/6 passed" in stdout  # no per-case lines under a bar; the report
+
+
+AFTERMATH = """
+name = "aftermath"
+scenarios = ["{root}/configs/scenarios/balance.toml", "{root}/configs/scenarios/speed_limiting.toml"]
+duration = 5.0
+[coverage]
+[[fault]]
+name = "kill"
+inject = [{{ kind = "process.kill", target = "controller", at = 3.0 }}]
+[[fault]]
+name = "bus_off"
+inject = [{{ kind = "can.bus_off", at = 3.0, duration = 0.1 }}]
+[[fault]]
+name = "bus_off_named"
+inject = [{{ kind = "can.bus_off", at = 3.0, duration = 0.1 }}]
+unrecoverable = {{ speed_limiting = "no frame reaches the drives while the bus is down" }}
+"""
+
+
+def test_coverage_classes_what_followed_a_detection_and_a_fall_after_it_fails_the_case(tmp_path):
+    """Real runs: a killed controller at standstill is taken over by the recovery law and ends at rest; the
+    bus down in motion (~0.5 m/s, the rider leaning) is seen in 25 ms but nothing reaches the drives and the
+    robot falls: DETECTED+FELL fails the case, unless the campaign names the fault unrecoverable there."""
+    from plant.params import SimParams
+
+    path = tmp_path / "aftermath.toml"
+    path.write_text(AFTERMATH.format(root=ROOT))
+    out = tmp_path / "out"
+    proc = campaign_cli(path, out, "--select", "balance-kill", "--select", "speed_limiting-bus_off")
+    assert proc.returncode == 1, proc.stdout[-2000:] + proc.stderr[-2000:]
+    data = json.loads((out / "report.json").read_text())
+    cases = {c["case"]: c for c in data["cases"]}
+    selected = ["balance-none", "balance-kill", "speed_limiting-none", "speed_limiting-bus_off"]
+    assert set(cases) == {f"{s}-seed0" for s in [*selected, "speed_limiting-bus_off_named"]}
+    assert (data["passed"], data["total"]) == (4, 5)
+
+    fell = cases["speed_limiting-bus_off-seed0"]
+    assert not fell["passed"] and fell["fallen"] and "DETECTED+FELL" in fell["why"]
+    c = fell["coverage"]
+    assert (c["class"], c["cause"], c["passed"]) == ("DETECTED+FELL", "DRIVES_SILENT", False)
+    assert c["reaction"] <= c["bound"]
+    after = c["after"]
+    # Beyond the fall criterion the run itself uses, after power was cut in motion with nobody holding.
+    assert after["peak_tilt_deg"] >= SimParams().fall_tilt_deg and after["to_rest"] is None
+    assert after["held_by"] == "nobody" and after["modes"].startswith("NORMAL>ESTOP")
+    assert after["peak_speed"] > 0.3, "in motion when the bus went down"
+
+    named = cases["speed_limiting-bus_off_named-seed0"]
+    assert named["passed"] and named["coverage"]["class"] == "DETECTED+FELL"
+    assert named["coverage"]["after"]["excused"] == "no frame reaches the drives while the bus is down"
+
+    rest = cases["balance-kill-seed0"]["coverage"]
+    assert (rest["class"], rest["cause"], rest["passed"]) == ("DETECTED+AT_REST", "HEARTBEAT_LOST", True)
+    after = rest["after"]
+    assert after["held_by"] == "recovery law" and after["modes"] == "NORMAL>RECOVERY>ESTOP"
+    assert after["to_rest"] is not None and after["peak_tilt_deg"] < 5.0 and after["peak_speed"] < 0.1
+
+    # The Markdown report carries the same: the failing class first, with what followed the detection.
+    table = (out / "report.md").read_text().split("## Diagnostic coverage")[1]
+    rows = [line for line in table.splitlines() if line.startswith("| DETECTED")]
+    assert rows[0].startswith("| DETECTED+FELL | speed_limiting-bus_off-seed0 | DRIVES_SILENT |")
+    assert "| NORMAL>ESTOP" in rows[0] and "| nobody |" in rows[0]
+    assert any(
+        r.startswith("| DETECTED+AT_REST | balance-kill-seed0") and "| recovery law |" in r for r in rows
+    )
+    assert "FELL 2 (1 of the falls unrecoverable, named in the campaign)" in table
+    suite = ET.parse(out / "junit.xml").getroot()
+    assert (suite.get("tests"), suite.get("failures")) == ("5", "1")

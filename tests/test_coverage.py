@@ -78,3 +78,30 @@ def test_false_trips_are_the_supervisors_own_actions():
     assert false_trip(run(fault_start=None, transitions=operator)) == ""
     assert "OVER_CAP" in false_trip(run(fault_start=None, transitions=[(2.0, "LIMITING", "OVER_CAP")]))
     assert "fell" in false_trip(run(fault_start=None, fell_at=4.0))
+
+
+def test_what_followed_a_detection_its_modes_and_who_held_the_drives():
+    seen = [
+        (2.0, "LIMITING", "OVER_CAP"),
+        (3.02, "STOPPING", "SENSOR_DISAGREE"),
+        (3.5, "ESTOP", "STOP_TIMEOUT"),
+    ]
+    # Power cut at 0.6 m/s with no takeover: nobody held the drives, and the robot fell.
+    cut = classify(run(speed=(3.0, 0.6), transitions=seen, fell_at=3.9), TWIN, BOUNDS)
+    assert cut.name == "DETECTED+FELL" and not cut.passed
+    assert (cut.after.modes, cut.after.held_by, cut.after.to_rest) == (
+        "LIMITING>STOPPING>ESTOP",
+        "nobody",
+        None,
+    )
+    excused = run(speed=(3.0, 0.6), transitions=seen, fell_at=3.9, unrecoverable="measured")
+    assert classify(excused, TWIN, BOUNDS).passed, "a fall the campaign names unrecoverable does not fail"
+    # The recovery law took over (an ESTOP again for another cause is one mode) and the robot stopped.
+    taken = [(3.02, "RECOVERY", "HEARTBEAT_LOST"), (4.0, "ESTOP", "HEARTBEAT_LOST"), (4.1, "ESTOP", "TILT")]
+    c = classify(run(speed=(3.0, 0.3), transitions=taken), TWIN, BOUNDS)
+    assert c.name == "DETECTED+MOVING", "still moving at the end"
+    stopped = [0.3 if 3.0 <= t < 3.8 else 0.0 for t in T]
+    c = classify(Outcome(T, stopped, [1.0] * len(T), [0.0] * len(T), taken, fault_start=3.0), TWIN, BOUNDS)
+    assert c.name == "DETECTED+AT_REST" and c.passed
+    assert (c.after.modes, c.after.held_by) == ("NORMAL>RECOVERY>ESTOP", "recovery law")
+    assert abs(c.after.to_rest - 0.8) < 1e-9 and abs(c.after.peak_speed - 0.3) < 1e-9

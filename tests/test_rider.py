@@ -4,6 +4,7 @@ import itertools
 import math
 
 import msgspec
+import numpy as np
 import pytest
 
 from hil.run.truth_balancer import TruthBalancer
@@ -195,3 +196,56 @@ def test_intent_changes_live_from_where_the_rider_is():
         plant.step()
     lag = 10.0**2 / (2.0 * RIDER_75.max_lean_accel_deg)
     assert math.degrees(plant.torso[0].lean_cmd) == pytest.approx(lag, abs=0.05)
+
+
+def _leaning_rider(heeds: bool, intent: RiderIntent) -> Plant:
+    plant = Plant(RobotParams(), RIDER_75, sim(fixture="clamped"), intent)
+    plant.heeds_alert = heeds
+    return plant
+
+
+def test_a_rider_who_heeds_the_alert_sits_up_as_they_would_by_script_after_their_reaction_time():
+    # Physics against physics: after the alert and the rider's reaction time, the torso goes upright exactly
+    # as it does for a rider scripted to sit up at that moment (the same rate limits, the same PD hip torque
+    # on the same body); before it, nothing differs from a rider who ignores the alert.
+    lean_then_hold = [Ramp(to=20.0, duration=1.0)]
+    reaction = RIDER_75.alert_reaction_time
+    alert_at, end = 1.5, 1.5 + reaction + 3.0
+    scripted_sit_up = RiderIntent(
+        pitch=[*lean_then_hold, Hold(duration=alert_at + reaction - 1.0), Step(to=0.0)]
+    )
+    heeding, heedless = (_leaning_rider(h, RiderIntent(pitch=lean_then_hold)) for h in (True, False))
+    reference = _leaning_rider(False, scripted_sit_up)
+    leans: dict[str, list[float]] = {"heeding": [], "heedless": [], "reference": []}
+    times = []
+    for tick in range(round(end * 400)):
+        for name, plant in (("heeding", heeding), ("heedless", heedless), ("reference", reference)):
+            if tick == round(alert_at * 400):
+                plant.alert(2)  # the heedless rider and the scripted reference are told too
+            plant.step()
+            leans[name].append(math.degrees(plant.truth().lean[0]))
+        times.append(heeding.t)
+    t = np.asarray(times)
+    heeding_lean, heedless_lean, reference_lean = (np.asarray(leans[k]) for k in leans)
+    before = t < alert_at + reaction - 1e-9
+    assert np.array_equal(heeding_lean[before], heedless_lean[before]), "nothing changes before the reaction"
+    assert heeding_lean[before][-1] == pytest.approx(20.0, abs=0.05)
+    assert np.abs(heeding_lean - reference_lean).max() < 1e-9, "sitting up is the rider's own torso motion"
+    assert abs(heeding_lean[-1]) < 0.05, "upright and still at the end"
+    assert heedless_lean[-1] == pytest.approx(20.0, abs=0.05), "the scripted rider ignores the alert"
+    # Sitting up takes the rider's time, not a jump: at least 20 deg at the rider's fastest lean rate.
+    upright = t[np.argmax((t > alert_at + reaction) & (np.abs(heeding_lean) < 1.0))]
+    assert upright - (alert_at + reaction) >= 19.0 / RIDER_75.max_lean_rate_deg
+
+
+def test_a_bad_heeds_alert_or_reaction_time_names_the_field():
+    from drivers.config import ConfigError, decode_toml
+    from hil.run.scenario import Scenario
+    from plant.params import RiderParams
+
+    with pytest.raises(
+        ConfigError, match=r"^s\.toml: Expected `bool`, got `str` - at `\$\.intent\.heeds_alert`$"
+    ):
+        decode_toml('name = "s"\n[intent]\nheeds_alert = "yes"\n', Scenario, "s.toml")
+    with pytest.raises(ConfigError, match=r"Expected `float` > 0.0 - at `\$\.alert_reaction_time`$"):
+        decode_toml('name = "x"\nmass = 70.0\nheight = 1.7\nalert_reaction_time = 0\n', RiderParams, "r.toml")

@@ -8,7 +8,8 @@ seeds. With a `[coverage]` table it is a diagnostic coverage campaign (hil/suite
 case is classed against its fault-free twin (DETECTED, BENIGN, MISSED, LATE), fault sets need no expectations,
 and every fault-free case, including the `[[fault_free]]` runs, counts a false trip if the supervisor acts.
 `pure-hil campaign FILE --workers N` runs the cases in parallel processes and writes a report (worst cases
-first) and JUnit XML; the pytest plugin collects the same cases as test items (hil/suites/pytest_plugin.py).
+first, also as JSON) and JUnit XML; the pytest plugin collects the same cases as test items
+(hil/suites/pytest_plugin.py).
 """
 
 from __future__ import annotations
@@ -498,6 +499,46 @@ def report(campaign: str, results: list[CaseResult]) -> str:
     lines += ["| " + " | ".join(row) + " |" for row in rows]
     coverage = coverage_report(results)
     return "\n".join(lines) + "\n" + ("\n" + coverage if coverage else "")
+
+
+def report_json(campaign: str, results: list[CaseResult]) -> bytes:
+    """The report as data, worst first: each case's verdict and why, and for a faulty case of a coverage
+    campaign its class, reaction and what followed the detection (docs/campaigns.md)."""
+
+    def coverage(r: CaseResult) -> dict | None:
+        c = r.coverage
+        if c is None:
+            return None
+        return {
+            "class": c.name,
+            "passed": c.passed,
+            "cause": c.cause,
+            "reaction": c.reaction,
+            "departed": c.departed,
+            "bound": r.outcome.detect_within if r.outcome else None,
+            "note": c.note,
+            "after": msgspec.to_builtins(c.after) if c.after else None,
+        }
+
+    cases = [
+        {
+            "case": r.case_id,
+            "scenario": r.scenario,
+            "role": r.role,
+            "passed": r.passed,
+            "error": r.error,
+            "why": "" if r.passed else r.message(),
+            "fallen": r.fallen,
+            "peak_tilt_deg": r.peak_tilt_deg,
+            "safety_events": r.safety_events,
+            "wall": r.wall,
+            "coverage": coverage(r),
+            "false_trip": r.false_trip,
+        }
+        for r in worst_first(results)
+    ]
+    summary = {"campaign": campaign, "passed": sum(r.passed for r in results), "total": len(results)}
+    return msgspec.json.format(msgspec.json.encode({**summary, "cases": cases}), indent=2)
 
 
 def junit_xml(campaign: str, results: list[CaseResult]) -> bytes:

@@ -16,7 +16,7 @@ twin (speed by `onset_speed`, tilt by `onset_tilt_deg`) if that is later. A faul
 (a stuck encoder on a wheel that does not turn) has no evidence to see and does no harm until it does.
 - After a detection, what the robot did: AT_REST (standstill and upright at the end), FELL, or MOVING
   (upright, not at rest: a rider still driving it); with the time from the fault to rest, the peak speed and
-  tilt after the detection, the supervisor's modes (e.g. RECOVERY>ESTOP) and who held the drives (the
+  tilt after the detection, the supervisor's modes (e.g. NORMAL>RECOVERY>ESTOP) and who held the drives (the
   controller, the supervisor's recovery law, or nobody: power cut in motion). A fall after a detection fails
   the case unless the campaign names the fault unrecoverable in that scenario (a measurement shows that
   nothing can balance the robot; docs/safety.md lists each).
@@ -30,6 +30,7 @@ A fault-free run in which the supervisor acts on its own (any transition but an 
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -207,7 +208,7 @@ class Aftermath:
     peak_speed: float
     peak_tilt_deg: float
     modes: str
-    """The supervisor's states from the fault on, e.g. RECOVERY>ESTOP."""
+    """The supervisor's modes from the one the fault met on, e.g. NORMAL>RECOVERY>ESTOP."""
     held_by: str
     """Who held the drives: controller, recovery law, or nobody (power cut in motion)."""
     excused: str = ""
@@ -224,7 +225,10 @@ def aftermath(o: Outcome, start: float, seen: float) -> Aftermath:
         to_rest = max(float(t[min(last, len(t) - 1)]) - start, 0.0)
     peak_speed, peak_tilt, _ = o.peaks_after(seen)
     after = [(when, state) for when, state, _ in o.transitions if when >= start - 1e-9]
-    modes = ">".join(state for _, state in after)
+    before = [state for when, state, _ in o.transitions if when < start - 1e-9]
+    # The path of modes from the one the fault met: a state entered again for another cause is one mode.
+    path = [before[-1] if before else "NORMAL", *(state for _, state in after)]
+    modes = ">".join(state for state, _ in itertools.groupby(path))
     if any(state == "RECOVERY" for _, state in after):
         held_by = "recovery law"
     else:
