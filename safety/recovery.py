@@ -38,6 +38,8 @@ ACCEL_AGREES = math.radians(2.0)
 """rad: a tilt hypothesis the accelerometer confirms (its noise over the window is a few tenths of this)."""
 DECISIVE = math.radians(1.5)
 """rad between the two hypotheses' errors that settles which channel of a plane is wrong."""
+MAX_RIDER, RIDER_STEP = 200.0, 25.0
+"""kg: the riders the recovery law's gains are solved for (interpolated between)."""
 ODD_ONE_OUT_TICKS = 40
 """Ticks (100 ms at 400 Hz) over which a yaw disagreement's hypotheses are compared: the yaw check's window
 (25 ms) and the fault's onset before it."""
@@ -82,6 +84,8 @@ class Plane:
     history: deque = field(default_factory=lambda: deque(maxlen=ATTITUDE_WINDOW + 1))
     """Per tick: the IMU point's velocity if the rate is right, if the attitude is right; the specific
     force (forward, up) in the plane."""
+    force_sum: list[float] = field(default_factory=lambda: [0.0, 0.0])
+    """The specific force (forward, up) summed over `history`."""
     error_if_rate_wrong: float = 0.0
     """The attitude against the accelerometer's tilt (taking the tilt rate from the attitude), low-passed."""
     error_if_attitude_wrong: float = 0.0
@@ -198,13 +202,18 @@ class IsolatedEstimator:
             cos = math.cos(attitude[i])
             v_rate = r * (rel + rate[i]) + h * cos * rate[i]
             v_attitude = r * (rel + plane.derivative) + h * cos * plane.derivative
-            plane.history.append((v_rate, v_attitude, forward, up))
-            if len(plane.history) <= ATTITUDE_WINDOW or dt <= 0.0:
+            history = plane.history
+            if len(history) == history.maxlen:  # running sums: the oldest sample leaves the window
+                _, _, old_forward, old_up = history[0]
+                plane.force_sum[0] -= old_forward
+                plane.force_sum[1] -= old_up
+            history.append((v_rate, v_attitude, forward, up))
+            plane.force_sum[0] += forward
+            plane.force_sum[1] += up
+            if len(history) <= ATTITUDE_WINDOW or dt <= 0.0:
                 continue
-            first, span = plane.history[0], ATTITUDE_WINDOW * self.period
-            n = len(plane.history)
-            f_fwd = sum(x[2] for x in plane.history) / n
-            f_up = sum(x[3] for x in plane.history) / n
+            first, span, n = history[0], ATTITUDE_WINDOW * self.period, len(history)
+            f_fwd, f_up = plane.force_sum[0] / n, plane.force_sum[1] / n
             norm = math.hypot(f_fwd, f_up)
             if norm < 1.0:
                 continue  # free fall or a dead accelerometer: no tilt to be had
@@ -339,16 +348,26 @@ class RecoveryLaw:
         )
         """Per drive: the other two, and the map from the balancing torques (x, y) onto them."""
         self.limit = robot.drive.torque_limit
+        body = robot.body
+        # The gains for riders every RIDER_STEP kg, solved once: a takeover only interpolates (two Riccati
+        # solves would delay the takeover frame by milliseconds).
+        self._masses = np.arange(0.0, MAX_RIDER + RIDER_STEP / 2, RIDER_STEP)
+        self._table = np.array(
+            [
+                [plane_gain(robot, rules, m, inertia) for inertia in (body.inertia_roll, body.inertia_pitch)]
+                for m in self._masses
+            ]
+        )
         self.gains = self.design(None)
 
     def design(self, seat_load: float | None) -> tuple[np.ndarray, np.ndarray]:
         """The (roll, pitch) gains for the rider the seat weighs (N; None: the configured rider mass)."""
-        rider = self.rules.rider_mass if seat_load is None else min(max(seat_load / G0, 0.0), 200.0)
-        body = self.robot.body
-        self.gains = (
-            plane_gain(self.robot, self.rules, rider, body.inertia_roll),
-            plane_gain(self.robot, self.rules, rider, body.inertia_pitch),
+        rider = self.rules.rider_mass if seat_load is None else seat_load / G0
+        rider = min(max(rider, 0.0), MAX_RIDER)
+        gains = np.array(
+            [[np.interp(rider, self._masses, self._table[:, p, i]) for i in range(4)] for p in range(2)]
         )
+        self.gains = (gains[0], gains[1])
         return self.gains
 
     def torques(self, estimate: IsolatedEstimator, without: int | None = None) -> tuple[float, float, float]:

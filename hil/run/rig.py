@@ -368,28 +368,22 @@ class Rig:
         if self._supervisor_silent or self.plant.t - self._permission_seen < self.permission_timeout / 2:
             return
         seen = self._permission_seen
-        while self._permission_seen == seen:
-            rx = self.can.recv(timeout=max(deadline - time.monotonic(), 0.0))
-            if rx is None:
-                if time.monotonic() >= deadline:
-                    self._supervisor_silent = True
-                    return
-                continue
-            if rx.name in COMMANDS:
-                self.stats.late_commands += 1  # its tick is over: never applied
-            else:
-                self._other_frame(rx)
+        self._take_supervisor_frames(lambda: self._permission_seen != seen, deadline)
 
     def _await_recovery(self, k: int, deadline: float) -> None:
         """Lockstep beside a supervisor elsewhere that holds the drives: its recovery command for tick k is
         an output the loop waits for, like the controller's."""
         tag = k % TICK_MODULO
-        while self.takeover and self._recovery_tick != tag and not self._supervisor_silent:
+        self._take_supervisor_frames(lambda: not self.takeover or self._recovery_tick == tag, deadline)
+
+    def _take_supervisor_frames(self, done: Callable[[], bool], deadline: float) -> None:
+        """Take in frames until `done()`; a supervisor silent until `deadline` is not waited for again
+        until it is heard from (a commands frame that turns up is late: its tick is over, never applied)."""
+        while not done() and not self._supervisor_silent:
             rx = self.can.recv(timeout=max(deadline - time.monotonic(), 0.0))
             if rx is None:
                 if time.monotonic() >= deadline:
                     self._supervisor_silent = True
-                    return
                 continue
             if rx.name in COMMANDS:
                 self.stats.late_commands += 1
