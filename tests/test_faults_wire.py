@@ -529,3 +529,21 @@ def test_fault_times_become_ticks_once_and_act_on_exactly_those_ticks(session, a
     finally:
         bench.close()
     assert events == [("start", first), ("end", end)]
+
+
+def test_a_live_fault_starts_exactly_at_after_the_tick_that_takes_it_in():
+    # A fault injected into a running rig (pure-hil fault inject) counts `at` once, from the tick that
+    # takes the request in: it once started at twice its time (and past a short run's end, never).
+    from hil.faults import FaultSet, parse_fault
+
+    faults = FaultSet()
+    taken_at = 589  # t = 1.4725 s at 400 Hz
+    for k in range(1, taken_at):
+        faults.update(k, k / faults.tick_hz)
+    faults.inject(parse_fault({"kind": "zenoh.wrench_dropout", "at": 0.5}))
+    starts = []
+    faults.on_event = lambda event: starts.append(event) if event.action == "start" else None
+    for k in range(taken_at, 2 * taken_at + 400):
+        faults.update(k, k / faults.tick_hz)
+    (start,) = starts
+    assert start.t == pytest.approx(taken_at / faults.tick_hz + 0.5)

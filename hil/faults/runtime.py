@@ -95,6 +95,7 @@ class FaultSet:
             requests, self._requests = self._requests, []
         for action, arg in requests:
             if action == "inject":
+                # Recorded with its absolute start; scheduled from tick 0, so `at` counts once from this tick.
                 spec = msgspec.structs.replace(arg, at=t + arg.at)  # type: ignore[type-var]
                 try:
                     spec.validate(self.rig)
@@ -102,7 +103,7 @@ class FaultSet:
                     log.error("live fault %s refused: %s", spec.describe(), exc)
                     continue
                 n = self._add(spec)
-                self._schedule(n, now=k)
+                self._schedule(n)
                 self._log(t, n, "inject", spec.describe())
             else:
                 targets = range(len(self.specs)) if arg is None else [arg]
