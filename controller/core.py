@@ -41,6 +41,9 @@ class Fault(IntEnum):
     """Not fatal: the rider's input is ignored (command speed 0) until the seat speaks again."""
     INTERNAL = 4
     """The controller's own code failed; drives disabled until an explicit enable."""
+    DEGRADED = 5
+    """Not fatal: balancing with an input stood in for (lost, or named faulty by the supervisor's diagnosis;
+    controller/estimator.py)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -135,9 +138,8 @@ class Controller:
         taring = t - self.balancing_since < self.config.timing.tare_time
         rider_wrench = self._rider_wrench(wrench, wrench_age, taring)
         cap = 0.0 if taring else self._cap(t, sc)
-        self.fault = (
-            Fault.TES_STALE if wrench is None or wrench_age > self.config.timing.tes_hold else Fault.NONE
-        )
+        stale = wrench is None or wrench_age > self.config.timing.tes_hold
+        self.fault = Fault.DEGRADED if estimate.degraded else Fault.TES_STALE if stale else Fault.NONE
 
         # Command speeds: pitch forward from My, roll "forward" (−y) from Mx.
         v = [

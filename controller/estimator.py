@@ -1,7 +1,15 @@
 """State estimation from the CAN frames: chassis tilt and rate per plane (IMU), ball angle and rate per
 plane (encoders through the inverse omniwheel map, plus the chassis rotation), yaw rate.
 
-Missing or untrusted frames (E2E) hold the last good value; a stream silent longer than `hold` faults.
+Missing or untrusted frames (E2E) hold the last good value. An input that is lost (its stream silent longer
+than `hold`) or that the supervisor's diagnosis names faulty (`drop`, SUPERVISOR_DIAGNOSIS) is stood in for
+where PURE's redundancy allows, and the estimate says it is `degraded`:
+- a rate channel (x or y): the attitude's derivative, low-passed;
+- the attitude (roll or pitch): the body rates integrated from the last trusted attitude;
+- one encoder: the other two and the gyro's yaw rate give the ball-to-body rates; the ball angle goes on
+  from there by integration.
+Only when no stand-in is left (both attitude and rates of a plane, two encoders, an encoder and the gyro's
+yaw rate) does the estimate fault.
 """
 
 from __future__ import annotations
@@ -13,6 +21,9 @@ import numpy as np
 
 PITCH, ROLL = 0, 1
 INT32 = 1 << 32
+DERIVATIVE_FILTER = 0.02
+"""s: low-pass of the attitude's derivative that stands in for a rate channel."""
+STREAMS = ("imu_attitude", "imu_rate", "drive0", "drive1", "drive2")
 
 
 def _dot(row: tuple[float, float, float], v) -> float:
@@ -35,10 +46,13 @@ class Estimate:
     planes: tuple[PlaneState, PlaneState]
     yaw_rate: float
     fault: str | None
+    degraded: tuple[str, ...] = ()
+    """The inputs stood in for (SUPERVISOR_DIAGNOSIS's names: Encoder1, RateX, Pitch, ...)."""
 
 
 class Estimator:
     def __init__(self, motor_jacobian: np.ndarray, counts_per_rev: int, hold: float):
+        self.jacobian = motor_jacobian
         self.to_relative = np.linalg.inv(motor_jacobian)
         # Rows of it as floats: numpy's per-call overhead dominates a 3-vector product at 400 Hz.
         self._roll_row, self._pitch_row = (tuple(float(x) for x in row) for row in self.to_relative[:2])
@@ -49,21 +63,39 @@ class Estimator:
         self.counts = [0, 0, 0]
         self.velocity = [0.0, 0.0, 0.0]
         self._raw_counts: list[int | None] = [None, None, None]
-        self.last_good = {
-            "imu_attitude": None,
-            "imu_rate": None,
-            "drive0": None,
-            "drive1": None,
-            "drive2": None,
-        }
+        self.last_good: dict[str, float | None] = dict.fromkeys(STREAMS)
+        self.dropped: frozenset[str] = frozenset()
+        """What the supervisor's diagnosis names faulty (SUPERVISOR_DIAGNOSIS), not used while named."""
+        self._derivative = [0.0, 0.0]
+        """The attitude's derivative (roll, pitch), low-passed."""
+        self._integrated: list[float] | None = None
+        """The attitude (roll, pitch) carried by the body rates from the last trusted one."""
+        self._rate_at: float | None = None
+        self._relative_angle: tuple[float, float] | None = None
+        """Ball-to-body angles (roll, pitch) integrated once an encoder is stood in for."""
+        self._estimated_at: float | None = None
+
+    def drop(self, parts: frozenset[str]) -> None:
+        """The supervisor's diagnosis (SUPERVISOR_DIAGNOSIS): stop using what it names."""
+        self.dropped = parts
 
     # Frame inputs (only trusted frames are passed in).
     def imu_attitude(self, roll: float, pitch: float, yaw: float, t: float) -> None:
+        seen = self.last_good["imu_attitude"]
+        if seen is not None and t > seen:
+            for i, now in enumerate((roll, pitch)):
+                raw = (now - self.attitude[i]) / (t - seen)
+                self._derivative[i] += (raw - self._derivative[i]) * min((t - seen) / DERIVATIVE_FILTER, 1.0)
         self.attitude = (roll, pitch, yaw)
         self.last_good["imu_attitude"] = t
 
     def imu_rate(self, x: float, y: float, z: float, t: float) -> None:
+        if self._integrated is not None and self._rate_at is not None and t > self._rate_at:
+            dt = t - self._rate_at
+            self._integrated[0] += x * dt
+            self._integrated[1] += y * dt
         self.rate = (x, y, z)
+        self._rate_at = t
         self.last_good["imu_rate"] = t
 
     def drive(self, index: int, counts: int, velocity: float, t: float) -> None:
@@ -78,21 +110,77 @@ class Estimator:
         self.velocity[index] = velocity
         self.last_good[f"drive{index}"] = t
 
+    def _lost(self, t: float) -> set[str]:
+        return {s for s, seen in self.last_good.items() if seen is None or t - seen > self.hold}
+
     def estimate(self, t: float) -> Estimate:
-        fault = None
-        for stream, seen in self.last_good.items():
-            if seen is None or t - seen > self.hold:
-                fault = f"{stream} silent" if seen is not None else f"{stream} never received"
-                break
-        roll, pitch, _ = self.attitude
-        rate_x, rate_y, rate_z = self.rate
+        lost, dropped = self._lost(t), self.dropped
+        never = [s for s in STREAMS if self.last_good[s] is None]
+        if never:
+            return self._nominal(t, f"{never[0]} never received")
+        attitude_ok = "imu_attitude" not in lost
+        rates_ok = "imu_rate" not in lost
+        bad_drives = [i for i in range(3) if f"drive{i}" in lost or f"Encoder{i + 1}" in dropped]
+        degraded: list[str] = []
+        trusted_attitude = attitude_ok and not dropped & {"Roll", "Pitch"}
+        if trusted_attitude or self._integrated is None:
+            self._integrated = [self.attitude[0], self.attitude[1]]
+        tilt, tilt_rate = [0.0, 0.0], [0.0, 0.0]
+        for i, (angle, rate) in enumerate((("Roll", "RateX"), ("Pitch", "RateY"))):
+            use_attitude = attitude_ok and angle not in dropped
+            use_rate = rates_ok and rate not in dropped
+            if not use_attitude and not use_rate:
+                return self._nominal(t, f"{angle.lower()}: no attitude and no rate left")
+            tilt[i] = self.attitude[i] if use_attitude else self._integrated[i]
+            tilt_rate[i] = self.rate[i] if use_rate else self._derivative[i]
+            if not use_attitude:
+                degraded.append(angle)
+            if not use_rate:
+                degraded.append(rate)
+        gyro_yaw_ok = rates_ok and "RateZ" not in dropped
+        if len(bad_drives) > 1 or (bad_drives and not gyro_yaw_ok):
+            return self._nominal(t, "two encoders (or one and the gyro's yaw rate) lost")
+        yaw_rate = self.rate[2] if gyro_yaw_ok else -_dot(tuple(self.to_relative[2]), self.velocity)
+        if not gyro_yaw_ok:
+            degraded.append("RateZ")
+        roll_state, pitch_state = self._planes(t, tilt, tilt_rate, bad_drives)
+        degraded += [f"Encoder{i + 1}" for i in bad_drives]
+        return Estimate((pitch_state, roll_state), yaw_rate, None, tuple(degraded))
+
+    def _planes(self, t: float, tilt, tilt_rate, bad_drives) -> tuple[PlaneState, PlaneState]:
+        """(roll, pitch) plane states from the encoders, or from two and the gyro's yaw rate."""
+        dt = 0.0 if self._estimated_at is None else max(t - self._estimated_at, 0.0)
+        self._estimated_at = t
         roll_row, pitch_row, counts = self._roll_row, self._pitch_row, self.counts
-        rel_roll, rel_pitch = (
-            _dot(roll_row, counts) * self.rad_per_count,
-            _dot(pitch_row, counts) * self.rad_per_count,
-        )
-        rate_roll, rate_pitch = _dot(roll_row, self.velocity), _dot(pitch_row, self.velocity)
-        # ω_rel = [φ_x − θ_x, φ_y − θ_y, −ψ]: add the chassis rotation back to get the ball's.
-        pitch_state = PlaneState(pitch, rel_pitch + pitch, rate_y, rate_pitch + rate_y)
-        roll_state = PlaneState(roll, rel_roll + roll, rate_x, rate_roll + rate_x)
-        return Estimate((pitch_state, roll_state), rate_z, fault)
+        if not bad_drives:
+            rel_angle = (
+                _dot(roll_row, counts) * self.rad_per_count,
+                _dot(pitch_row, counts) * self.rad_per_count,
+            )
+            rel_rate = (_dot(roll_row, self.velocity), _dot(pitch_row, self.velocity))
+            self._relative_angle = None
+        else:
+            bad = bad_drives[0]
+            others = [j for j in range(3) if j != bad]
+            # ω_rel = [φ_x − θ_x, φ_y − θ_y, −ψ̇]: the remaining motors less their yaw part, through 2 x 2.
+            known = np.array([self.velocity[j] for j in others]) + self.jacobian[others, 2] * self.rate[2]
+            x, y = np.linalg.solve(self.jacobian[np.ix_(others, [0, 1])], known)
+            rel_rate = (float(x), float(y))
+            if self._relative_angle is None:  # goes on from where the counts left it
+                self._relative_angle = (
+                    _dot(roll_row, counts) * self.rad_per_count,
+                    _dot(pitch_row, counts) * self.rad_per_count,
+                )
+            self._relative_angle = (
+                self._relative_angle[0] + rel_rate[0] * dt,
+                self._relative_angle[1] + rel_rate[1] * dt,
+            )
+            rel_angle = self._relative_angle
+        roll = PlaneState(tilt[0], rel_angle[0] + tilt[0], tilt_rate[0], rel_rate[0] + tilt_rate[0])
+        pitch = PlaneState(tilt[1], rel_angle[1] + tilt[1], tilt_rate[1], rel_rate[1] + tilt_rate[1])
+        return roll, pitch
+
+    def _nominal(self, t: float, fault: str | None) -> Estimate:
+        """Every input as it is (the fault says why that is not good enough)."""
+        roll, pitch = self._planes(t, self.attitude[:2], self.rate[:2], [])
+        return Estimate((pitch, roll), self.rate[2], fault)

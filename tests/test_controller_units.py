@@ -82,7 +82,65 @@ def test_estimator_unwraps_counts_and_faults_when_silent():
     est.imu_attitude(0, 0, 0, 0.0)
     est.imu_rate(0, 0, 0, 0.0)
     assert est.estimate(0.015).fault is None
-    assert est.estimate(0.03).fault == "imu_attitude silent"
+    # Everything silent: nothing is left to stand in for the attitude and its rate.
+    assert est.estimate(0.03).fault == "roll: no attitude and no rate left"
+
+
+def _moving_estimator():
+    """An estimator fed 0.5 s of a robot rolling forward and tilting (truth known), and the truth."""
+    g = motor_jacobian(ROBOT)
+    est = Estimator(g, ROBOT.encoder.counts_per_rev, hold=0.02)
+    dt = 0.0025
+
+    def truth(t):
+        pitch, pitch_rate = 0.05 * math.sin(3 * t), 0.15 * math.cos(3 * t)
+        rel = np.array([0.0, 4.0 + t, 0.2])  # ball-to-body rates (x, y, -yaw rate)
+        return pitch, pitch_rate, rel
+
+    angles = np.zeros(3)
+    t = 0.0
+    for k in range(200):
+        t = k * dt
+        pitch, pitch_rate, rel = truth(t)
+        motor = g @ rel
+        angles += motor * dt
+        for i in range(3):
+            est.drive(i, round(angles[i] * ROBOT.encoder.counts_per_rev / (2 * math.pi)), motor[i], t)
+        est.imu_attitude(0.0, pitch, 0.0, t)
+        est.imu_rate(0.0, pitch_rate, -rel[2], t)
+    return est, t, truth(t)
+
+
+def test_estimator_stands_in_for_an_encoder_the_diagnosis_names():
+    est, t, (pitch, pitch_rate, rel) = _moving_estimator()
+    est.velocity[1] = -est.velocity[1]  # encoder 2 flipped: what the supervisor found
+    assert abs(est.estimate(t).planes[0].ball_rate - (rel[1] + pitch_rate)) > 1.0, "the flip matters"
+    est.drop(frozenset({"Encoder2"}))
+    e = est.estimate(t)
+    assert e.fault is None and e.degraded == ("Encoder2",)
+    assert e.planes[0].ball_rate == pytest.approx(rel[1] + pitch_rate, abs=1e-9)
+
+
+def test_estimator_stands_in_for_a_lost_rate_channel_and_a_named_attitude():
+    est, t, (pitch, pitch_rate, rel) = _moving_estimator()
+    later = t + 3 * est.hold  # the rate frames stop: their stand-in is the attitude's derivative
+    est.imu_attitude(0.0, pitch, 0.0, later)
+    est.drive(0, est._raw_counts[0], est.velocity[0], later)
+    for i in range(3):
+        est.last_good[f"drive{i}"] = later
+    e = est.estimate(later)
+    assert e.fault is None and set(e.degraded) == {"RateX", "RateY", "RateZ"}
+    assert e.planes[0].tilt_rate == pytest.approx(pitch_rate, abs=0.02)
+    assert e.yaw_rate == pytest.approx(-rel[2], abs=1e-9), "the yaw rate from the encoders"
+    # A named attitude: the body rates carry the tilt on from the last trusted one.
+    est, t, (pitch, pitch_rate, rel) = _moving_estimator()
+    est.drop(frozenset({"Pitch"}))
+    est.estimate(t)
+    est.imu_attitude(0.0, pitch + 0.3, 0.0, t + 0.0025)  # lies from here on
+    est.imu_rate(0.0, pitch_rate, -rel[2], t + 0.0025)
+    e = est.estimate(t + 0.0025)
+    assert "Pitch" in e.degraded
+    assert e.planes[0].tilt == pytest.approx(pitch + pitch_rate * 0.0025, abs=1e-6)
 
 
 def test_hacs_deadband_gain_and_limits():
