@@ -150,7 +150,7 @@ def _run(args: argparse.Namespace) -> int:
         simulated = float(result.trace.t[-1]) if len(result.trace.t) else 0.0
         print(f"pure-hil run: stopped at t = {simulated:.2f} s of {scenario.duration:g} s", file=sys.stderr)
         return 130
-    return 0 if result.passed else 1
+    return {"PASSED": 0, "ESTOPPED": 3}.get(result.verdict, 1)
 
 
 def _campaign(args: argparse.Namespace) -> int:

@@ -141,6 +141,8 @@ CUT_POWER = frozenset(
 drives themselves are the fault (power that cannot be switched off), or the operator asked for category 0.
 Drives that cannot be heard (DRIVES_SILENT) are the recovery law's to judge: it balances without one
 encoder, and without two it is not `recoverable`."""
+OPERATOR_STOPS = frozenset({Cause.OPERATOR_ESTOP, Cause.BUTTON_ESTOP, Cause.OPERATOR_CUT})
+"""The causes an operator's e-stop gives (the zenoh e-stop, a wired button, the category-0 request)."""
 TAKEOVER_CAUSES = frozenset(
     {Cause.SENSOR_STUCK, Cause.SENSOR_DISAGREE, Cause.ACTUATOR_MISMATCH, Cause.DRIVE_FAULT}
 )

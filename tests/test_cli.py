@@ -115,7 +115,8 @@ def test_ctrl_c_ends_a_run_at_the_next_tick_and_writes_its_folder(tmp_path):
     assert proc.returncode == 130, output
     assert "stopped at t = " in output and "Traceback" not in output
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["stopped_early"] and 0 < summary["simulated"] < 3600 and summary["passed"]
+    assert summary["stopped_early"] and 0 < summary["simulated"] < 3600
+    assert (summary["verdict"], summary["passed"]) == ("STOPPED", False), "stopped early is not passed"
     rows = np.load(out / "trace.npy")
     assert len(rows) == summary["rig"]["ticks"] and abs(rows[-1, 0] - summary["simulated"]) < 1e-6
     assert all((out / name).stat().st_size > 0 for name in ("can.log", "recording.rrd", "plots.png"))

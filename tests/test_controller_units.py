@@ -112,7 +112,7 @@ def _moving_estimator():
 
 
 def test_estimator_stands_in_for_an_encoder_the_diagnosis_names():
-    est, t, (pitch, pitch_rate, rel) = _moving_estimator()
+    est, t, (_pitch, pitch_rate, rel) = _moving_estimator()
     est.velocity[1] = -est.velocity[1]  # encoder 2 flipped: what the supervisor found
     assert abs(est.estimate(t).planes[0].ball_rate - (rel[1] + pitch_rate)) > 1.0, "the flip matters"
     est.drop(frozenset({"Encoder2"}))

@@ -180,3 +180,42 @@ def test_external_supervisor_on_the_sync_time_base():
     assert transitions(tr) == [("STOPPING", "OPERATOR_ESTOP"), ("ESTOP", "OPERATOR_ESTOP")]
     assert abs(first(tr, "OPERATOR_ESTOP").t - 4.0) < 0.01
     assert result.passed, [v for v in result.verdicts if not v.passed]
+
+
+def test_a_run_ended_by_an_operators_live_estop_is_not_passed(tmp_path):
+    """An e-stop the scenario did not schedule (`pure-hil estop`, a button) ends the run ESTOPPED, not
+    PASSED (exit 3); the same e-stop scheduled by the scenario is part of the test and passes."""
+    from drivers.schemas import EstopCommand
+
+    endpoint = hub_endpoint()
+    session = open_session(role="hub", hub_endpoint=endpoint)
+    link = ZenohLink(session)
+    link.declare_publishers([link.keys.safety_estop])
+    sent: list[float] = []
+
+    def operator(plant):
+        if plant.t >= 1.0 and not sent:
+            stop = EstopCommand(seq=1, stamp=time.time(), action="estop", source="operator")
+            link.put(link.keys.safety_estop, stop)
+            sent.append(plant.t)
+
+    balance = msgspec.structs.replace(
+        load_toml(ROOT / "configs/scenarios/balance.toml", Scenario), duration=2.0, criteria=[]
+    )
+    try:
+        live = run(
+            balance,
+            private_bench(hub=endpoint),
+            out=tmp_path / "live",
+            options=RunOptions(on_tick=operator, session=session),
+        )
+    finally:
+        link.close()
+        session.close()
+    assert sent and live.live_estop() is not None
+    assert (live.verdict, live.passed) == ("ESTOPPED", False)
+    summary = msgspec.json.decode((tmp_path / "live" / "summary.json").read_bytes())
+    assert (summary["verdict"], summary["passed"]) == ("ESTOPPED", False)
+    scripted = msgspec.structs.replace(balance, operator=[OperatorEntry(at=1.0, action="estop")])
+    result = run(scripted, private_bench())
+    assert result.live_estop() is None and result.verdict == "PASSED"

@@ -155,7 +155,8 @@ def test_a_scenario_runs_through_the_router_and_only_certified_roles_reach_the_s
 
     assert rig.returncode == 130, output  # stopped by the operator; the run's folder is written all the same
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["bench"]["zenoh"] == "router" and summary["passed"], output
+    assert summary["bench"]["zenoh"] == "router", output
+    assert (summary["verdict"], summary["passed"]) == ("STOPPED", False), "ended early: not passed"
     assert summary["stopped_early"] and summary["simulated"] < 120.0
     steps = [(e["to_state"], e["cause"]) for e in summary["safety"]["events"]]
     assert ("STOPPING", "OPERATOR_ESTOP") in steps, steps

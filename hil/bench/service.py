@@ -215,6 +215,7 @@ class RigService:
             self.last = {
                 "scenario": scenario.name,
                 "passed": result.passed,
+                "verdict": result.verdict,
                 "fallen": result.trace.fallen,
                 "stopped_early": self._stop.is_set(),
                 "out": str(out),

@@ -50,6 +50,7 @@ def summary(result: RunResult) -> dict:
         "seed": result.seed,
         "versions": versions(),
         "passed": result.passed,
+        "verdict": result.verdict,
         "failure": None if tr.failure is None else {"stage": tr.failure.stage, "error": tr.failure.error},
         "fallen": tr.fallen,
         "simulated": round(float(tr.t[-1]), 6) if len(tr.t) else 0.0,
@@ -195,7 +196,7 @@ def format_table(result: RunResult) -> str:
     lines.append(
         f"{result.scenario.name}: {tr.t[-1] if len(tr.t) else 0:.2f} s simulated "
         f"({result.law}, {result.clock}) in {tr.timing.wall_time:.1f} s wall "
-        f"({tr.timing.speed:.1f}x real time); " + ("PASSED" if result.passed else "FAILED")
+        f"({tr.timing.speed:.1f}x real time); " + result.verdict
     )
     if math.isfinite(tr.timing.speed) and tr.fallen:
         lines.append(f"the robot fell: {tr.fallen}")

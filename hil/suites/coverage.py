@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING
 import msgspec
 import numpy as np
 
-from safety.machine import Cause
+from safety.machine import OPERATOR_STOPS, Cause
 
 if TYPE_CHECKING:
     from hil.run.judge import RunResult
@@ -264,9 +264,7 @@ class Classification:
         return self.label if self.after is None else f"{self.label}+{self.after.ended}"
 
 
-OPERATOR_CAUSES = frozenset(
-    c.name for c in (Cause.OPERATOR_ESTOP, Cause.BUTTON_ESTOP, Cause.OPERATOR_CUT, Cause.RESET)
-)
+OPERATOR_CAUSES = frozenset(c.name for c in (*OPERATOR_STOPS, Cause.RESET))
 """What an operator does to the supervisor: never a trip of its own."""
 ESCALATIONS = frozenset(
     c.name for c in (Cause.STOP_TIMEOUT, Cause.STOP_INEFFECTIVE, Cause.MOTION_AFTER_STANDSTILL)

@@ -214,7 +214,9 @@ def test_cansend_estop_trips_the_supervisor_and_the_drives(tmp_path):
     cansend = [_tool("cansend"), "vcan0", f"011#{bytes(frame.data).hex().upper()}"]
     action = (300, "cansend e-stop", lambda p: subprocess.run(cansend, check=True))
     run = run_bench(tmp_path, _scenario(tmp_path, 2.0), [action], spawn=True)
-    assert run.actions and run.rig_exit == 0, run.logs["rig"]
+    # A button the scenario did not schedule ended the run: ESTOPPED (exit 3), never PASSED.
+    assert run.actions and run.rig_exit == 3, run.logs["rig"]
+    assert run.summary["verdict"] == "ESTOPPED"
     assert not _running("pure-controller"), "the controller the rig spawned is gone after the run"
     s = run.summary["safety"]
     steps = [(e["to_state"], e["cause"]) for e in s["events"]]
