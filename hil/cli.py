@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 import msgspec
 
 from drivers.config import load_toml
-from drivers.resources import find
+from drivers.resources import find, shipped
 
 if TYPE_CHECKING:
     from hil.bench.bench import Bench
@@ -33,11 +33,21 @@ if TYPE_CHECKING:
 WHERE = ("embedded", "spawned", "external")
 
 
+def package_version() -> str:
+    """pure-hil's installed version (`--version`)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("pure-hil")
+    except PackageNotFoundError:
+        return "unknown (run from a source tree that is not installed)"
+
+
 # ------------------------------------------------------------------------------------------ the bench
 def add_bench_options(parser: argparse.ArgumentParser, clock: bool = False) -> None:
     group = parser.add_argument_group("the bench (configs/benches/*.toml; docs/bench.md)")
     group.add_argument(
-        "--bench", default="embedded", help="bench file or shipped name: embedded, vcan, secured"
+        "--bench", default="embedded", help=f"bench file or shipped name: {', '.join(shipped('benches'))}"
     )
     group.add_argument(
         "--can", default=None, help="override the bus: INTERFACE:CHANNEL, e.g. socketcan:vcan0"
@@ -628,6 +638,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="pure-hil", description="Hardware-in-the-loop rig for the PURE ballbot"
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
     sim = sub.add_parser("simulate", help="plant-only run: PURE + rider on the ideal balancer")
     sim.add_argument("--robot", default="pure")

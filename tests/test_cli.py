@@ -5,6 +5,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from hil.cli import main
 
 
@@ -146,3 +148,18 @@ def test_calibrate_and_adversary_refuse_what_they_cannot_do_in_one_line(capsys):
     assert main(["adversary", "balance", "--objective", "overspeed"]) == 2
     err = capsys.readouterr().err
     assert "balance has no speed cap" in err and err.count("\n") == 1
+
+
+def test_version_and_the_bench_help_name_what_is_shipped(capsys):
+    from importlib.metadata import version
+
+    from drivers.resources import shipped
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["--version"])
+    assert exit_.value.code == 0 and capsys.readouterr().out.strip() == f"pure-hil {version('pure-hil')}"
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert "processes" in shipped("benches")
+    assert f"shipped name: {', '.join(shipped('benches'))}" in help_text
