@@ -1,17 +1,21 @@
 """The supervisor's decisions: a pure state machine (no I/O, no clock; time comes with each observation).
 
     NORMAL ──over cap──▶ LIMITING ──overpowered──▶ STOPPING ──standstill──▶ ESTOP ──reset──▶ NORMAL
-       │                    │                         ▲                       ▲
-       └────────────────────┴──controlled cause───────┘                       │
-       └────────────────────┴──immediate cause (any state but ESTOP)──────────┘
+       │                    │                         │ stop fails             ▲
+       ├────────────────────┴──controlled cause───────┘                        │
+       ├──immediate cause, a lying sensor, a drive fault──▶ RECOVERY ──at rest─┤
+       └──balance lost, drives at fault, operator's cut_power (any state)──────┘
 
-Stop category by cause (IEC 60204-1 §9.2.2): a *controlled* cause (operator, speed, rider absent, bus
-integrity, a diagnostic finding) brakes to standstill through the controller (SC idle) and then removes
-power, as long as the controller is healthy and balancing; an *immediate* cause (the controller or its
-inputs are the fault, balance lost, a stop that does not stop) removes power at once: a ballbot falls when
-power is cut, but a controller that cannot be trusted is worse. ESTOP latches; only an operator reset at
-standstill with every monitor healthy leaves it, and a reset permits motion, it never causes it (the
-controller stays disabled until its own enable).
+Stop category by cause (IEC 60204-1 §9.2.2; docs/safety.md): a *controlled* cause (operator, speed, rider
+absent, bus integrity, the seat) brakes to standstill through the controller (SC idle) and then removes
+power, as long as the controller is healthy and its inputs trusted. When the controller cannot be trusted to
+stop the robot (it is silent or faulted, commands nonsense, balances on a sensor that lies, drives a drive
+that does not do its job, or its stop fails) the supervisor's recovery law takes the drives (RECOVERY,
+SUPERVISOR_ESTOP.Takeover; safety/recovery.py) and power goes off once the robot is at rest: a ballbot falls
+when power is cut in motion. Power goes off at once only for CUT_POWER causes (balance already lost, the
+drives themselves at fault, the operator's category-0 request) or when the recovery law has nothing to
+balance on. ESTOP latches; only an operator reset at standstill with every monitor healthy leaves it (the
+takeover latches with it), and a reset permits motion, it never causes it.
 
 Power is removed on two paths (IEC 60204-1, ISO 13849): the drives' permission (SUPERVISOR_ESTOP), and
 the main contactor in their power feed. In ESTOP the drives must confirm that they are off (their feedback
