@@ -526,7 +526,7 @@ def _estop(args: argparse.Namespace) -> int:
             print(f"pure-hil estop: no supervisor listens on {link.keys.safety_estop}", file=sys.stderr)
             return 1
         link.put(link.keys.safety_estop, EstopCommand(seq=1, stamp=time.time(), action=action, source=source))
-        want = {"estop": ("STOPPING", "ESTOP"), "reset": ("NORMAL",)}[action]
+        want = {"estop": ("STOPPING", "RECOVERY", "ESTOP"), "reset": ("NORMAL",)}[action]
         last = None
         while time.monotonic() < deadline:
             states.wait(max(deadline - time.monotonic(), 0.0))
