@@ -266,3 +266,43 @@ def test_a_rider_who_heeds_the_alert_sits_up_after_the_reaction_time_and_a_scrip
             assert np.abs(rates).max() <= rider.max_lean_rate_deg + 1e-6
         else:
             assert lean[-1][1] == pytest.approx(20.0), "the scripted rider ignores the alert"
+
+
+def test_the_drives_never_follow_two_masters_in_one_tick(tmp_path, monkeypatch):
+    # Every setpoint a drive takes, by tick and by sender, through a takeover at speed while the controller
+    # goes on commanding (a wheel that lies): before the announcement only the controller's, from it on
+    # only the recovery law's (the controller's are counted and dropped), never both in one tick after it.
+    from hil.run.rig import Rig
+    from plant.drives import MotorDrive
+
+    applied: list[tuple[int, str, bool]] = []
+    sender: dict = {}
+    command, recover, set_command = Rig._command, Rig._recover, MotorDrive.set_command
+
+    def controller(self, drive, torque, enable):
+        sender.update(rig=self, who="controller")
+        command(self, drive, torque, enable)
+
+    def recovery(self, signals):
+        sender.update(rig=self, who="recovery")
+        recover(self, signals)
+
+    def taken(drive, torque, enable, now):
+        rig = sender["rig"]
+        applied.append((rig.plant.tick, sender["who"], rig.takeover))
+        set_command(drive, torque, enable, now)
+
+    monkeypatch.setattr(Rig, "_command", controller)
+    monkeypatch.setattr(Rig, "_recover", recovery)
+    monkeypatch.setattr(MotorDrive, "set_command", taken)
+    flip = [{"kind": "sensor.sign_flip", "channel": "drive2.velocity", "at": 4.0}]
+    tr = run(BRAKING, flip, tmp_path, duration=5.0)
+    assert tr.stats.overridden_commands > 0, "the controller went on commanding during the takeover"
+    takeover = min(k for k, who, _ in applied if who == "recovery")
+    assert all(announced for _, who, announced in applied if who == "recovery"), "only while announced"
+    assert not any(who == "controller" and k > takeover for k, who, _ in applied), "one master"
+    assert any(who == "controller" for _, who, _ in applied), "the controller held them before"
+    by_tick: dict[int, set[str]] = {}
+    for k, who, _ in applied:
+        by_tick.setdefault(k, set()).add(who)
+    assert all(len(who) == 1 for k, who in by_tick.items() if k > takeover)
