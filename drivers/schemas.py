@@ -81,6 +81,9 @@ class SafetyState(Payload, frozen=True, kw_only=True):
     """The speed cap in force, m/s."""
     since: Stamp
     """When the supervisor entered this state, s."""
+    estop_by: Text = ""
+    """Whose operator e-stop is latched ('' none): the source of the last e-stop or cut_power taken in,
+    in any state, until a valid reset. An operator tool confirms its own e-stop by it."""
 
 
 class EstopCommand(Payload, frozen=True, kw_only=True):

@@ -184,7 +184,12 @@ def open_hub(
                 "bench another hub endpoint, --hub tcp/127.0.0.1:PORT"
             ) from None
     free = free_loopback_endpoint()
-    log.warning("%s is in use (another rig on this machine?): this run's hub listens on %s", taken, free)
+    log.warning(
+        "%s is in use (another rig on this machine?): this run's hub listens on %s (its clients: --hub %s)",
+        taken,
+        free,
+        free,
+    )
     return open_session(path, "hub", free, allow_network), free
 
 
@@ -254,6 +259,10 @@ class ZenohAccess(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
         return open_session(
             self.config_path, "member", self.endpoint, self.network, certs=self.certs, identity=role
         )
+
+    def hub_endpoint(self) -> str:
+        """loopback: where the rig's hub listens (the bench's endpoint, or its zenoh config's)."""
+        return self.endpoint or _endpoints(_get(load_config(self.config_path, "hub"), "listen/endpoints"))[0]
 
     def open_rig(self, fallback: bool) -> tuple[zenoh.Session, ZenohAccess]:
         """The rig's session, and the access its other processes use (a loopback hub may have moved to a

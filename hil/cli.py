@@ -416,7 +416,8 @@ def _serve(args: argparse.Namespace) -> int:
     )  # operators find it where the bench says: it never moves
     service = RigService(session, bench, out_root=Path(args.out or bench.outputs.folder), view=view)
     _until_interrupted(
-        f"pure-hil serve: bench {bench.name}, queryables {service.keys.rig('*')}; Ctrl-C to stop"
+        f"pure-hil serve: bench {bench.name}, hub {service.endpoint}, queryables {service.keys.rig('*')}; "
+        "Ctrl-C to stop"
     )
     service.close()
     session.close()
@@ -426,8 +427,11 @@ def _serve(args: argparse.Namespace) -> int:
 
 def _supervisor(args: argparse.Namespace) -> int:
     """The supervisor as its own process, on its own timer (what runs beside a real robot)."""
+    from contextlib import ExitStack
+
     from drivers.can_bus import CanNode, open_bus
     from drivers.zenoh_link import ZenohLink
+    from hil.bench.rigs import announce
     from safety.config import RobotGeometry, SupervisorConfig
     from safety.node import SupervisorNode, SupervisorThread
 
@@ -456,10 +460,15 @@ def _supervisor(args: argparse.Namespace) -> int:
     link = ZenohLink(session)
     node = SupervisorNode(CanNode(bus, name="supervisor"), link, config, robot, tick_hz=args.tick_hz)
     thread = SupervisorThread(node, sync=args.time_base == "sync").start()
-    _until_interrupted(
-        f"pure-hil supervisor: on {bench.can.interface}:{bench.can.channel}, "
-        f"zenoh {bench.zenoh.mode}; Ctrl-C to stop"
-    )
+    with ExitStack() as hub:
+        where = f"zenoh {bench.zenoh.mode}"
+        if bench.zenoh.mode == "loopback" and args.role == "hub":
+            endpoint = bench.zenoh.hub_endpoint()
+            hub.enter_context(announce(session, bench.zenoh.prefix, bench.name, endpoint, "supervisor"))
+            where = f"zenoh hub {endpoint}"
+        _until_interrupted(
+            f"pure-hil supervisor: on {bench.can.interface}:{bench.can.channel}, {where}; Ctrl-C to stop"
+        )
     thread.stop()
     link.close()
     session.close()
@@ -505,6 +514,25 @@ def _controller(args: argparse.Namespace) -> int:
 
 
 # -------------------------------------------------------------------------------------------- operators
+def _join_rig(args: argparse.Namespace):
+    """An operator client's bench, zenoh session and the card of the rig it reached: the hub from --hub,
+    $PURE_HIL_HUB, the one live rig of the bench on this machine, or the bench file; a rig of another
+    bench is refused unless the hub was named (hil/bench/rigs.py; docs/rig.md "Which rig")."""
+    from hil.bench.rigs import HUB_VARIABLE, choose_hub, greet
+
+    bench = bench_from(args)
+    named = args.hub or os.environ.get(HUB_VARIABLE)
+    if bench.zenoh.mode != "loopback":
+        return bench, bench.zenoh.open(args.identity), None
+    bench = bench.with_overrides(hub=choose_hub(bench.name, named, bench.zenoh.endpoint))
+    session = bench.zenoh.open(args.identity)
+    try:
+        return bench, session, greet(session, bench.zenoh.prefix, None if named else bench.name)
+    except BaseException:
+        session.close()
+        raise
+
+
 def _estop(args: argparse.Namespace) -> int:
     """Operator e-stop or reset over zenoh; waits for the supervisor to confirm its state."""
     import getpass
@@ -514,10 +542,10 @@ def _estop(args: argparse.Namespace) -> int:
     from drivers.schemas import EstopCommand, SafetyState
     from drivers.zenoh_link import ZenohLink
 
-    bench = bench_from(args)
-    action = "reset" if args.reset else "estop"
+    action = "reset" if args.reset else "cut_power" if args.cut_power else "estop"
     source = args.source or f"{getpass.getuser()}@{socket.gethostname()}"
-    session = bench.zenoh.open(args.identity)
+    bench, session, card = _join_rig(args)
+    rig = f"rig {card.describe()}" if card else f"bench {bench.name}"
     link = ZenohLink(session, Keys(bench.zenoh.prefix))
     try:
         states = link.subscribe(link.keys.safety_state, SafetyState)
@@ -526,17 +554,28 @@ def _estop(args: argparse.Namespace) -> int:
             print(f"pure-hil estop: no supervisor listens on {link.keys.safety_estop}", file=sys.stderr)
             return 1
         link.put(link.keys.safety_estop, EstopCommand(seq=1, stamp=time.time(), action=action, source=source))
-        want = {"estop": ("STOPPING", "RECOVERY", "ESTOP"), "reset": ("NORMAL",)}[action]
         last = None
         while time.monotonic() < deadline:
             states.wait(max(deadline - time.monotonic(), 0.0))
             for state in states.drain():
                 last = state
-                if state.state in want or "reset refused" in state.reason:
-                    print(f"pure-hil estop: {action} by {source}: supervisor {state.state} ({state.reason})")
-                    return 0 if state.state in want else 1
+                if action != "reset" and state.estop_by == source:
+                    print(
+                        f"pure-hil estop: {action} by {source} latched on {rig}: supervisor {state.state} "
+                        f"({state.reason}); it ends in ESTOP and waits for a reset"
+                    )
+                    return 0
+                if action == "reset" and (state.state == "NORMAL" or "reset refused" in state.reason):
+                    print(
+                        f"pure-hil estop: reset by {source} on {rig}: "
+                        f"supervisor {state.state} ({state.reason})"
+                    )
+                    return 0 if state.state == "NORMAL" else 1
+        seen = f"supervisor {last.state} ({last.reason})" if last else "no supervisor state"
+        what = "it reset" if action == "reset" else f"its {action} latched"
         print(
-            f"pure-hil estop: {action} sent; supervisor state {last.state if last else 'unknown'}",
+            f"pure-hil estop: {action} sent to {rig}, but nothing confirmed {what} "
+            f"within {args.timeout:g} s; {seen}",
             file=sys.stderr,
         )
         return 1
@@ -553,8 +592,7 @@ def _ask_service(args: argparse.Namespace, name: str, payload: str, who: str) ->
     """One query to a running `pure-hil serve` (pure/rig/NAME); prints its JSON reply; 0 if it says ok."""
     from drivers.keys import Keys
 
-    bench = bench_from(args)
-    session = bench.zenoh.open(args.identity)
+    bench, session, _card = _join_rig(args)
     try:
         replies = list(session.get(Keys(bench.zenoh.prefix).rig(name), payload=payload, timeout=10.0))
     finally:
@@ -767,9 +805,17 @@ def build_parser() -> argparse.ArgumentParser:
     ctl.set_defaults(func=_controller)
 
     est = sub.add_parser("estop", help="operator e-stop (or --reset) to the supervisor over zenoh")
-    est.add_argument("--reset", action="store_true", help="reset a latched e-stop (at standstill only)")
+    what = est.add_mutually_exclusive_group()
+    what.add_argument("--reset", action="store_true", help="reset a latched e-stop (at standstill only)")
+    what.add_argument(
+        "--cut-power",
+        action="store_true",
+        help="category 0: the drives' power off at once, even in motion (docs/safety.md)",
+    )
     est.add_argument("--source", default=None, help="who (default user@host)")
-    est.add_argument("--timeout", type=float, default=5.0)
+    est.add_argument(
+        "--timeout", type=float, default=5.0, help="s to wait for the supervisor's confirmation (default 5)"
+    )
     est.add_argument("--identity", default="operator", help="its certificate's role (secured bench)")
     add_bench_options(est)
     est.set_defaults(func=_estop)
@@ -823,6 +869,7 @@ def main(argv: list[str] | None = None) -> int:
     import zenoh
 
     from hil.bench.parts import BenchUnavailable
+    from hil.bench.rigs import WrongRig
     from hil.run.trace import CONFIG_ERRORS
 
     parser = build_parser()
@@ -832,6 +879,9 @@ def main(argv: list[str] | None = None) -> int:
     except (*CONFIG_ERRORS, BenchUnavailable) as exc:
         print(f"pure-hil {args.command}: {exc}", file=sys.stderr)
         return 2
+    except WrongRig as exc:
+        print(f"pure-hil {args.command}: {exc}", file=sys.stderr)
+        return 1
     except zenoh.ZError as exc:  # an endpoint taken or unreachable, a certificate refused
         print(f"pure-hil {args.command}: zenoh: {exc}", file=sys.stderr)
         return 2

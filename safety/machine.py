@@ -281,6 +281,9 @@ class Decision:
     """The recovery law holds the drives (SUPERVISOR_ESTOP.Takeover): they follow SUPERVISOR_RECOVERY only."""
     alert: int = 0
     """What the rider is told: 0 nothing, 1 slow down, 2 stop, sit up and hold still."""
+    estop_by: str = ""
+    """Whose operator e-stop (or category-0 cut) is latched ('' none): the robot ends in ESTOP and waits
+    for a reset, whatever stop was already under way when it came."""
 
 
 class Supervisor:
@@ -303,6 +306,9 @@ class Supervisor:
         self.contactor_closed = True
         self.takeover = False
         """Latched from the entry to RECOVERY until a valid reset."""
+        self.estop_by = ""
+        """The source of the operator e-stop latched now ('' none): taken in whatever the state (a stop
+        already under way keeps its cause, and ends in ESTOP all the same), cleared by a valid reset."""
         self._contactor_opened = -math.inf
         self._contactor_fault = False
         self.events: list[Event] = []
@@ -329,6 +335,8 @@ class Supervisor:
             self.started = self.since = self.permitted_since = obs.t
         if obs.ages.get("sc", math.inf) != math.inf:
             self._sc_seen = True
+        if obs.operator in ("estop", "cut_power"):
+            self.estop_by = obs.operator_source or "?"
         immediate = self._immediate(obs)
         controlled = self._controlled(obs)
         if self.state is State.ESTOP:
@@ -593,6 +601,7 @@ class Supervisor:
         self.reset_by.append((obs.t, obs.operator_source))
         self._saturated_since = self._absent_since = self._over_since = None
         self.contactor_closed, self.permitted_since, self.takeover = True, obs.t, False
+        self.estop_by = ""
         self._enter(State.NORMAL, Cause.RESET, obs, detail=f"reset by {obs.operator_source or '?'}")
 
     def reset_refusal(self, obs: Observation) -> str:
@@ -696,6 +705,7 @@ class Supervisor:
             self.contactor_closed,
             self.takeover,
             self.alert(),
+            self.estop_by,
         )
 
     def alert(self) -> int:

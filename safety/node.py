@@ -71,6 +71,7 @@ class SupervisorNode:
         self._diagnosis: dict[str, int] = {}
         self._frame_sent = self._sc_sent = self._state_sent = -math.inf
         self._forwarded: Forward | None = None
+        self._estop_by = ""
 
     @property
     def events(self) -> list[Event]:
@@ -154,7 +155,9 @@ class SupervisorNode:
                 ),
             )
             self._forwarded, self._sc_sent = d.command, t
-        if changed or refused or t - self._state_sent >= out.state_period - 1e-9:
+        latched = d.estop_by != self._estop_by
+        self._estop_by = d.estop_by
+        if changed or refused or latched or t - self._state_sent >= out.state_period - 1e-9:
             self._state_seq += 1
             self._put(
                 self.keys.safety_state,
@@ -165,6 +168,7 @@ class SupervisorNode:
                     reason=d.cause.name + (f" (reset refused: {refused})" if refused else ""),
                     cap=d.cap,
                     since=max(d.since, 0.0),
+                    estop_by=d.estop_by,
                 ),
             )
             self._state_sent = t

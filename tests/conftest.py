@@ -1,7 +1,11 @@
 import os
+import tempfile
 
 # Tiny LAPACK calls (LQR) are 10-20x slower with OpenBLAS's thread pool: keep tests on one thread.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# The rigs a test starts announce themselves in a folder of this test process's own (hil/bench/rigs.py):
+# an operator's client in a test never finds a rig of the machine's or of another test worker.
+os.environ["PURE_HIL_RIGS"] = tempfile.mkdtemp(prefix="pure-hil-test-rigs-")
 
 
 import pytest

@@ -556,7 +556,7 @@ steps = st.lists(
 def test_properties_over_any_observation_sequence(sequence):
     s = Supervisor(CFG, LIMIT)
     t = 0.0
-    closed, taken = True, False
+    closed, taken, latched = True, False, ""
     for step in sequence:
         t += step.pop("dt")
         o = Observation(t=t, **step)
@@ -586,6 +586,15 @@ def test_properties_over_any_observation_sequence(sequence):
         # controller never gets them back while it is announced.
         assert d.takeover == (d.state is State.RECOVERY or (d.state is State.ESTOP and taken))
         taken = d.takeover
+        # An operator's e-stop latches whatever stop is under way: from the update that takes it in until a
+        # valid reset, it is named and the robot is in a stop that ends in ESTOP.
+        if o.operator in ("estop", "cut_power"):
+            latched = o.operator_source or "?"
+        elif d.cause is Cause.RESET and before is State.ESTOP:
+            latched = ""
+        assert d.estop_by == latched
+        if latched:
+            assert d.state in (State.STOPPING, State.RECOVERY, State.ESTOP)
         # Power is cut in motion only when balance is lost, the drives are the fault, the operator asks
         # for category 0, or the recovery law has nothing to balance on.
         moving = o.speed is not None and o.speed > CFG.stop.standstill_speed

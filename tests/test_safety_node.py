@@ -1,6 +1,7 @@
 """The standalone supervisor on its own timer (as `pure-hil supervisor` runs it), fed healthy traffic by a
 stand-in robot on a virtual bus, driven by `pure-hil estop` over zenoh on loopback."""
 
+import os
 import threading
 import time
 
@@ -10,6 +11,7 @@ import pytest
 from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
 from drivers.schemas import ScCommand, ScRequest, TesWrench
 from drivers.zenoh_link import ZenohLink, open_session
+from hil.bench.rigs import HUB_VARIABLE, announce
 from hil.cli import main
 from safety.config import SupervisorConfig, Watchdogs
 from safety.machine import BALANCING
@@ -88,8 +90,10 @@ def bench():
     node = SupervisorNode(CanNode(sup_bus, name="supervisor"), hub_link, config)
     thread = SupervisorThread(node).start()
     robot = StandInRobot(bus_config, hub_link)
+    # As `pure-hil supervisor --role hub` does: operators' clients ask the hub which rig it is.
     try:
-        yield endpoint, node, robot, hub_link
+        with announce(hub, "pure", "embedded", endpoint, "supervisor"):
+            yield endpoint, node, robot, hub_link
     finally:
         robot.close()
         thread.stop()
@@ -146,3 +150,51 @@ def test_the_wired_estop_frame_trips_it(bench):
     time.sleep(0.7)
     robot.node.send("OPERATOR_ESTOP", {"Request": 1})
     assert wait_for(lambda: node.machine.cause.name == "BUTTON_ESTOP", 2.0)
+
+
+def test_an_estop_without_a_hub_never_reaches_another_rig(bench, tmp_path, monkeypatch, capsys):
+    endpoint, node, _robot, _ = bench
+    time.sleep(0.7)
+    monkeypatch.delenv(HUB_VARIABLE, raising=False)
+    other = hub_endpoint()
+    second = open_session(role="hub", hub_endpoint=other)
+    try:
+        with announce(second, "pure", "embedded", other, "run speed_limiting"):
+            # Two rigs of the bench on this machine: the client names both and sends nothing.
+            assert main(["estop", "--source", "alice"]) == 1
+            err = capsys.readouterr().err
+            assert "2 rigs of bench embedded" in err and endpoint in err and other in err
+            assert node.machine.estop_by == ""
+            # Named by the environment, it reaches that one and says which rig it was.
+            monkeypatch.setenv(HUB_VARIABLE, endpoint)
+            assert main(["estop", "--source", "alice"]) == 0
+            out = capsys.readouterr().out
+            assert f"latched on rig supervisor on bench embedded, pid {os.getpid()}, at {endpoint}" in out
+            assert node.machine.estop_by == "alice"
+            monkeypatch.delenv(HUB_VARIABLE)
+        # A bench file that points at a hub where another bench's rig runs: refused, both benches named.
+        bench_file = tmp_path / "lab.toml"
+        bench_file.write_text(f'name = "lab"\n[zenoh]\nendpoint = "{other}"\n')
+        with announce(second, "pure", "embedded", other, "serve"):
+            assert main(["estop", "--bench", str(bench_file), "--source", "bob"]) == 1
+        assert f"the rig at {other} runs bench embedded, not lab" in capsys.readouterr().err
+        # The one live rig of the bench is found without --hub.
+        assert main(["estop", "--source", "carol"]) == 0
+        assert f"at {endpoint}" in capsys.readouterr().out
+    finally:
+        second.close()
+    assert node.machine.estop_by == "carol"
+
+
+def test_estop_confirms_its_own_latch_when_a_stop_is_already_under_way(bench, capsys):
+    endpoint, node, robot, _ = bench
+    time.sleep(0.7)
+    robot.heartbeat = False  # the supervisor stops for its own cause first
+    assert wait_for(lambda: node.machine.cause.name == "HEARTBEAT_LOST", 2.0)
+    assert main(["estop", "--hub", endpoint, "--source", "dave"]) == 0
+    out = capsys.readouterr().out
+    assert "estop by dave latched" in out and "HEARTBEAT_LOST" in out
+    # Positive control: a supervisor that takes in no operator command confirms nothing.
+    node.operator.drain = lambda: []
+    assert main(["estop", "--hub", endpoint, "--source", "erin", "--timeout", "1"]) == 1
+    assert "nothing confirmed its estop latched" in capsys.readouterr().err

@@ -249,3 +249,40 @@ def test_positive_control_a_recording_stream_per_run_leaks_threads_this_count_se
         del rec
     born = set(os.listdir("/proc/self/task")) - before
     assert len(born) >= 3, "rerun-io/rerun#2116: the threads of a dropped stream live on"
+
+
+def test_serve_prints_its_hub_and_a_client_finds_it_without_a_hub(tmp_path):
+    """`serve` on a hub of its own says where; `rig status` typed without --hub finds that rig (the one of
+    its bench on this machine), not whatever holds the bench file's port."""
+    import signal
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    pure_hil = str(Path(sys.executable).with_name("pure-hil"))
+    endpoint = hub_endpoint()
+    env = {**os.environ, "PURE_HIL_RIGS": str(tmp_path / "rigs")}
+    env.pop("PURE_HIL_HUB", None)
+    serve = subprocess.Popen(
+        [pure_hil, "serve", "--hub", endpoint, "--out", str(tmp_path / "runs")],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    try:
+        first = serve.stdout.readline()
+        assert f"hub {endpoint}" in first, first
+        status = subprocess.run(
+            [pure_hil, "rig", "status"], capture_output=True, text=True, env=env, timeout=60
+        )
+        assert status.returncode == 0, status.stderr
+        assert json.loads(status.stdout)["state"] == "idle"
+    finally:
+        serve.send_signal(signal.SIGINT)
+        serve.communicate(timeout=60)
+    assert not list((tmp_path / "rigs").glob("*.json")), "a stopped rig leaves no card behind"
+    # Positive control: with the rig gone, the client finds nobody rather than any other hub.
+    gone = subprocess.run(
+        [pure_hil, "rig", "status", "--hub", endpoint], capture_output=True, text=True, env=env, timeout=60
+    )
+    assert gone.returncode == 1 and gone.stderr

@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import threading
 import time
+from contextlib import ExitStack
 from pathlib import Path
 
 import msgspec
@@ -25,6 +26,7 @@ import zenoh
 from drivers.config import ConfigError, decode_toml
 from drivers.keys import Keys
 from hil.bench.bench import Bench, load_bench
+from hil.bench.rigs import announce
 from hil.faults import FaultSet, parse_fault
 from hil.run.build import RunOptions
 from hil.run.pipeline import load_scenario, run
@@ -73,6 +75,14 @@ class RigService:
             )
         ]
         self._faults: FaultSet | None = None
+        self._announced = ExitStack()
+        if self.bench.zenoh.mode == "loopback":  # operators' clients find it (hil/bench/rigs.py)
+            self.endpoint = self.bench.zenoh.hub_endpoint()
+            self._announced.enter_context(
+                announce(session, self.keys.prefix, self.bench.name, self.endpoint, "serve")
+            )
+        else:
+            self.endpoint = self.bench.zenoh.endpoint or "the bench router"
 
     # ---------------------------------------------------------------------------------- queryables
     def _reply(self, query: zenoh.Query, body: dict) -> None:
@@ -251,5 +261,6 @@ class RigService:
         self.wait_idle(10.0)
         for q in self._queryables:
             q.undeclare()
+        self._announced.close()
         for view in self._views.values():
             view.close()

@@ -29,6 +29,7 @@ from drivers.resources import find
 from drivers.schemas import SafetyState
 from drivers.zenoh_link import ZenohAccess, ZenohLink, lend
 from hil.bench.bench import Bench, RealtimePart
+from hil.bench.rigs import announce
 from hil.faults import FaultError, FaultSet
 from hil.outputs.inputs_log import InputsLog
 from hil.run.rig import OperatorStep, Rig, ScStep
@@ -143,6 +144,9 @@ def build(
     else:
         session, zenoh_access = bench.zenoh.open_rig(fallback=bench.self_contained)
         stack.callback(session.close)
+        if zenoh_access.mode == "loopback":  # operators' clients find it (hil/bench/rigs.py)
+            where = zenoh_access.hub_endpoint()
+            stack.enter_context(announce(session, keys.prefix, bench.name, where, f"run {scenario.name}"))
     if zenoh_access.mode == "loopback":
         stack.enter_context(lend(session, zenoh_access.endpoint))  # the embedded controller joins it
     puts: Counter[str] = Counter()  # every put of this process, whatever its session: the fence counts them

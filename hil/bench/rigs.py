@@ -1,0 +1,139 @@
+"""The rigs running on this machine: each one announces itself, and an operator's client finds the one it
+means, never silently another.
+
+A rig's loopback hub (a `run`, `serve`, or a hub-role `supervisor`) answers `PREFIX/rig/hello` with its
+bench, endpoint, pid and what it runs, and leaves a small file in the machine's rig folder
+(`$PURE_HIL_RIGS`, default `$TMPDIR/pure-hil-UID/rigs`) while it lives. A client (`estop`, `rig`, `fault`)
+takes its hub from `--hub`, else `$PURE_HIL_HUB`, else the one live rig of its bench in that folder, else
+the bench file's endpoint; several live rigs of one bench are refused with their endpoints. Having joined,
+it asks `rig/hello` and refuses a rig of another bench (docs/rig.md "Which rig").
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import zenoh
+
+from drivers.keys import Keys
+
+HUB_VARIABLE = "PURE_HIL_HUB"
+FOLDER_VARIABLE = "PURE_HIL_RIGS"
+HELLO = "hello"
+
+
+class WrongRig(Exception):
+    """The client cannot tell which rig it means, or reached another bench's: what to do instead."""
+
+
+@dataclass(frozen=True, slots=True)
+class RigCard:
+    """What a running rig says of itself."""
+
+    bench: str
+    endpoint: str
+    pid: int
+    runs: str
+    """'serve', 'run SCENARIO', 'supervisor'."""
+    started: float
+    """Wall clock, s."""
+
+    def describe(self) -> str:
+        return f"{self.runs} on bench {self.bench}, pid {self.pid}, at {self.endpoint}"
+
+
+def folder() -> Path:
+    configured = os.environ.get(FOLDER_VARIABLE)
+    return (
+        Path(configured) if configured else Path(tempfile.gettempdir()) / f"pure-hil-{os.getuid()}" / "rigs"
+    )
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def running() -> list[RigCard]:
+    """The live rigs of this machine (files of rigs that died without removing theirs are ignored)."""
+    cards = []
+    for path in sorted(folder().glob("*.json")):
+        try:
+            card = RigCard(**json.loads(path.read_text()))
+        except (OSError, ValueError, TypeError):
+            continue  # half-written, or removed meanwhile
+        if _alive(card.pid):
+            cards.append(card)
+    return cards
+
+
+@contextmanager
+def announce(session: zenoh.Session, prefix: str, bench: str, endpoint: str, runs: str) -> Iterator[RigCard]:
+    """While inside, the rig at `endpoint` answers rig/hello and is listed in the machine's rig folder."""
+    card = RigCard(bench, endpoint, os.getpid(), runs, time.time())
+    body = json.dumps({"ok": True, **asdict(card)})
+    queryable = session.declare_queryable(
+        Keys(prefix).rig(HELLO), lambda query: query.reply(query.key_expr, body)
+    )
+    path = folder() / f"{card.pid}-{id(card):x}.json"
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(asdict(card)))
+    except OSError:
+        path = None  # an unwritable folder costs the finding by folder, not the run
+    try:
+        yield card
+    finally:
+        queryable.undeclare()
+        if path is not None:
+            path.unlink(missing_ok=True)
+
+
+def choose_hub(bench: str, hub: str | None, bench_endpoint: str | None) -> str | None:
+    """The hub a client of `bench` joins: --hub, $PURE_HIL_HUB, the one live rig of the bench, the bench
+    file's endpoint (None: the zenoh config's). Raises WrongRig when several rigs of the bench run."""
+    chosen = hub or os.environ.get(HUB_VARIABLE)
+    if chosen:
+        return chosen
+    mine = [card for card in running() if card.bench == bench]
+    if len(mine) > 1:
+        listed = "; ".join(card.describe() for card in mine)
+        raise WrongRig(
+            f"{len(mine)} rigs of bench {bench} run on this machine ({listed}): "
+            f"name one with --hub ENDPOINT or {HUB_VARIABLE}=ENDPOINT"
+        )
+    return mine[0].endpoint if mine else bench_endpoint
+
+
+def greet(session: zenoh.Session, prefix: str, bench: str | None, timeout: float = 5.0) -> RigCard:
+    """The card of the rig this session joined; WrongRig if none answers, or if it runs another bench
+    than `bench` (None: any, the hub was named)."""
+    replies = list(session.get(Keys(prefix).rig(HELLO), timeout=timeout))
+    for reply in replies:
+        if reply.ok is None:
+            continue
+        body = json.loads(reply.ok.payload.to_string())
+        body.pop("ok", None)
+        card = RigCard(**body)
+        if bench is not None and card.bench != bench:
+            raise WrongRig(
+                f"the rig at {card.endpoint} runs bench {card.bench}, not {bench} ({card.describe()}): "
+                f"name its bench with --bench, or the right rig with --hub or {HUB_VARIABLE}"
+            )
+        return card
+    raise WrongRig(
+        "no rig answers on this hub (is it running? a rig prints its hub endpoint when it starts; "
+        f"name it with --hub or {HUB_VARIABLE})"
+    )
