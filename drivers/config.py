@@ -15,6 +15,11 @@ import msgspec
 T = TypeVar("T")
 
 
+MAX_DURATION = 86400.0
+"""s: one day of simulated time bounds a run, a fault's start and its length (a run folder grows by ~0.5 MB
+per simulated second; a service runs for weeks as many runs)."""
+
+
 class ConfigError(ValueError):
     """A configuration file is missing, not TOML, or does not match its schema."""
 
@@ -40,6 +45,8 @@ def decode_toml(raw: bytes | str, type: type[T], origin: Path | str = "<string>"
         raise ConfigError(origin, str(exc)) from exc
     except msgspec.DecodeError as exc:
         raise ConfigError(origin, f"not valid TOML: {exc}") from exc
+    except UnicodeDecodeError as exc:  # a binary file: TOML is UTF-8 text
+        raise ConfigError(origin, f"not a TOML text file (byte {exc.start} is not UTF-8)") from exc
 
 
 def dump_toml(record: msgspec.Struct) -> bytes:

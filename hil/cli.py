@@ -15,6 +15,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import argparse
 import functools
 import json
+import math
 import signal
 import sys
 import threading
@@ -24,7 +25,7 @@ from typing import TYPE_CHECKING
 
 import msgspec
 
-from drivers.config import load_toml
+from drivers.config import MAX_DURATION, load_toml
 from drivers.resources import find, shipped
 
 if TYPE_CHECKING:
@@ -118,12 +119,44 @@ def _progress(status) -> None:
 
 
 def _out_folder(args: argparse.Namespace, bench: Bench, name: str) -> Path:
-    """`--out`, or a fresh NAME-TIMESTAMP folder under the bench's output folder (every command alike)."""
-    return (
-        Path(args.out)
-        if args.out
-        else Path(bench.outputs.folder) / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
-    )
+    """`--out`, or a fresh NAME-TIMESTAMP folder under the bench's output folder (every command alike),
+    made now: a path that cannot be a folder is a usage error before anything runs."""
+    from drivers.config import ConfigError
+
+    if args.out:
+        out, origin = Path(args.out), "--out"
+    else:
+        out = Path(bench.outputs.folder) / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
+        origin = f"bench {bench.name} outputs.folder"
+    if out.exists() and not out.is_dir():
+        raise ConfigError(origin, f"{out} exists and is not a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(origin, f"cannot make the folder {out}: {exc.strerror or exc}") from None
+    return out
+
+
+def _number(kind: type, low: float, high: float = math.inf, low_open: bool = False):
+    """An argparse type: a finite number of `kind` within [low, high] ((low, high] if low_open)."""
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        below = value <= low if low_open else value < low
+        if not math.isfinite(value) or below or value > high:
+            bounds = f"{'>' if low_open else '>='} {low:g}" + (f" and <= {high:g}" if high < math.inf else "")
+            raise argparse.ArgumentTypeError(f"expected {bounds}, got {text}")
+        return value
+
+    return parse
+
+
+SEED = _number(int, 0)
+COUNT = _number(int, 1)
+DURATION = _number(float, 0.0, MAX_DURATION, low_open=True)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -683,16 +716,18 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--rider", default="ref_60kg_180")
     sim.add_argument("--no-rider", action="store_true", help="robot alone")
     sim.add_argument("--sim", default="default")
-    sim.add_argument("--duration", type=float, default=10.0, help="simulated seconds")
+    sim.add_argument(
+        "--duration", type=DURATION, default=10.0, help="simulated seconds (> 0, at most one day)"
+    )
     sim.add_argument("--lean", type=float, default=15.0, help="forward torso lean the rider holds, deg")
     sim.add_argument("--tilt", type=float, default=3.0, help="initial chassis tilt, deg")
-    sim.add_argument("--seed", type=int, default=None)
+    sim.add_argument("--seed", type=SEED, default=None, help="the noise seed (>= 0)")
     sim.set_defaults(func=_simulate)
 
     run = sub.add_parser("run", help="run a scenario on the bench; exit 0 pass, 1 fail, 2 usage/config")
     run.add_argument("scenario", help="a shipped scenario's name (balance, ...) or a scenario file")
     add_bench_options(run, clock=True)
-    run.add_argument("--seed", type=int, default=None)
+    run.add_argument("--seed", type=SEED, default=None, help="the scenario's seed instead (>= 0)")
     run.add_argument("--out", default=None, help="run folder (default: the bench's folder/NAME-TIMESTAMP)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.set_defaults(func=_run)
@@ -700,10 +735,10 @@ def build_parser() -> argparse.ArgumentParser:
     cmp_ = sub.add_parser("compare", help="HACS vs iHACS over scenarios and riders: the paper's table")
     cmp_.add_argument("scenarios", nargs="+", help="shipped scenario names or files")
     cmp_.add_argument("--riders", nargs="*", default=None, help="riders (default: the paper's four)")
-    cmp_.add_argument("--trials", type=int, default=1, help="seeds per rider")
+    cmp_.add_argument("--trials", type=COUNT, default=1, help="seeds per rider")
     cmp_.add_argument("--out", default=None)
     cmp_.add_argument("--json", action="store_true", help="print one JSON object (cells, orderings, runs)")
-    cmp_.add_argument("--workers", type=int, default=1, help="runs at a time, each in its own process")
+    cmp_.add_argument("--workers", type=COUNT, default=1, help="runs at a time, each in its own process")
     add_bench_options(cmp_)
     cmp_.set_defaults(func=_compare)
 
@@ -720,8 +755,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cal.add_argument("--step", type=float, default=0.2, help="relative move for --sensitivity")
     cal.add_argument("--target", default="paper/ihacs_table2.toml", help="a table in the paper's format")
-    cal.add_argument("--budget", type=int, default=40, help="at most this many evaluations")
-    cal.add_argument("--workers", type=int, default=1, help="runs at a time, each in its own process")
+    cal.add_argument("--budget", type=COUNT, default=40, help="at most this many evaluations")
+    cal.add_argument("--workers", type=COUNT, default=1, help="runs at a time, each in its own process")
     cal.add_argument("--out", default=None)
     add_bench_options(cal)
     cal.set_defaults(func=_calibrate)
@@ -729,9 +764,9 @@ def build_parser() -> argparse.ArgumentParser:
     adv = sub.add_parser("adversary", help="search the worst rider for an STL requirement")
     adv.add_argument("scenario", help="shipped scenario name or file")
     adv.add_argument("--objective", choices=("overspeed", "tilt", "rmse"), default="overspeed")
-    adv.add_argument("--budget", type=int, default=50, help="lockstep runs")
-    adv.add_argument("--workers", type=int, default=1, help="runs at a time, each in its own process")
-    adv.add_argument("--seed", type=int, default=0, help="the search's seed: the same seed, the same search")
+    adv.add_argument("--budget", type=COUNT, default=50, help="lockstep runs")
+    adv.add_argument("--workers", type=COUNT, default=1, help="runs at a time, each in its own process")
+    adv.add_argument("--seed", type=SEED, default=0, help="the search's seed: the same seed, the same search")
     adv.add_argument(
         "--sampler",
         choices=("random", "qmc", "cmaes"),
@@ -744,7 +779,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     cam = sub.add_parser("campaign", help="scenarios x riders x faults x seeds in parallel; report + JUnit")
     cam.add_argument("file", help="a shipped campaign's name or a campaign file")
-    cam.add_argument("--workers", type=int, default=1, help="parallel processes (lockstep runs)")
+    cam.add_argument("--workers", type=COUNT, default=1, help="parallel processes (lockstep runs)")
     cam.add_argument(
         "--scheduler",
         default=None,
@@ -762,7 +797,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     rep = sub.add_parser("replay", help="replay a run's CAN log and zenoh inputs into a fresh controller")
     rep.add_argument("run_dir")
-    rep.add_argument("--limit", type=int, default=None, help="replay only the first N ticks")
+    rep.add_argument("--limit", type=COUNT, default=None, help="replay only the first N ticks")
     add_bench_options(rep)
     rep.set_defaults(func=_replay)
 
@@ -833,8 +868,10 @@ def build_parser() -> argparse.ArgumentParser:
     flt.add_argument("action", choices=("list", "inject", "clear"))
     flt.add_argument("kind", nargs="?", default=None, help="inject: the fault's kind; clear: its number")
     flt.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="a fault parameter")
-    flt.add_argument("--at", type=float, default=0.0, help="seconds from now (simulated)")
-    flt.add_argument("--duration", type=float, default=None, help="seconds (default: until cleared)")
+    flt.add_argument(
+        "--at", type=_number(float, 0.0, MAX_DURATION), default=0.0, help="seconds from now (simulated)"
+    )
+    flt.add_argument("--duration", type=DURATION, default=None, help="seconds (default: until cleared)")
     flt.add_argument("--identity", default="fault-injector", help="its certificate's role (secured bench)")
     add_bench_options(flt)
     flt.set_defaults(func=_fault)

@@ -163,3 +163,36 @@ def test_version_and_the_bench_help_name_what_is_shipped(capsys):
     help_text = " ".join(capsys.readouterr().out.split())
     assert "processes" in shipped("benches")
     assert f"shipped name: {', '.join(shipped('benches'))}" in help_text
+
+
+def _bad_inputs(tmp: Path) -> list[tuple[list[str], str]]:
+    binary = tmp / "binary.toml"
+    binary.write_bytes(bytes(range(256)))
+    a_file = tmp / "a_file"
+    a_file.write_text("")
+    huge = tmp / "huge.toml"
+    huge.write_text('name = "huge"\nduration = 1e12\n')
+    return [
+        (["run", str(binary)], f"{binary}: not a TOML text file"),
+        (["run", "balance", "--out", str(a_file)], f"--out: {a_file} exists and is not a folder"),
+        (["run", "balance", "--out", "/proc/none/run"], "--out: cannot make the folder /proc/none/run"),
+        (["run", "balance", "--seed", "-1"], "argument --seed: expected >= 0, got -1"),
+        (["simulate", "--duration", "nan"], "argument --duration: expected > 0 and <= 86400, got nan"),
+        (["simulate", "--duration", "-1"], "argument --duration: expected > 0 and <= 86400, got -1"),
+        (["compare", "balance", "--trials", "0"], "argument --trials: expected >= 1, got 0"),
+        (["run", str(huge)], f"{huge}: Expected `float` <= 86400.0 - at `$.duration`"),
+        (["fault", "inject", "sensor.bias", "--at", "inf"], "argument --at: expected >= 0"),
+    ]
+
+
+@pytest.mark.parametrize("case", range(9))
+def test_bad_input_exits_2_with_one_line_naming_the_option_or_field(case, tmp_path, capsys):
+    argv, says = _bad_inputs(tmp_path)[case]
+    try:
+        code = main(argv)
+    except SystemExit as exc:  # argparse's own usage errors
+        code = exc.code
+    err = capsys.readouterr().err
+    assert code == 2 and says in err, err
+    assert "unexpected" not in err and "Traceback" not in err
+    assert len([line for line in err.splitlines() if "error" in line or says in line]) == 1

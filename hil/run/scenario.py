@@ -14,6 +14,7 @@ from typing import Annotated, Any, Literal
 
 import msgspec
 
+from drivers.config import MAX_DURATION
 from hil.faults import Fault
 from hil.run.measurements import MEASUREMENTS
 from plant.rider import Segment
@@ -21,6 +22,8 @@ from safety.config import SupervisorConfig
 from safety.machine import Cause
 
 Positive = Annotated[float, msgspec.Meta(gt=0)]
+Duration = Annotated[float, msgspec.Meta(gt=0, le=MAX_DURATION)]
+Seed = Annotated[int, msgspec.Meta(ge=0)]
 
 
 class _Record(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -130,8 +133,8 @@ class Scenario(_Record):
     law: Literal["hacs", "ihacs"] = "hacs"
     """The reference controller's control law (a bench may run another, or a controller of its own)."""
     clock: Literal["lockstep", "realtime"] = "lockstep"
-    duration: Positive = 10.0
-    seed: int = 0
+    duration: Duration = 10.0
+    seed: Seed = 0
     tick_hz: Positive = 400.0
     initial_tilt_deg: tuple[float, float] = (0.0, 0.0)
     sc: list[ScEntry] = msgspec.field(default_factory=lambda: [ScEntry(mode="free")])
