@@ -197,7 +197,12 @@ def test_a_controller_written_from_the_contract_alone_balances_the_robot(tmp_pat
     assert run.rig_exit == 0, run.logs["rig"] + run.logs.get("controller", "")
     s = run.summary
     assert s["fallen"] is None and s["safety"]["final_state"] == "NORMAL"
-    assert s["bus"]["e2e"] == {}, "every frame the example sent passed the rig's E2E check"
+    # Its own frames only: under the VM's emulation the rig may miss one of the supervisor process's frames
+    # (SUPERVISOR_ESTOP:LOST 1 was seen once), which says nothing of the example's E2E.
+    sent_by_example = ("DRIVE1_COMMAND", "DRIVE2_COMMAND", "DRIVE3_COMMAND", "CONTROLLER_HEARTBEAT")
+    errors = {k: n for k, n in s["bus"]["e2e"].items() if k.split(":")[0] in sent_by_example}
+    assert errors == {}, "every frame the example sent passed the rig's E2E check"
+    assert s["bus"]["received"]["DRIVE1_COMMAND"] > 0, "the filter above keeps the example's frames"
     assert s["metrics_unavailable"]["pitch.rmse"] == "unavailable (no controller telemetry)"
 
 
