@@ -51,6 +51,10 @@ class TesWrench(Payload, frozen=True, kw_only=True):
     """Nm, about P."""
     cop: tuple[Metres, Metres]
     """Centre of pressure on the seat surface, body x and y, m; (0, 0) when the seat is empty."""
+    cells: tuple[Force, Force, Force, Force, Force, Force] | None = None
+    """The six load cells' raw readings the wrench was computed from, N (vertical 1-3, then tangential
+    1-3), for diagnostics: six cells give six wrench components with nothing to spare, so only the cells
+    themselves show one of them dead or frozen. None: a seat that does not publish them."""
 
 
 class ScRequest(Payload, frozen=True, kw_only=True):

@@ -282,17 +282,28 @@ class SeatCheck(Check):
         self.history: deque[tuple[float, ...]] = deque(maxlen=n + 1)
         self.span = n * period
         self.stuck = Stuck(rules.stuck_samples, moved)
+        self.cells_stuck = [Stuck(rules.stuck_samples, moved) for _ in range(6)]
         self.peaks = {"weight": 0.0, "cop": 0.0, "consistency": 0.0, "force rate": 0.0, "moment rate": 0.0}
 
     def sample(
-        self, force, moment, cop, vertical_accel: float, moved: float, g: float = 9.80665
+        self, force, moment, cop, vertical_accel: float, moved: float, cells=None, g: float = 9.80665
     ) -> Finding | None:
         """One payload; `vertical_accel`: the IMU's vertical specific force (m/s², ~g at rest); `moved`:
-        how much other evidence (the IMU) changed since the previous sample (for the frozen check)."""
+        how much other evidence (the IMU) changed since the previous sample (for the frozen checks);
+        `cells`: the six raw load-cell readings, if the seat publishes them."""
         values = (*force, *moment)
         self.history.append(values)
         if self.stuck.sample(values, moved):
             return Finding(self.cause, f"seat: every value frozen for {self.stuck.run} samples")
+        # A dead or frozen cell only shifts the wrench along its own calibration column, often by less
+        # than the weight band allows (a lean unloads it); its raw reading repeating shows it at once.
+        for i, value in enumerate(cells or ()):
+            if self.cells_stuck[i].sample(value, moved):
+                return Finding(
+                    self.cause,
+                    f"seat: load cell {i + 1} reads {value:.1f} N, unchanged for {self.cells_stuck[i].run} "
+                    "samples while the chassis moved",
+                )
         load = -force[2]
         if self.tare is None:
             if load >= self.min_load:

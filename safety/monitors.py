@@ -310,6 +310,7 @@ class Monitors:
                 w.cop,
                 vertical if self._imu_seen[MessageName.IMU_ACCEL] > -math.inf else G0,
                 self._imu_motion,
+                w.cells,
             )
             self._found["seat", "wrench"] = found and dataclasses.replace(found, parts=("Seat",))
             self._imu_motion = 0.0

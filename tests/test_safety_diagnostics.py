@@ -246,3 +246,33 @@ def test_a_seat_that_jumps_faster_than_a_body_or_freezes_is_implausible():
             for _ in range(500)
         ]
     )
+
+
+def test_a_dead_load_cell_that_hides_in_the_weight_band_is_seen_in_its_raw_reading():
+    """The seat's own model makes the samples: a rider leaning off cell 1 so it carries ~60 N of a 600 N
+    rider. Read as 0 N, the wrench only loses 10 % of the weight: within the band, consistent in itself."""
+    from plant.params import Tes
+    from plant.sensors import TesModel
+
+    seat = TesModel(Tes(), GEOMETRY.body.seat_height, np.random.default_rng(1))
+    wrench = np.array([0.0, 0.0, -600.0, 25.0, -15.0, 0.0])  # leaning right: cell 1 (body +y) unloads
+    assert 40.0 < -(seat.to_cells @ wrench)[0] < 90.0
+
+    def run(dead: bool, with_cells: bool) -> list:
+        check = seat_check()
+        found = []
+        for k in range(800):
+            s = seat.sample(wrench)
+            if dead and k >= 400:
+                s = seat.from_cells([0.0, *s.cells[1:]])
+            found.append(
+                check.sample(s.force, s.moment, s.cop, 9.80665, 1e-3, s.cells if with_cells else None)
+            )
+        return found
+
+    dead = run(dead=True, with_cells=True)
+    first = next(k for k, f in enumerate(dead) if f is not None)
+    assert first == 400 + CFG.seat.stuck_samples - 1 and "load cell 1" in dead[first].detail
+    assert not any(run(dead=False, with_cells=True)), "a live cell's noise never repeats"
+    # Positive control: the wrench alone (a seat that does not publish its cells) never shows it.
+    assert not any(run(dead=True, with_cells=False))

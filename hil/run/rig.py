@@ -311,7 +311,9 @@ class Rig:
     def _publish_tes(self, k: int, s) -> None:
         """Publish the seat sample of tick k (as seat faults alter it)."""
         key = self.keys.tes_wrench
-        payload = TesWrench(seq=k, stamp=self.plant.t, force=s.force, moment=s.moment, cop=s.cop)
+        payload = TesWrench(
+            seq=k, stamp=self.plant.t, force=s.force, moment=s.moment, cop=s.cop, cells=s.cells
+        )
         data = encode(payload)
         for d in self.faults.wrench(payload, data) if self.faults.topical else [data]:
             self._put_bytes(k, key, d)
