@@ -63,7 +63,13 @@ def add_bench_options(parser: argparse.ArgumentParser, clock: bool = False) -> N
         "--certs", default=None, help="certificate folder on a secured bench (pure-hil certs init)"
     )
     if clock:
-        group.add_argument("--clock", choices=("lockstep", "realtime"), default=None)
+        group.add_argument(
+            "--clock",
+            choices=("lockstep", "realtime"),
+            default=None,
+            help="lockstep: as fast as the loop goes, the controller answering each SYNC; realtime: 400 Hz "
+            "of wall time (default: the scenario's, or the bench's)",
+        )
 
 
 def bench_from(args: argparse.Namespace):
@@ -397,6 +403,17 @@ def _replay(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
+    try:
+        clock = json.loads((run_dir / "summary.json").read_text()).get("clock")
+    except (OSError, ValueError):
+        clock = None
+    if clock != "lockstep":
+        print(
+            f"pure-hil replay: {run_dir} ran on the {clock or 'unknown'} clock: only a lockstep run can be "
+            "compared tick for tick (a real-time run's frames met its controller at times no replay repeats)",
+            file=sys.stderr,
+        )
+        return 2
     result = replay(run_dir, bench_from(args), limit=args.limit)
     print(
         f"pure-hil replay {run_dir}: {result.ticks} ticks, {result.frames_compared} controller frames "
@@ -492,7 +509,7 @@ def _supervisor(args: argparse.Namespace) -> int:
         raise
     link = ZenohLink(session)
     node = SupervisorNode(CanNode(bus, name="supervisor"), link, config, robot, tick_hz=args.tick_hz)
-    thread = SupervisorThread(node, sync=args.time_base == "sync").start()
+    thread = SupervisorThread(node, sync=args.clock == "lockstep").start()
     with ExitStack() as hub:
         where = f"zenoh {bench.zenoh.mode}"
         if bench.zenoh.mode == "loopback" and args.role == "hub":
@@ -712,10 +729,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
     sim = sub.add_parser("simulate", help="plant-only run: PURE + rider on the ideal balancer")
-    sim.add_argument("--robot", default="pure")
-    sim.add_argument("--rider", default="ref_60kg_180")
+    sim.add_argument("--robot", default="pure", help="robot file or shipped name")
+    sim.add_argument("--rider", default="ref_60kg_180", help="rider file or shipped name")
     sim.add_argument("--no-rider", action="store_true", help="robot alone")
-    sim.add_argument("--sim", default="default")
+    sim.add_argument("--sim", default="default", help="simulation settings file or shipped name")
     sim.add_argument(
         "--duration", type=DURATION, default=10.0, help="simulated seconds (> 0, at most one day)"
     )
@@ -736,7 +753,9 @@ def build_parser() -> argparse.ArgumentParser:
     cmp_.add_argument("scenarios", nargs="+", help="shipped scenario names or files")
     cmp_.add_argument("--riders", nargs="*", default=None, help="riders (default: the paper's four)")
     cmp_.add_argument("--trials", type=COUNT, default=1, help="seeds per rider")
-    cmp_.add_argument("--out", default=None)
+    cmp_.add_argument(
+        "--out", default=None, help="output folder (default: the bench's outputs.folder/NAME-TIMESTAMP)"
+    )
     cmp_.add_argument("--json", action="store_true", help="print one JSON object (cells, orderings, runs)")
     cmp_.add_argument("--workers", type=COUNT, default=1, help="runs at a time, each in its own process")
     add_bench_options(cmp_)
@@ -757,13 +776,20 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument("--target", default="paper/ihacs_table2.toml", help="a table in the paper's format")
     cal.add_argument("--budget", type=COUNT, default=40, help="at most this many evaluations")
     cal.add_argument("--workers", type=COUNT, default=1, help="runs at a time, each in its own process")
-    cal.add_argument("--out", default=None)
+    cal.add_argument(
+        "--out", default=None, help="output folder (default: the bench's outputs.folder/NAME-TIMESTAMP)"
+    )
     add_bench_options(cal)
     cal.set_defaults(func=_calibrate)
 
     adv = sub.add_parser("adversary", help="search the worst rider for an STL requirement")
     adv.add_argument("scenario", help="shipped scenario name or file")
-    adv.add_argument("--objective", choices=("overspeed", "tilt", "rmse"), default="overspeed")
+    adv.add_argument(
+        "--objective",
+        choices=("overspeed", "tilt", "rmse"),
+        default="overspeed",
+        help="what the worst rider maximises (docs/riders.md)",
+    )
     adv.add_argument("--budget", type=COUNT, default=50, help="lockstep runs")
     adv.add_argument("--workers", type=COUNT, default=1, help="runs at a time, each in its own process")
     adv.add_argument("--seed", type=SEED, default=0, help="the search's seed: the same seed, the same search")
@@ -773,7 +799,9 @@ def build_parser() -> argparse.ArgumentParser:
         default="random",
         help="optuna's uniform random, Sobol or CMA-ES sampling (docs/riders.md: which finds it sooner)",
     )
-    adv.add_argument("--out", default=None)
+    adv.add_argument(
+        "--out", default=None, help="output folder (default: the bench's outputs.folder/NAME-TIMESTAMP)"
+    )
     add_bench_options(adv)
     adv.set_defaults(func=_adversary)
 
@@ -796,7 +824,7 @@ def build_parser() -> argparse.ArgumentParser:
     cam.set_defaults(func=_campaign)
 
     rep = sub.add_parser("replay", help="replay a run's CAN log and zenoh inputs into a fresh controller")
-    rep.add_argument("run_dir")
+    rep.add_argument("run_dir", help="a lockstep run's folder (can.log, zenoh_inputs.msgpack)")
     rep.add_argument("--limit", type=COUNT, default=None, help="replay only the first N ticks")
     add_bench_options(rep)
     rep.set_defaults(func=_replay)
@@ -814,14 +842,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     sup = sub.add_parser("supervisor", help="the safety supervisor as its own process, on the bench's bus")
     add_bench_options(sup)
-    sup.add_argument("--robot", default="pure")
+    sup.add_argument("--robot", default="pure", help="robot file or shipped name (its geometry)")
     sup.add_argument("--tick-hz", type=float, default=400.0, help="the rig's SYNC rate (time stamps)")
     sup.add_argument(
         "--clock",
-        dest="time_base",
-        choices=("wall", "sync"),
-        default="wall",
-        help="wall: its own 400 Hz timer (real time); sync: the SYNC tick's time (beside a lockstep rig)",
+        choices=("realtime", "lockstep"),
+        default="realtime",
+        help="realtime: its own 400 Hz timer; lockstep: the SYNC tick's time (beside a lockstep rig)",
     )
     sup.add_argument(
         "--role", choices=("member", "hub"), default="member", help="loopback: hub without a rig"
@@ -832,7 +859,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     ctl = sub.add_parser("controller", help="the reference controller as its own process on the bench")
     add_bench_options(ctl)
-    ctl.add_argument("--rider", required=True)
+    ctl.add_argument("--rider", required=True, help="rider file or shipped name (iHACS uses its model)")
     ctl.add_argument(
         "--robot", default=None, help="the controller's robot model (default: the bench's, or pure)"
     )
@@ -858,14 +885,18 @@ def build_parser() -> argparse.ArgumentParser:
     rig = sub.add_parser(
         "rig", help="talk to a running `pure-hil serve`: status, start FILE, stop, intent JSON"
     )
-    rig.add_argument("action", choices=("status", "start", "stop", "intent"))
+    rig.add_argument(
+        "action", choices=("status", "start", "stop", "intent"), help="what to ask the service (docs/rig.md)"
+    )
     rig.add_argument("arg", nargs="?", default=None, help="scenario (start) or intent JSON (intent)")
     rig.add_argument("--identity", default="operator", help="its certificate's role (secured bench)")
     add_bench_options(rig)
     rig.set_defaults(func=_rig)
 
     flt = sub.add_parser("fault", help="the fault catalog (list), or inject/clear a fault in a running serve")
-    flt.add_argument("action", choices=("list", "inject", "clear"))
+    flt.add_argument(
+        "action", choices=("list", "inject", "clear"), help="the catalog, or a live fault (docs/faults.md)"
+    )
     flt.add_argument("kind", nargs="?", default=None, help="inject: the fault's kind; clear: its number")
     flt.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="a fault parameter")
     flt.add_argument(
@@ -877,9 +908,9 @@ def build_parser() -> argparse.ArgumentParser:
     flt.set_defaults(func=_fault)
 
     crt = sub.add_parser("certs", help="certificates for the secured bench router (docs/security.md)")
-    crt.add_argument("action", choices=("init",))
-    crt.add_argument("folder")
-    crt.add_argument("--days", type=int, default=365)
+    crt.add_argument("action", choices=("init",), help="make a CA and every role's certificate")
+    crt.add_argument("folder", help="where the certificates go (keys 0600)")
+    crt.add_argument("--days", type=COUNT, default=365, help="validity of the certificates")
     crt.add_argument("--force", action="store_true", help="replace the certificates in a non-empty folder")
     crt.add_argument(
         "--host",

@@ -196,3 +196,20 @@ def test_bad_input_exits_2_with_one_line_naming_the_option_or_field(case, tmp_pa
     assert code == 2 and says in err, err
     assert "unexpected" not in err and "Traceback" not in err
     assert len([line for line in err.splitlines() if "error" in line or says in line]) == 1
+
+
+def test_the_command_reference_is_the_parser_and_every_option_says_what_it_does():
+    import argparse
+
+    from hil.cli import build_parser
+    from hil.cli_reference import PAGE, render
+
+    assert PAGE.read_text() == render(), "regenerate with: python -m hil.cli_reference docs"
+    commands = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    silent = [
+        f"{name} {action.option_strings or action.dest}"
+        for name, sub in commands.choices.items()
+        for action in sub._actions
+        if not action.help
+    ]
+    assert not silent, f"options without help: {silent}"

@@ -174,7 +174,7 @@ def test_a_lockstep_rig_waits_for_a_slow_supervisor_instead_of_taking_it_for_dea
 
 def test_external_supervisor_on_the_sync_time_base():
     """The rig without its embedded supervisor, one on the same bus instead (as `pure-hil supervisor
-    --clock sync` runs beside a lockstep rig): the same controlled stop, its transitions as announced."""
+    --clock lockstep` runs beside a lockstep rig): the same controlled stop, its transitions as announced."""
     result = external_supervisor_run(load_toml(ROOT / "configs/scenarios/estop_at_speed.toml", Scenario))
     tr = result.trace
     assert transitions(tr) == [("STOPPING", "OPERATOR_ESTOP"), ("ESTOP", "OPERATOR_ESTOP")]

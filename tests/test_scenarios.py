@@ -257,6 +257,20 @@ def test_replay_reproduces_the_controllers_commands(tmp_path):
     assert other.mismatches and other.mismatches[0].startswith("tick ")
 
 
+def test_replay_compares_only_a_lockstep_run(tmp_path, capsys):
+    from hil.cli import main
+
+    run(msgspec.structs.replace(DETERMINISM, duration=0.25), private_bench(), out=tmp_path)
+    assert main(["replay", str(tmp_path)]) == 0, "a lockstep run replays"
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    summary["clock"] = "realtime"
+    (tmp_path / "summary.json").write_text(json.dumps(summary))
+    capsys.readouterr()
+    assert main(["replay", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "ran on the realtime clock: only a lockstep run can be compared" in err
+
+
 def test_criterion_bounds_hold_within_float_rounding_only():
     from hil.run.scenario import Criterion
 

@@ -194,7 +194,7 @@ def build(
     if bench.supervisor.where == "spawned":
         command = [*_pure_hil(), "supervisor", "--bench", str(write_bench(effective, work / "bench.json"))]
         command += ["--robot", str(robot_path), "--tick-hz", f"{sim.tick_hz:g}"]
-        command += ["--clock", "sync" if lockstep else "wall", "--safety", json.dumps(scenario.safety)]
+        command += ["--clock", clock, "--safety", json.dumps(scenario.safety)]
         _spawn(command, "supervisor", stack)
     dut = None
     controller = bench.controller

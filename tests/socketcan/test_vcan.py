@@ -60,7 +60,7 @@ def _tool(name: str) -> str:
 def run_bench(
     tmp_path: Path, scenario: Path, actions=(), spawn: bool = False, controller: list[str] | None = None
 ) -> BenchRun:
-    """candump, supervisor (--clock sync), controller (--lockstep; `controller`: another command) and the
+    """candump, supervisor (--clock lockstep), controller (--lockstep; `controller`: another command) and the
     rig (--bench vcan --controller external --supervisor external) as separate processes on vcan0; `spawn`:
     the rig starts the controller itself (--controller spawned). `actions`: (sim tick, name,
     callable(procs)) fired once the rig's SYNC reaches that tick."""
@@ -93,7 +93,7 @@ def run_bench(
 
     try:
         start("candump", ["stdbuf", "-oL", _tool("candump"), "-L", "vcan0"], stdout=capture.open("w"))
-        start("supervisor", [str(BIN / "pure-hil"), "supervisor", "--bench", "vcan", "--clock", "sync"])
+        start("supervisor", [str(BIN / "pure-hil"), "supervisor", "--bench", "vcan", "--clock", "lockstep"])
         if not spawn:
             reference = [str(BIN / "pure-controller"), "--can", "socketcan:vcan0", "--rider", RIDER]
             start("controller", controller or [*reference, "--law", "hacs", "--lockstep"])
