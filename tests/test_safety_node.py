@@ -105,9 +105,8 @@ def bench():
 def test_estop_frame_at_100_hz_and_sc_requests_clamped(bench):
     _endpoint, _node, robot, link = bench
     t0 = time.monotonic()
-    time.sleep(1.0)
+    assert wait_for(lambda: len(robot.estop_frames_since(t0)) >= 10, 5.0)
     frames = robot.estop_frames_since(t0)
-    assert 60 <= len(frames) <= 105, "SUPERVISOR_ESTOP at 100 Hz (fewer only if this box starves the thread)"
     assert all(f["Estop"] == 0 and f["State"] == 0 for f in frames)
     commands = link.subscribe(link.keys.sc_command, ScCommand)
     pub = link.publisher(link.keys.sc_request)
@@ -116,6 +115,34 @@ def test_estop_frame_at_100_hz_and_sc_requests_clamped(bench):
     assert wait_for(lambda: any(c.source == "agent" for c in commands.drain()), 3.0)
     last = commands.latest()
     assert (last.mode, last.speed_cap, last.source) == ("limit", 2.0, "agent")
+
+
+def test_supervisor_estop_goes_out_every_frame_period_of_the_supervisors_own_time():
+    """The 100 Hz of SUPERVISOR_ESTOP in the supervisor's time: updates at the 400 Hz tick, counted
+    frames, no wall clock (its own timer's pace is a benchmark's: benchmarks/supervisor.py)."""
+    endpoint = hub_endpoint()
+    hub = open_session(role="hub", hub_endpoint=endpoint)
+    link = ZenohLink(hub)
+    bus_config = BusConfig(channel=private_channel("period"))
+    sup_bus, listener = open_bus(bus_config), open_bus(bus_config)
+    try:
+        # Nothing trips within its 1 s: every frame counted is a periodic one.
+        quiet = Watchdogs(drives=10.0, imu=10.0, heartbeat=10.0, wrench=10.0, startup_grace=10.0)
+        config = msgspec.structs.replace(SupervisorConfig(), watchdogs=quiet)
+        node = SupervisorNode(CanNode(sup_bus, name="supervisor"), link, config)
+        reader = CanNode(listener, name="robot")
+        for k in range(400):  # 1 s at 2.5 ms
+            node.update(k * 0.0025)
+        names = []
+        while (rx := reader.recv(timeout=0.0)) is not None:
+            names.append(rx.name)
+        assert not node.events
+        assert names.count("SUPERVISOR_ESTOP") == round(1.0 / config.output.estop_frame_period) == 100
+    finally:
+        link.close()
+        hub.close()
+        sup_bus.shutdown()
+        listener.shutdown()
 
 
 def test_operator_estop_and_reset_through_the_cli(bench, capsys):

@@ -290,7 +290,7 @@ def test_a_running_run_reports_its_status_and_the_cli_shows_it_on_one_line(capsy
     assert statuses, "reported about every 0.5 s of wall time"
     times = [s.t for s in statuses]
     assert times == sorted(times) and 0 < times[-1] <= 6.0
-    assert all(s.speed_factor > 0.1 and s.supervisor in ("NORMAL", "LIMITING") for s in statuses)
+    assert all(s.speed_factor > 0 and s.supervisor in ("NORMAL", "LIMITING") for s in statuses)
     assert all(s.tilt_deg < 20 and s.overruns == 0 for s in statuses)  # lockstep: no overruns
     _progress(statuses[-1])
     line = capsys.readouterr().err
