@@ -3,15 +3,12 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Annotated, ClassVar
+from typing import Annotated, ClassVar
 
 import msgspec
 
-from hil.faults.base import FaultSpec, FaultState, NonNegative
+from hil.faults.base import FaultSpec, FaultState, FaultTarget, NonNegative
 from plant.plane import Wrench
-
-if TYPE_CHECKING:
-    from hil.run.rig import Rig
 
 Motor = Annotated[int, msgspec.Meta(ge=1, le=3)]
 
@@ -33,10 +30,10 @@ class DriveTorque(DriveFault, tag="plant.drive_torque"):
 
     scale: NonNegative = 0.0
 
-    def start(self, rig: Rig, state: FaultState) -> None:
+    def start(self, rig: FaultTarget, state: FaultState) -> None:
         rig.plant.drives.motors[self.motor - 1].gain = self.scale
 
-    def stop(self, rig: Rig, state: FaultState) -> None:
+    def stop(self, rig: FaultTarget, state: FaultState) -> None:
         rig.plant.drives.motors[self.motor - 1].gain = 1.0
 
 

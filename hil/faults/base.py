@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Protocol
 
 import msgspec
 import numpy as np
@@ -18,7 +18,27 @@ import numpy as np
 from safety.machine import Cause
 
 if TYPE_CHECKING:
-    from hil.run.rig import Rig
+    from drivers.can_bus import CanNode
+    from drivers.dut import DutHandle
+    from drivers.keys import Keys
+    from plant.ballbot import Plant
+    from safety.node import SupervisorNode
+
+
+class FaultTarget(Protocol):
+    """What a fault acts on: the rig, as much of it as faults touch (hil/run/rig.py's Rig is one).
+    Declared here so the faults depend on nothing above them."""
+
+    plant: Plant
+    can: CanNode
+    """The rig's own node on the bus: its catalog, its transmit and its receive hooks."""
+    keys: Keys
+    bitrate: int
+    dut: DutHandle | None
+    """The controller under test when it runs in the rig's process (None elsewhere)."""
+    supervisor: SupervisorNode | None
+    """The supervisor when it runs in the rig's process (None elsewhere)."""
+
 
 NonNegative = Annotated[float, msgspec.Meta(ge=0)]
 Positive = Annotated[float, msgspec.Meta(gt=0)]
@@ -106,13 +126,13 @@ class FaultSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only
         return self.kind + ("" if not params else " " + " ".join(f"{k}={v}" for k, v in params.items()))
 
     # Hooks: no-ops unless a family needs them.
-    def validate(self, rig: Rig) -> None:
+    def validate(self, rig: FaultTarget) -> None:
         """Raise ValueError if the fault cannot act on this rig (unknown message, no such process, ...)."""
 
-    def start(self, rig: Rig, state: FaultState) -> None:
+    def start(self, rig: FaultTarget, state: FaultState) -> None:
         """The fault becomes active (before the plant's step of the tick)."""
 
-    def stop(self, rig: Rig, state: FaultState) -> None:
+    def stop(self, rig: FaultTarget, state: FaultState) -> None:
         """The fault ends (its duration ran out, or it was cleared)."""
 
 

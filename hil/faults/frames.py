@@ -10,7 +10,7 @@ Time is simulated time: in lockstep a delay of 10 ms is 4 ticks at 400 Hz, whate
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
+from typing import Annotated, ClassVar, Literal
 
 import can
 import msgspec
@@ -18,10 +18,7 @@ import msgspec
 from drivers.bus_load import frame_bits
 from drivers.can_codec import DRIVE_COMMAND, MessageName
 from drivers.e2e import counter_of, is_protected, with_counter
-from hil.faults.base import FaultSpec, FaultState, Positive, Probability
-
-if TYPE_CHECKING:
-    from hil.run.rig import Rig
+from hil.faults.base import FaultSpec, FaultState, FaultTarget, Positive, Probability
 
 Count = Annotated[int, msgspec.Meta(gt=0)]
 RX_MESSAGES = frozenset([*DRIVE_COMMAND, MessageName.SUPERVISOR_ESTOP, MessageName.CONTROLLER_HEARTBEAT])
@@ -45,7 +42,7 @@ class CanFault(FaultSpec, frozen=True, kw_only=True):
     both_ways: ClassVar[bool] = True
     """Acts on received frames too (else only on frames the rig sends)."""
 
-    def validate(self, rig: Rig) -> None:
+    def validate(self, rig: FaultTarget) -> None:
         try:
             rig.can.catalog[self.message]
         except KeyError:
@@ -54,16 +51,16 @@ class CanFault(FaultSpec, frozen=True, kw_only=True):
         if not self.both_ways and self.message in RX_MESSAGES:
             raise ValueError(f"{self.kind} acts on frames the rig sends; {self.message} is one it receives")
 
-    def tx(self, msg: can.Message, rig: Rig, state: FaultState) -> list[can.Message]:
+    def tx(self, msg: can.Message, rig: FaultTarget, state: FaultState) -> list[can.Message]:
         """Frames to put on the bus instead of `msg`."""
         out = self.rx(msg, rig, state)
         return [] if out is None else [out]
 
-    def rx(self, msg: can.Message, rig: Rig, state: FaultState) -> can.Message | None:
+    def rx(self, msg: can.Message, rig: FaultTarget, state: FaultState) -> can.Message | None:
         """What the drives get instead of `msg` (None: nothing)."""
         raise NotImplementedError
 
-    def flush(self, rig: Rig, state: FaultState, t: float) -> None:
+    def flush(self, rig: FaultTarget, state: FaultState, t: float) -> None:
         """Send what the fault held back and is due by `t` (delay, reorder)."""
 
 
@@ -217,11 +214,11 @@ class Babble(FaultSpec, frozen=True, kw_only=True, tag="can.babble"):
 
     family: ClassVar[str] = "frames"
 
-    def saturates(self, rig: Rig) -> bool:
+    def saturates(self, rig: FaultTarget) -> bool:
         bitrate = rig.bitrate
         return self.per_tick * frame_bits(self.length) >= bitrate * rig.plant.dt
 
-    def babble(self, rig: Rig) -> None:
+    def babble(self, rig: FaultTarget) -> None:
         msg = can.Message(arbitration_id=self.can_id, is_extended_id=False, data=b"\xaa" * self.length)
         for _ in range(self.per_tick):
             rig.can.transmit("BABBLE", msg)

@@ -10,18 +10,15 @@ they mean the same in lockstep and in real time.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, ClassVar, Literal
+from typing import ClassVar, Literal
 
-from hil.faults.base import FaultSpec, FaultState, Positive
-
-if TYPE_CHECKING:
-    from hil.run.rig import Rig
+from hil.faults.base import FaultSpec, FaultState, FaultTarget, Positive
 
 
 class ProcessFault(FaultSpec, frozen=True, kw_only=True):
     family: ClassVar[str] = "processes"
 
-    def delay_ticks(self, rig: Rig, state: FaultState) -> int:
+    def delay_ticks(self, rig: FaultTarget, state: FaultState) -> int:
         """How many ticks this tick's commands wait before the drives get them."""
         return 0
 

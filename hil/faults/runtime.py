@@ -12,21 +12,17 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Iterable
-from typing import TYPE_CHECKING
 
 import can
 import msgspec
 import numpy as np
 
 from drivers.schemas import TesWrench
-from hil.faults.base import FaultError, FaultEvent, FaultSpec, FaultState
+from hil.faults.base import FaultError, FaultEvent, FaultSpec, FaultState, FaultTarget
 from hil.faults.frames import RX_MESSAGES, Babble, BusOff, CanFault
 from hil.faults.processes import ProcessFault
 from hil.faults.sensors import Readings, SensorFault
 from hil.faults.topics import TopicFault
-
-if TYPE_CHECKING:
-    from hil.run.rig import Rig
 
 log = logging.getLogger(__name__)
 
@@ -42,7 +38,7 @@ class FaultSet:
         self._cleared: set[int] = set()
         self._requests: list[tuple[str, FaultSpec | int | None]] = []
         self._lock = threading.Lock()
-        self.rig: Rig | None = None
+        self.rig: FaultTarget | None = None
         self.on_event = None
         """Called with every FaultEvent as it happens (the service marks the live view)."""
         self._active: list[int] = []
@@ -54,7 +50,7 @@ class FaultSet:
         return bool(self.specs) or bool(self._requests)
 
     # ------------------------------------------------------------------------------------ set-up
-    def attach(self, rig: Rig) -> None:
+    def attach(self, rig: FaultTarget) -> None:
         """Check every fault against the rig it will act on (unknown messages, missing processes)."""
         self.rig = rig
         self.tick_hz = rig.plant.sim.tick_hz

@@ -7,15 +7,12 @@ see them through the real zenoh session.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
+from typing import Annotated, ClassVar, Literal
 
 import msgspec
 
 from drivers.schemas import ScRequest, TesWrench, encode
-from hil.faults.base import FaultSpec, FaultState, NonNegative, Positive
-
-if TYPE_CHECKING:
-    from hil.run.rig import Rig
+from hil.faults.base import FaultSpec, FaultState, FaultTarget, NonNegative, Positive
 
 
 class TopicFault(FaultSpec, frozen=True, kw_only=True):
@@ -25,7 +22,7 @@ class TopicFault(FaultSpec, frozen=True, kw_only=True):
         """The payloads to publish on pure/tes/wrench instead of `data` (the encoded `payload`)."""
         return [data]
 
-    def extra(self, rig: Rig, state: FaultState) -> list[tuple[str, bytes]]:
+    def extra(self, rig: FaultTarget, state: FaultState) -> list[tuple[str, bytes]]:
         """More (key, payload) puts this tick."""
         return []
 

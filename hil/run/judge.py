@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from hil.faults.verdicts import fault_verdicts
+from hil.run.fault_verdicts import fault_verdicts
 from hil.run.measurements import MEASUREMENTS, measure, summary_metrics, unavailable
 from hil.run.scenario import Scenario, Verdict
 from hil.run.trace import Trace
