@@ -155,10 +155,13 @@ def at_rest_upright(trace) -> bool:
 
 KILL_AT_SPEED = [{"kind": "process.kill", "target": "controller", "at": 4.5}]
 """braking: the rider has leaned the robot to ~1.4 m/s by 4.5 s."""
+HANG_AT_SPEED = [{"kind": "process.hang", "target": "controller", "at": 4.5, "duration": 2.0}]
+"""The controller hangs for 2 s and then works through what queued up: the takeover has latched."""
 
 
-def test_a_controller_killed_at_speed_ends_at_rest_and_upright_under_the_recovery_law(tmp_path):
-    tr = run(BRAKING, KILL_AT_SPEED, tmp_path)
+@pytest.mark.parametrize("fault", [KILL_AT_SPEED, HANG_AT_SPEED], ids=["killed", "hung"])
+def test_a_controller_killed_at_speed_ends_at_rest_and_upright_under_the_recovery_law(fault, tmp_path):
+    tr = run(BRAKING, fault, tmp_path)
     i = np.searchsorted(tr.t, 4.5)
     assert np.hypot(*tr.velocity[i]) > 1.2, "the fault comes at speed"
     takeover = next(e for e in tr.safety_events if e.to_state == "RECOVERY")
@@ -174,7 +177,7 @@ def test_a_controller_killed_at_speed_ends_at_rest_and_upright_under_the_recover
         elif name == MessageName.SUPERVISOR_RECOVERY:
             assert announced, "SUPERVISOR_RECOVERY without the takeover announced"
     # Positive control: the supervisor without its recovery law cuts power at speed, and the robot falls.
-    tr = run(BRAKING, KILL_AT_SPEED, tmp_path / "control", safety={"recovery": {"enabled": False}})
+    tr = run(BRAKING, fault, tmp_path / "control", safety={"recovery": {"enabled": False}})
     assert tr.fallen is not None
 
 
