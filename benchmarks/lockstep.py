@@ -27,6 +27,7 @@ import hil.run.build as build_module
 import hil.run.rig as rig_module
 from drivers.can_bus import BusRecorder, CanNode, open_bus, private_channel
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, MessageName
+from drivers.contract import CONTRACT_VERSION
 from drivers.dut import DutSpec
 from drivers.e2e import COUNTER, CRC
 from hil.bench.bench import load_bench
@@ -64,7 +65,8 @@ class InstantResponder:
     def __init__(self, spec: DutSpec):
         self.bus = open_bus(spec.can)
         self.node = CanNode(self.bus, name="responder")
-        self.node.send(MessageName.CONTROLLER_HEARTBEAT, {"State": 0, "Mode": 0, "FaultCode": 0})
+        boot = {"State": 0, "Mode": 0, "FaultCode": 0, "Contract": CONTRACT_VERSION}
+        self.node.send(MessageName.CONTROLLER_HEARTBEAT, boot)
 
     def poll(self) -> None:
         while (rx := self.node.recv(timeout=0.0)) is not None:

@@ -18,6 +18,7 @@ import time
 from controller.core import Controller, Fault, Output, ScInput, State, Wrench
 from drivers.can_bus import CanNode, Received
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, MessageName
+from drivers.contract import CONTRACT_VERSION
 from drivers.keys import Keys
 from drivers.schemas import ControllerCommand, ControllerTelemetry, ScCommand, TesWrench
 from drivers.zenoh_link import Fence, ZenohLink
@@ -140,7 +141,12 @@ class ControllerNode:
         mode = self.controller.config.mode
         self.can.send(
             MessageName.CONTROLLER_HEARTBEAT,
-            {"State": int(out.state), "Mode": int(mode == "ihacs"), "FaultCode": int(out.fault)},
+            {
+                "State": int(out.state),
+                "Mode": int(mode == "ihacs"),
+                "FaultCode": int(out.fault),
+                "Contract": CONTRACT_VERSION,
+            },
         )
         self.link.put(
             self.keys.controller_telemetry,
@@ -204,7 +210,12 @@ class ControllerNode:
         """The boot-up heartbeat: State INIT, sent until the first SYNC (after the zenoh subscriptions are
         declared, so a rig that starts on it finds them)."""
         mode = self.controller.config.mode
-        boot = {"State": int(State.INIT), "Mode": int(mode == "ihacs"), "FaultCode": 0}
+        boot = {
+            "State": int(State.INIT),
+            "Mode": int(mode == "ihacs"),
+            "FaultCode": 0,
+            "Contract": CONTRACT_VERSION,
+        }
         self.can.send(MessageName.CONTROLLER_HEARTBEAT, boot)
 
     def poll(self) -> None:

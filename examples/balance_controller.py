@@ -4,7 +4,8 @@ from. It imports nothing from pure-hil: python-can for the bus, cantools for the
 
 It keeps the robot upright and still (no rider input: it reads nothing from zenoh, as a controller board on
 CAN alone would). Per tick it follows the contract:
-  - boot-up: CONTROLLER_HEARTBEAT with State INIT every 100 ms until the first SYNC (the rig starts on it);
+  - boot-up: CONTROLLER_HEARTBEAT with State INIT and Contract 2 every 100 ms until the first SYNC (the rig
+    starts on it);
   - every frame it receives is checked (E2E CRC-8) and decoded through the DBC;
   - on SYNC(k): estimate (tilt and tilt rate from the IMU, ball rates from the three motor velocities through
     the omniwheel map), one state feedback per plane, ball torques -> motor torques, then DRIVE1..3_COMMAND
@@ -52,6 +53,8 @@ GAINS = (540.0, 140.0, 10.5)
 YAW_GAIN = 20.0  # Nm of ball yaw torque per rad/s of yaw rate
 
 INIT, DISABLED, BALANCING = 0, 1, 3  # CONTROLLER_HEARTBEAT.State
+CONTRACT = 2  # the contract version this controller speaks (docs/contract.md, Versions)
+HEARTBEAT = {"Mode": 0, "FaultCode": 0, "Contract": CONTRACT}
 BOOT_PERIOD = 0.1  # s between boot-up heartbeats until the first SYNC
 TICK = 1.0 / 400  # s between SYNCs
 SUPERVISOR_LOST = 20  # ticks of silence of SUPERVISOR_ESTOP: the drives' permission timeout, 50 ms
@@ -204,7 +207,7 @@ class BalanceController:
         for i, torque in enumerate(torques, 1):
             command = {"Torque": torque if enable else 0.0, "Tick": k, "Enable": enable}
             self.wire.send(f"DRIVE{i}_COMMAND", command)
-        self.wire.send("CONTROLLER_HEARTBEAT", {"State": self.state, "Mode": 0, "FaultCode": 0})
+        self.wire.send("CONTROLLER_HEARTBEAT", {**HEARTBEAT, "State": self.state})
 
     def supervisor_lost(self, k: int) -> bool:
         """True once the supervisor has been silent and the robot has stood still and upright for 0.3 s."""
@@ -221,7 +224,7 @@ class BalanceController:
         next_boot = time.monotonic()
         while not stop.is_set():
             if not self.synced and time.monotonic() >= next_boot:
-                self.wire.send("CONTROLLER_HEARTBEAT", {"State": INIT, "Mode": 0, "FaultCode": 0})
+                self.wire.send("CONTROLLER_HEARTBEAT", {**HEARTBEAT, "State": INIT})
                 next_boot = time.monotonic() + BOOT_PERIOD
             msg = self.wire.bus.recv(timeout=0.05)
             if msg is not None and not msg.is_error_frame:

@@ -110,9 +110,23 @@ def model_table(root: Path = ROOT) -> str:
     return "\n".join(rows)
 
 
+def version_table() -> str:
+    """Each contract version and what it changed (drivers/contract.py)."""
+    from drivers.contract import CHANGES, CONTRACT_VERSION
+
+    rows = [
+        f"This page is contract **{CONTRACT_VERSION}** (`drivers/contract.py`).",
+        "",
+        "| version | what changed |",
+        "|---|---|",
+        "| 1 | the first contract: the frames, the tick, E2E, the zenoh keys |",
+    ]
+    return "\n".join(rows + [f"| {v} | {CHANGES[v]} |" for v in sorted(CHANGES)])
+
+
 def sections() -> dict[str, str]:
     """The generated sections of docs/contract.md by name."""
-    return {"signals": signal_table(), "models": model_table()}
+    return {"signals": signal_table(), "models": model_table(), "versions": version_table()}
 
 
 def render(text: str) -> str:

@@ -37,8 +37,8 @@ def example():
 class ExampleController:
     """The example on a thread, on the rig's in-process bus (its own python-can handle)."""
 
-    def __init__(self, channel: str, start_after: float = 0.0):
-        ex = example()
+    def __init__(self, channel: str, start_after: float = 0.0, ex=None):
+        ex = ex or example()
         self.bus = can.Bus(interface="pure_shared", channel=channel)
         self.controller = ex.BalanceController(ex.Wire(self.bus, ex.DBC))
         self.stop = threading.Event()
@@ -121,9 +121,34 @@ def test_without_a_controller_the_rig_says_what_it_waited_for_and_still_writes_i
     assert not result.passed and result.trace.failure.stage == "start-up"
     assert "the controller's boot-up (CONTROLLER_HEARTBEAT)" in result.trace.failure.error
     assert "examples/balance_controller.py" in result.trace.failure.error
+    assert "since contract 2 a controller announces itself" in result.trace.failure.error
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["failure"]["stage"] == "start-up" and summary["passed"] is False
     assert (tmp_path / "can.log").exists()
+
+
+def test_a_controller_of_an_older_contract_is_told_in_one_line_what_changed(monkeypatch):
+    from drivers.contract import CONTRACT_VERSION
+
+    ex = example()
+    monkeypatch.setitem(ex.HEARTBEAT, "Contract", 0)  # as a controller written before versions sends
+    channel = private_channel("old")
+    controller = ExampleController(channel, ex=ex)
+    try:
+        result = run(BALANCE, private_bench(controller="external", can=BusConfig(channel=channel)))
+    finally:
+        controller.close()
+    assert not result.passed and result.trace.failure.stage == "start-up"
+    error = result.trace.failure.error
+    assert f"speaks contract 1, this rig contract {CONTRACT_VERSION}" in error and "\n" not in error
+    assert "what changed since 1: 2: the boot-up heartbeat" in error and "SUPERVISOR_RECOVERY" in error
+    # Positive control: the example as shipped speaks this contract and runs.
+    monkeypatch.setitem(ex.HEARTBEAT, "Contract", CONTRACT_VERSION)
+    controller = ExampleController(channel, ex=ex)
+    try:
+        assert run(BALANCE, private_bench(controller="external", can=BusConfig(channel=channel))).passed
+    finally:
+        controller.close()
 
 
 def test_a_run_that_breaks_mid_way_keeps_what_ran_and_says_where(tmp_path, monkeypatch):

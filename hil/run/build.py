@@ -22,7 +22,9 @@ import msgspec
 import zenoh
 
 from drivers.can_bus import BusConfig, BusRecorder, CanNode, open_bus, private_channel
+from drivers.can_codec import MessageName
 from drivers.config import load_toml
+from drivers.contract import CONTRACT_VERSION, mismatch
 from drivers.dut import DutSpec, start_dut
 from drivers.keys import Keys
 from drivers.resources import find
@@ -311,7 +313,15 @@ def start_up(built: Built, bench: Bench) -> None:
             "spawned": "the spawned process did not come up: its output above says why",
             "embedded": "the embedded controller did not start",
         }[where]
+        if MessageName.CONTROLLER_HEARTBEAT in missing:
+            hint += (
+                f"; since contract 2 a controller announces itself before the first SYNC: "
+                f"CONTROLLER_HEARTBEAT State INIT, Contract {CONTRACT_VERSION}, every 100 ms"
+            )
         raise ControllerUnavailable(f"waited {timeout:g} s on {bus} for {missing}: {hint}")
+    wrong = mismatch(rig.controller_contract or 0)
+    if wrong:
+        raise ControllerUnavailable(wrong)
     rig.wait_for_subscriber(rig.keys.tes_wrench, ZENOH_GRACE)
     if rig.supervisor is None and not rig.wait_for_subscriber(rig.keys.sc_request, 10.0):
         raise ControllerUnavailable(

@@ -126,6 +126,8 @@ class Rig:
         self.supervisor = supervisor
         """In-process supervisor, updated every tick; None: a supervisor elsewhere on the bus."""
         self.dut = None
+        self.controller_contract: int | None = None
+        """CONTROLLER_HEARTBEAT.Contract of the controller's boot-up (docs/contract.md, Versions)."""
         """The in-process controller's handle (process faults stop or pause it); None: external."""
         self.recorder: BusRecorder | None = None
         """The CAN log, written at the end of every tick (polled: no thread woken for every frame)."""
@@ -189,7 +191,8 @@ class Rig:
     def await_boot(self, timeout: float) -> str:
         """The start-up handshake, before the first SYNC: wait until the controller's boot-up heartbeat
         (CONTROLLER_HEARTBEAT, any state) and the supervisor's first SUPERVISOR_ESTOP have arrived.
-        Returns '' or what is still missing after `timeout` seconds."""
+        Returns '' or what is still missing after `timeout` seconds. The heartbeat's Contract goes to
+        `controller_contract`."""
         deadline = time.monotonic() + timeout
         controller = supervisor = False
         while True:
@@ -208,7 +211,8 @@ class Rig:
             if rx is None:
                 continue
             self._other_frame(rx)
-            controller = controller or rx.name == MessageName.CONTROLLER_HEARTBEAT
+            if rx.name == MessageName.CONTROLLER_HEARTBEAT and not controller:
+                controller, self.controller_contract = True, int(rx.signals["Contract"])
             supervisor = supervisor or (rx.name == MessageName.SUPERVISOR_ESTOP and rx.ok)
 
     def tick(self, deadline: float | None = None, lockstep: bool = True) -> None:
