@@ -122,7 +122,7 @@ def _frames_schema() -> bytes:
         },
     }
     properties = {"frames": {"type": "array", "items": frame}}
-    return _schema("CanFrames", properties, "the frames the CAN log took in one poll, in can.log's order")
+    return _schema("CanFrames", properties, "the frames the CAN log took in one tick, in can.log's order")
 
 
 def _signals_schema(codec: MessageCodec) -> bytes:
