@@ -1,6 +1,6 @@
 """Lockstep speed of a scenario with everything on (plant, CAN frames through the DBC codec and E2E, zenoh,
-the reference controller, the embedded supervisor, the CAN log recorder), the per-stage cost of the rig's
-tick, and, measured in the same run:
+the reference controller, the embedded supervisor, the CAN log recorder, run.mcap: its cost alone is
+benchmarks/mcap_cost.py), the per-stage cost of the rig's tick, and, measured in the same run:
 - rig only: the same scenario with an instant responder in place of the controller (it answers every SYNC
   with disabled zero-torque commands and a heartbeat at once; the plant is clamped on its stand);
 - the floor: bare python-can virtual send+recv of the tick's frames.
@@ -210,7 +210,7 @@ def main() -> None:
         print(json.dumps(figures))
         return
     print(
-        f"{scenario.name} ({result.law}, lockstep, {scenario.tick_hz:g} Hz, recorder on): "
+        f"{scenario.name} ({result.law}, lockstep, {scenario.tick_hz:g} Hz, recorder and run.mcap on): "
         f"{sim:.2f} s simulated, {ticks} ticks, passed: {result.passed}"
     )
     print(

@@ -4,7 +4,7 @@
 `can.Bus`, which picks and imports the backend lazily by name. `CanNode` sends catalog messages with their
 alive counter and CRC filled in, and turns received frames into typed results, counting (never raising on)
 unknown ids, wrong lengths, error frames and E2E events. `BusRecorder` tees all traffic of a channel into a
-python-can logger (.blf, .asc, .log candump format, ... chosen by file suffix).
+python-can logger (.blf, .asc, .log candump format, ... chosen by file suffix) and any further listeners.
 """
 
 from __future__ import annotations
@@ -276,20 +276,25 @@ class CanNode:
 
 
 class BusRecorder:
-    """Tee everything on a channel into a python-can logger, from a monitor bus of its own (like candump),
-    written by whoever calls `poll()` (the rig, once per tick: no thread woken for every frame). The writer
-    streams to disk as the run goes."""
+    """Tee everything on a channel into a python-can logger and any further listeners (the run's MCAP), from
+    a monitor bus of its own (like candump), written by whoever calls `poll()` (the rig, once per tick: no
+    thread woken for every frame). Every listener gets the same frames in the same order. The writer streams
+    to disk as the run goes; the further listeners are their owners' to close, after `stop()`."""
 
-    def __init__(self, config: BusConfig, path: Path | str):
-        self.path = Path(path)
+    def __init__(self, config: BusConfig, path: Path | str | None, listeners: Iterable[can.Listener] = ()):
+        """path: the log file (None: no file, only the listeners)."""
+        self.path = None if path is None else Path(path)
         self.bus = open_bus(config)
-        self.writer = can.Logger(str(self.path))
+        self.writer = None if self.path is None else can.Logger(str(self.path))
+        self._sinks = tuple(s.on_message_received for s in (self.writer, *listeners) if s is not None)
         self.frames = 0
 
     def poll(self) -> None:
         """Write every frame queued so far."""
+        sinks = self._sinks
         while (msg := self.bus.recv(0.0)) is not None:
-            self.writer.on_message_received(msg)
+            for sink in sinks:
+                sink(msg)
             self.frames += 1
 
     def stop(self, settle: float = 0.05) -> None:
@@ -300,7 +305,8 @@ class BusRecorder:
             seen = self.frames
             time.sleep(settle)
             self.poll()
-        self.writer.stop()  # flushes and closes the file
+        if self.writer is not None:
+            self.writer.stop()  # flushes and closes the file
         self.bus.shutdown()
 
     def __enter__(self) -> BusRecorder:

@@ -78,6 +78,8 @@ class OutputsPart(_Part):
     can_log: bool = True
     recording: bool = True
     plots: bool = True
+    mcap: bool = True
+    """run.mcap: CAN frames and signals, zenoh inputs and the trace for Foxglove, PlotJuggler, rerun."""
 
 
 class Bench(_Part):

@@ -1,7 +1,8 @@
 """A run's folder: summary.json (the scenario, the bench, seed, versions, measurements, verdicts, the
 supervisor's record, bus and timing statistics), can.log (candump -L; written during the run by the bus
 recorder), zenoh_inputs.msgpack (what the controller was told over zenoh, for `pure-hil replay`),
-recording.rrd (rerun) and plots.png; and the table `pure-hil run` prints."""
+run.mcap (written during the run, checked here), recording.rrd (rerun) and plots.png; and the table
+`pure-hil run` prints."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from pathlib import Path
 import msgspec
 import numpy as np
 
+from hil.outputs.mcap_log import check as check_mcap
 from hil.run.judge import RunResult
 from hil.run.measurements import unavailable
 from hil.run.trace import Trace
@@ -31,6 +33,7 @@ def versions() -> dict[str, str]:
         "eclipse-zenoh",
         "rerun-sdk",
         "msgspec",
+        "mcap",
     ):
         try:
             out[dist] = version(dist)
@@ -131,7 +134,9 @@ def _drives_off_at(tr: Trace) -> float | None:
     return round(float(tr.t[on[-1] + 1 if len(on) else 0]), 6)
 
 
-def write_outputs(result: RunResult, out: Path, recording: bool = True, plots: bool = True) -> dict[str, str]:
+def write_outputs(
+    result: RunResult, out: Path, recording: bool = True, plots: bool = True, mcap: bool = False
+) -> dict[str, str]:
     """The run folder: summary.json first and always, then each other output on its own (one that fails
     is named in the summary, and the rest are still written). Returns the failed outputs and why."""
     summary_file = out / "summary.json"
@@ -142,7 +147,7 @@ def write_outputs(result: RunResult, out: Path, recording: bool = True, plots: b
 
     write_summary({})
     failed: dict[str, str] = {}
-    for name, write in _outputs(result, out, recording, plots):
+    for name, write in _outputs(result, out, recording, plots, mcap):
         try:
             write()
         except Exception as exc:  # one output failing must not lose the others or the summary
@@ -152,9 +157,12 @@ def write_outputs(result: RunResult, out: Path, recording: bool = True, plots: b
     return failed
 
 
-def _outputs(result: RunResult, out: Path, recording: bool, plots: bool):
-    """(file, writer) of the run folder besides summary.json and can.log (the recorder writes that one)."""
+def _outputs(result: RunResult, out: Path, recording: bool, plots: bool, mcap: bool):
+    """(file, writer) of the run folder besides summary.json and can.log (the recorder writes that one);
+    run.mcap was written during the run: its writer here checks that it is complete."""
     tr = result.trace
+    if mcap:
+        yield "run.mcap", lambda: check_mcap(out / "run.mcap")
     if tr.zenoh_inputs is not None:  # None: the run streamed it there already
         yield (
             "zenoh_inputs.msgpack",

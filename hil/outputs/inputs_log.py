@@ -9,6 +9,7 @@ reader decodes at once. Without a folder the entries stay in memory (`entries`).
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable
 from pathlib import Path
 
 import msgspec
@@ -18,8 +19,10 @@ ARRAY32 = b"\xdd"
 
 
 class InputsLog:
-    def __init__(self, path: Path | None = None):
+    def __init__(self, path: Path | None = None, also: Callable[[int, str, bytes], None] | None = None):
+        """also: handed every entry too, as it is logged (the run's MCAP)."""
         self.path = path
+        self.also = also
         self.entries: list[tuple[int, str, bytes]] = []
         """In memory only (no path)."""
         self.count = 0
@@ -31,6 +34,8 @@ class InputsLog:
 
     def append(self, tick: int, key: str, data: bytes) -> None:
         self.count += 1
+        if self.also is not None:
+            self.also(tick, key, data)
         if self._file is None:
             self.entries.append((tick, key, data))
         else:

@@ -34,6 +34,7 @@ from hil.bench.bench import Bench, RealtimePart
 from hil.bench.rigs import announce
 from hil.faults import FaultError, FaultSet
 from hil.outputs.inputs_log import InputsLog
+from hil.outputs.mcap_log import McapLog
 from hil.run.rig import OperatorStep, Rig, ScStep
 from hil.run.scenario import Scenario
 from hil.run.trace import ControllerUnavailable
@@ -92,6 +93,8 @@ class Built:
     """Where the run's rows stream (hil/outputs/trace_log.py); None: kept in memory."""
     realtime: RealtimePart = RealtimePart()  # noqa: RUF009 (frozen msgspec struct: one shared default is fine)
     """The loop's scheduling under the real-time clock."""
+    mcap: McapLog | None = None
+    """run.mcap, which the loop hands every tick's row (None: not written)."""
 
 
 BOOT_TIMEOUT = {"embedded": 10.0, "spawned": 30.0, "external": 120.0}
@@ -120,6 +123,12 @@ def build(
     bench: Bench, scenario: Scenario, seed: int, options: RunOptions, out: Path | None, stack: ExitStack
 ) -> Built:
     """out: the run folder, where the CAN log and the zenoh inputs stream during the run (None: none)."""
+    mcap = None
+    if out is not None and bench.outputs.mcap:  # first: a run that fails to build still leaves its file
+        meta = {"scenario": scenario.name, "seed": str(seed), "bench": bench.name}
+        mcap = stack.enter_context(
+            McapLog(out / "run.mcap", scenario.tick_hz, Keys(bench.zenoh.prefix), meta)
+        )
     robot_path, rider_path = find(scenario.robot, "robot"), find(scenario.rider, "riders")
     sim = msgspec.structs.replace(
         load_toml(find(bench.sim, "sim"), SimParams), tick_hz=scenario.tick_hz, seed=seed
@@ -128,6 +137,8 @@ def build(
     tilt = tuple(math.radians(a) for a in scenario.initial_tilt_deg)
     plant = Plant(load_toml(robot_path, RobotParams), load_toml(rider_path, RiderParams), sim, intent, tilt)
     plant.heeds_alert = scenario.intent.heeds_alert
+    if mcap is not None:
+        mcap.clock = lambda: plant.t
     law, clock = law_of(bench, scenario), clock_of(bench, scenario)
     lockstep = clock == "lockstep"
     safety = supervisor_config(bench, scenario)
@@ -156,8 +167,9 @@ def build(
     stack.callback(link.close)
     agent_link = _agent_link(zenoh_access, keys, lockstep, puts, stack)
     recorder = None
-    if out is not None and bench.outputs.can_log:
-        recorder = BusRecorder(bus_config, out / "can.log")
+    if out is not None and (bench.outputs.can_log or mcap is not None):
+        can_log = out / "can.log" if bench.outputs.can_log else None
+        recorder = BusRecorder(bus_config, can_log, [mcap] if mcap is not None else [])
         stack.callback(recorder.stop)
 
     supervisor = None
@@ -232,14 +244,14 @@ def build(
         ]
         _spawn(command, "controller", stack)
     if out is not None:
-        rig.inputs = InputsLog(out / "zenoh_inputs.msgpack")
+        rig.inputs = InputsLog(out / "zenoh_inputs.msgpack", mcap.zenoh if mcap is not None else None)
         stack.callback(rig.inputs.close)
     rig.dut = dut
     rig.recorder = recorder
     rig.poll_dut = getattr(dut, "poll", None) if lockstep else None
     faults.attach(rig)
     trace = None if out is None else out / "trace.npy"
-    return Built(rig, plant, bus_config, law, clock, scenario.duration, dut, trace, bench.realtime)
+    return Built(rig, plant, bus_config, law, clock, scenario.duration, dut, trace, bench.realtime, mcap)
 
 
 @dataclass(frozen=True, slots=True)
@@ -328,3 +340,5 @@ def start_up(built: Built, bench: Bench) -> None:
             f"no supervisor on {built.bus.interface}:{built.bus.channel} reads pure/sc/request"
         )
     rig.apply_permission()
+    if rig.recorder is not None:
+        rig.recorder.poll()  # the start-up's frames, at t = 0

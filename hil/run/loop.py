@@ -38,6 +38,7 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
             log.telemetry(sample.seq - first_tick, sample.command_speed, sample.tilt_command)
 
     supervisor = rig.supervisor  # its record outlives a kill
+    mcap = built.mcap
     n = 0
     began = time.monotonic()
     next_report = began + 0.5
@@ -51,7 +52,10 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
                 failure = Failure(f"tick {plant.tick} (t = {plant.t:.4f} s)", reason(exc))
                 break
             tr = plant.truth()
-            log.append(_row(tr, rig))
+            row = _row(tr, rig)
+            log.append(row)
+            if mcap is not None:
+                mcap.trace(row)
             n += 1
             if n % TELEMETRY_EVERY == 0:  # long before the subscription's ring could overflow
                 take_telemetry()

@@ -53,7 +53,7 @@ def run(
     )
     judge(result)
     if out is not None:
-        write_outputs(result, out, bench.outputs.recording, bench.outputs.plots)
+        write_outputs(result, out, bench.outputs.recording, bench.outputs.plots, bench.outputs.mcap)
     return result
 
 

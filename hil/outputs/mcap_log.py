@@ -1,0 +1,337 @@
+"""run.mcap: the run in one MCAP file for Foxglove/Lichtblick, PlotJuggler and rerun, written as it goes.
+
+Every channel is JSON with a JSON Schema (MCAP schema encoding `jsonschema`, message encoding `json`), which
+Foxglove shows and plots without set-up. Times are simulated time in ns from the run's start (log and
+publish time alike):
+
+    /can/frames      every frame of can.log, handed over by the same recorder poll that writes can.log
+                     (drivers/can_bus.py BusRecorder): one message per tick with the frames the recorder
+                     took in it (the start-up's at 0), in can.log's order, each with can.log's stamp
+    /can/<MESSAGE>   a DBC message's signals, decoded by drivers/can_codec.py: one message per frame
+    /zenoh/<key>     what the controller was told over zenoh (zenoh_inputs.msgpack), decoded; a payload
+                     that does not decode (a fault's garbage) goes to /zenoh/rejected with its bytes
+    /trace           one message per tick: trace.npy's row as the tick ends (the plant's truth, the
+                     supervisor's state and speed estimate; hil/outputs/trace_log.py COLUMNS)
+
+It streams, a chunk at a time (hil/outputs/mcap_file.py: memory flat in a run's length). Writing never
+fails a run: an error stops the messages there, stop() still completes the file and records the error as
+metadata `failed`, and `check` (run with the other outputs, hil/outputs/folder.py) raises it, so the
+summary lists run.mcap in `outputs_failed`.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from pathlib import Path
+
+import can
+import msgspec
+from mcap.reader import make_reader
+
+from drivers.can_codec import Catalog, MessageCodec
+from drivers.keys import Keys
+from drivers.schemas import (
+    ControllerCommand,
+    ControllerTelemetry,
+    EstopCommand,
+    PayloadError,
+    RigTick,
+    SafetyAlert,
+    SafetyState,
+    ScCommand,
+    ScRequest,
+    TesWrench,
+    decode,
+)
+from hil.outputs.mcap_file import McapFile
+from hil.outputs.trace_log import COLUMNS, TELEMETRY
+
+log = logging.getLogger(__name__)
+
+FRAMES = "/can/frames"
+SIGNALS = "/can/{message}"
+ZENOH = "/zenoh/{key}"
+REJECTED = "/zenoh/rejected"
+TRACE = "/trace"
+FAILED = "failed"
+"""The metadata record that says why the file's messages stop early."""
+PAYLOADS = {
+    "tes_wrench": TesWrench,
+    "sc_request": ScRequest,
+    "sc_command": ScCommand,
+    "safety_state": SafetyState,
+    "safety_alert": SafetyAlert,
+    "safety_estop": EstopCommand,
+    "controller_command": ControllerCommand,
+    "controller_telemetry": ControllerTelemetry,
+    "rig_tick": RigTick,
+}
+"""drivers/keys.py property -> the payload on that key (drivers/schemas.py)."""
+ROW = COLUMNS[:TELEMETRY]
+"""A tick's row as the tick ends; the controller's telemetry lands in trace.npy later, not here."""
+
+
+class Frame(msgspec.Struct, omit_defaults=True):
+    """One CAN frame as can.log has it (the flags only when set)."""
+
+    stamp: float
+    id: int
+    data: bytes
+    extended: bool = False
+    remote: bool = False
+    error: bool = False
+
+
+def _plain(m: can.Message) -> bool:
+    """A data frame with a standard id: the only kind the DBC describes."""
+    return not (m.is_extended_id or m.is_remote_frame or m.is_error_frame)
+
+
+class Frames(msgspec.Struct):
+    frames: list[Frame]
+
+
+class Rejected(msgspec.Struct):
+    key: str
+    reason: str
+    data: bytes
+
+
+BYTES = {"type": "string", "contentEncoding": "base64"}
+"""Foxglove's JSON Schema for bytes (msgspec writes bytes as base64)."""
+
+
+def _schema(title: str, properties: dict, description: str) -> bytes:
+    return msgspec.json.encode(
+        {"title": title, "description": description, "type": "object", "properties": properties}
+    )
+
+
+def _frames_schema() -> bytes:
+    flag = {"type": "boolean", "default": False}
+    frame = {
+        "type": "object",
+        "properties": {
+            "stamp": {"type": "number", "description": "the bus's wall-clock stamp, s (can.log's)"},
+            "id": {"type": "integer", "description": "arbitration id"},
+            "data": BYTES,
+            "extended": flag,
+            "remote": flag,
+            "error": flag,
+        },
+    }
+    properties = {"frames": {"type": "array", "items": frame}}
+    return _schema("CanFrames", properties, "the frames the CAN log took in one tick, in can.log's order")
+
+
+def _signals_schema(codec: MessageCodec) -> bytes:
+    properties = {}
+    for signal in codec.message.signals:
+        values = [f"{raw} {name}" for raw, name in sorted((signal.choices or {}).items())]
+        notes = [n for n in (signal.unit, signal.comment, ", ".join(values)) if n]
+        entry = {"type": "integer" if signal.scale == 1 and signal.offset == 0 else "number"}
+        if notes:
+            entry["description"] = "; ".join(notes)
+        properties[signal.name] = entry
+    return _schema(codec.name, properties, f"CAN 0x{codec.frame_id:03X} decoded through the DBC")
+
+
+def _payload_schema(payload: type) -> bytes:
+    """msgspec's JSON Schema of a payload, the payload's own at the top (no `$ref` for a viewer to follow:
+    the payloads of drivers/schemas.py refer to no other type)."""
+    schema = msgspec.json.schema(payload)
+    defs = schema.get("$defs", {})
+    return msgspec.json.encode(defs[payload.__name__] if len(defs) == 1 else schema)
+
+
+def _rejected_schema() -> bytes:
+    properties = {"key": {"type": "string"}, "reason": {"type": "string"}, "data": BYTES}
+    return _schema("Rejected", properties, "a zenoh input that does not decode as its key's payload")
+
+
+def _trace_layout() -> tuple[list[tuple[str, int]], dict[str, list[tuple[str, int]]]]:
+    """ROW's columns as fields: "t" -> t, "velocity.forward" -> velocity.forward (a Foxglove message path)."""
+    scalars, groups = [], {}
+    for i, name in enumerate(ROW):
+        group, _, field = name.partition(".")
+        if field:
+            groups.setdefault(group, []).append((field, i))
+        else:
+            scalars.append((name, i))
+    return scalars, groups
+
+
+def _trace_schema() -> bytes:
+    scalars, groups = _trace_layout()
+    number = {"type": ["number", "null"]}
+    properties = {name: number for name, _ in scalars}
+    for group, fields in groups.items():
+        properties[group] = {"type": "object", "properties": {field: number for field, _ in fields}}
+    return _schema(
+        "Trace", properties, "a tick's row of trace.npy (hil/outputs/trace_log.py COLUMNS), SI units"
+    )
+
+
+class McapLog(can.Listener):
+    """run.mcap as the run goes: a python-can listener (BusRecorder hands it every frame it writes to
+    can.log), `zenoh(tick, key, data)` from the zenoh inputs log, and `trace(row)` at the end of every
+    tick, which also writes the frames taken in it; `stop()` completes the file."""
+
+    def __init__(self, path: Path, tick_hz: float, keys: Keys, metadata: dict[str, str] | None = None):
+        self.path = path
+        self.dt = 1.0 / tick_hz
+        self.clock: Callable[[], float] = lambda: 0.0
+        """Simulated time now, s (build sets the plant's): when the recorder took a frame."""
+        self.error: str | None = None
+        self._codecs = {codec.frame_id: codec for codec in Catalog()}
+        self._payloads = {getattr(keys, name): payload for name, payload in PAYLOADS.items()}
+        self._channels: dict[object, int] = {}
+        """A frame id, a zenoh key or a topic -> its channel."""
+        self._json = msgspec.json.Encoder().encode
+        self._frames: list[can.Message] = []
+        self._frames_t = 0.0
+        """When the recorder took the frames in `_frames`, s."""
+        self._scalars, self._groups = _trace_layout()
+        self._file = McapFile(path, library="pure-hil")
+        self._on = False
+        """Messages are written (until the first error)."""
+        try:
+            self._file.metadata(
+                "pure-hil", {"time": "simulated, ns from the run's start", **(metadata or {})}
+            )
+            self._on = True
+        except Exception as exc:
+            self._fail(exc)
+
+    def on_message_received(self, msg: can.Message) -> None:
+        """A frame of the CAN log (python-can's Listener), kept (read-only) until the recorder's next poll
+        or the tick's end."""
+        if not self._on:
+            return
+        t = self.clock()
+        if t != self._frames_t:
+            if self._frames:
+                try:
+                    self._write_frames()
+                except Exception as exc:
+                    self._fail(exc)
+                    return
+            self._frames_t = t
+        self._frames.append(msg)
+
+    def zenoh(self, tick: int, key: str, data: bytes) -> None:
+        """A zenoh input for tick `tick` (hil/outputs/inputs_log.py)."""
+        if not self._on:
+            return
+        try:
+            at = round(tick * self.dt * 1e9)
+            payload = self._payloads.get(key)
+            try:
+                if payload is None:
+                    raise PayloadError("schema", f"no payload is known for key {key}")
+                message = self._json(decode(data, payload))
+            except PayloadError as exc:
+                channel = self._channel(REJECTED, "Rejected", _rejected_schema)
+                self._file.message(channel, at, self._json(Rejected(key, str(exc), data)))
+                return
+            channel = self._channels.get(key) or self._channel(
+                key, payload.__name__, lambda: _payload_schema(payload), ZENOH.format(key=key)
+            )
+            self._file.message(channel, at, message)
+        except Exception as exc:
+            self._fail(exc)
+
+    def trace(self, row) -> None:
+        """The end of a tick: the frames taken in it, then its row of trace.npy (ROW's columns)."""
+        if not self._on:
+            return
+        try:
+            if self._frames:
+                self._write_frames()
+            values = [float(v) for v in row]  # as trace.npy keeps them (f8; NaN becomes JSON's null)
+            message = {name: values[i] for name, i in self._scalars}
+            for group, fields in self._groups.items():
+                message[group] = {field: values[i] for field, i in fields}
+            channel = self._channels.get(TRACE) or self._channel(TRACE, "Trace", _trace_schema)
+            self._file.message(channel, round(values[0] * 1e9), self._json(message))
+        except Exception as exc:
+            self._fail(exc)
+
+    def stop(self) -> None:
+        """The frames still held (those after the last tick), then the file's summary: it is complete,
+        also after an error (up to it, with the error as metadata)."""
+        try:
+            if self._on and self._frames:
+                self._write_frames()
+        except Exception as exc:
+            self._fail(exc)
+        try:
+            if self.error is not None:
+                self._file.metadata(FAILED, {"error": self.error})
+            self._file.close()
+        except Exception as exc:  # the file stays without its summary: check() says so
+            log.warning("run.mcap: cannot finish %s: %s", self.path, exc)
+        self._on = False
+
+    def __enter__(self) -> McapLog:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    def _write_frames(self) -> None:
+        """The frames taken at one time: raw on /can/frames, then each decoded on its message's channel."""
+        frames, self._frames = self._frames, []
+        at, message, encode = round(self._frames_t * 1e9), self._file.message, self._json
+        raw = [
+            Frame(
+                m.timestamp, m.arbitration_id, m.data, m.is_extended_id, m.is_remote_frame, m.is_error_frame
+            )
+            for m in frames
+        ]
+        message(
+            self._channels.get(FRAMES) or self._channel(FRAMES, "CanFrames", _frames_schema),
+            at,
+            encode(Frames(raw)),
+        )
+        codecs, channels = self._codecs, self._channels
+        for m in frames:
+            codec = codecs.get(m.arbitration_id)
+            data = m.data
+            if codec is None or len(data) != codec.length or not _plain(m):
+                continue  # not a DBC message: /can/frames keeps it
+            channel = channels.get(codec.frame_id) or self._signals_channel(codec)
+            message(channel, at, encode(codec.decode_int(int.from_bytes(data, "little"))))
+
+    def _signals_channel(self, codec: MessageCodec) -> int:
+        name = SIGNALS.format(message=codec.name)
+        return self._channel(codec.frame_id, codec.name, lambda: _signals_schema(codec), name)
+
+    def _channel(self, what, schema_name: str, schema: Callable[[], bytes], topic: str | None = None) -> int:
+        """Register `what`'s channel (once; the first of its messages calls)."""
+        if what in self._channels:
+            return self._channels[what]
+        channel = self._file.channel(
+            topic or what, "json", self._file.schema(schema_name, "jsonschema", schema())
+        )
+        self._channels[what] = channel
+        return channel
+
+    def _fail(self, exc: Exception) -> None:
+        """Keep the first error and stop the messages; stop() still completes the file up to here."""
+        if self.error is None:
+            self.error = f"{type(exc).__name__}: {exc}"
+            log.warning("run.mcap stopped: %s", self.error)
+        self._on = False
+
+
+def check(path: Path) -> None:
+    """Raise unless `path` is a complete MCAP file (its summary reads back) that does not say it failed."""
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        if reader.get_summary() is None:
+            raise ValueError(f"{path.name} has no summary: it was not finished")
+        for metadata in reader.iter_metadata():
+            if metadata.name == FAILED:
+                raise RuntimeError(metadata.metadata.get("error", "failed"))
