@@ -158,7 +158,7 @@ def test_cli_runs_a_campaign_on_workers_and_fails_on_a_missed_reaction(missed_ca
     suite = ET.parse(out / "junit.xml").getroot()
     assert (suite.get("tests"), suite.get("failures"), suite.get("errors")) == ("2", "1", "0")
     for case in ("blind-none-seed0", "blind-seat_silent-seed0"):
-        assert json.loads((out / case / "summary.json").read_text())["law"] == "ihacs"
+        assert json.loads((out / case / "summary.json").read_text())["as_run"]["law"] == "ihacs"
     # The HTML page: worst first, each case's verdicts and plot, every link to a file that is there.
     page = _Links()
     page.feed((out / "report.html").read_text())
