@@ -404,12 +404,12 @@ def _replay(args: argparse.Namespace) -> int:
         )
         return 2
     try:
-        clock = json.loads((run_dir / "summary.json").read_text()).get("clock")
-    except (OSError, ValueError):
-        clock = None
+        clock = json.loads((run_dir / "summary.json").read_text())["as_run"]["clock"]
+    except (OSError, ValueError, KeyError, TypeError):
+        clock = "lockstep"  # replay() says what is wrong with the folder
     if clock != "lockstep":
         print(
-            f"pure-hil replay: {run_dir} ran on the {clock or 'unknown'} clock: only a lockstep run can be "
+            f"pure-hil replay: {run_dir} ran on the {clock} clock: only a lockstep run can be "
             "compared tick for tick (a real-time run's frames met its controller at times no replay repeats)",
             file=sys.stderr,
         )

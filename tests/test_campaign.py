@@ -3,15 +3,19 @@ test of the tests: a fault the supervisor does not catch makes the verdict fail,
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
 from html.parser import HTMLParser
+from importlib.metadata import version
 
 import msgspec
+import numpy as np
 import pytest
 
+from hil.run.measurements import measure, release_end
 from hil.suites.campaign import Campaign, CaseResult, expand, junit_xml, load_campaign, report
 from tests.helpers import ROOT
 
@@ -96,9 +100,9 @@ def test_report_is_worst_first_and_junit_carries_failures_and_errors():
         True,
         1.0,
         [{"criterion": "fallen", "value": 0.0, "limit": "== False", "units": "", "passed": True, "note": ""}],
-        peak_tilt_deg=2.0,
+        peak_tilt_after_release_deg=2.0,
     )
-    tilted = CaseResult("a-push-seed0", "a.toml", True, 1.0, peak_tilt_deg=9.0)
+    tilted = CaseResult("a-push-seed0", "a.toml", True, 1.0, peak_tilt_after_release_deg=9.0)
     failed = CaseResult(
         "a-x-seed0",
         "a.toml",
@@ -117,7 +121,7 @@ def test_report_is_worst_first_and_junit_carries_failures_and_errors():
     )
     broken = CaseResult("a-y-seed0", "a.toml", False, 0.5, error="ControllerUnavailable: no controller")
     text = report("c", [ok, tilted, failed, broken])
-    order = [line.split("|")[2].strip() for line in text.splitlines()[4:]]
+    order = [line.split("|")[2].strip() for line in text.splitlines()[6:]]
     assert order == ["a-y-seed0", "a-x-seed0", "a-push-seed0", "a-none-seed0"]
     assert "2/4 passed" in text and "expected ESTOP" in text
     suite = ET.fromstring(junit_xml("c", [ok, tilted, failed, broken]))
@@ -126,6 +130,24 @@ def test_report_is_worst_first_and_junit_carries_failures_and_errors():
     assert "expected ESTOP" in cases["a-x-seed0"].find("failure").text
     assert cases["a-y-seed0"].find("error").get("message").startswith("ControllerUnavailable")
     assert cases["a-none-seed0"].find("properties/property").get("name") == "fallen"
+
+
+def test_the_peak_tilt_is_the_runs_own_after_the_release(shipped):
+    """balance is released at 3 deg: the release ends when the robot first comes back through upright, and
+    the peak after it is the run's own (3 deg, the release's, for every case of the scenario before)."""
+    result = shipped[0]["balance"]
+    tr, released = result.trace, result.scenario.initial_tilt_deg
+    assert released == (3.0, 0.0) and np.degrees(np.abs(tr.tilt).max()) > 3.0
+    end = release_end(tr, released)
+    i = int(np.searchsorted(tr.t, end))
+    assert 0 < end < 1.0 and (tr.tilt[:i, 0] > 0).all() and tr.tilt[i, 0] <= 0, "first back through upright"
+    assert 0 < measure(tr, "max_tilt_deg", "both", end) < 1.0
+    # Either side, either plane: released the other way in roll, the same end.
+    mirrored = dataclasses.replace(tr, tilt=-tr.tilt[:, ::-1])
+    assert release_end(mirrored, (0.0, -3.0)) == end
+    assert release_end(tr, (0.0, 0.0)) == 0.0, "released upright: nothing to wait for"
+    leaning = dataclasses.replace(tr, tilt=np.full_like(tr.tilt, 0.05))
+    assert release_end(leaning, released) is None, "never came back: the release never ended"
 
 
 @pytest.fixture
@@ -153,12 +175,22 @@ def test_cli_runs_a_campaign_on_workers_and_fails_on_a_missed_reaction(missed_ca
     assert proc.returncode == 1, proc.stderr[-2000:]
     assert "[2/2]" in proc.stdout and WHY in proc.stdout
     text = (out / "report.md").read_text()
-    assert text.splitlines()[4].startswith("| FAIL | blind-seat_silent-seed0")
+    assert text.splitlines()[6].startswith("| FAIL | blind-seat_silent-seed0")
     assert "| PASS | blind-none-seed0" in text
     suite = ET.parse(out / "junit.xml").getroot()
     assert (suite.get("tests"), suite.get("failures"), suite.get("errors")) == ("2", "1", "0")
     for case in ("blind-none-seed0", "blind-seat_silent-seed0"):
-        assert json.loads((out / case / "summary.json").read_text())["law"] == "ihacs"
+        assert json.loads((out / case / "summary.json").read_text())["as_run"]["law"] == "ihacs"
+    # Every report says what wrote it: the version, and the commit of this checkout.
+    data = json.loads((out / "report.json").read_text())
+    head = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True, text=True)
+    commit = head.stdout.strip() if head.returncode == 0 else None
+    assert data["version"] == version("pure-hil") and (data["commit"] or "").startswith(commit or "")
+    for report_text in (text, (out / "report.html").read_text()):
+        assert f"pure-hil {version('pure-hil')}" in report_text and (commit or "") in report_text
+    # Both cases are released at 3 deg: the peak is their own, after the release, and not 3 deg for both.
+    for case in data["cases"]:
+        assert 0 < case["release_end"] < 1.0 and case["peak_tilt_after_release_deg"] < 3.0, case
     # The HTML page: worst first, each case's verdicts and plot, every link to a file that is there.
     page = _Links()
     page.feed((out / "report.html").read_text())

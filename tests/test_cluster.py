@@ -89,7 +89,7 @@ def test_the_smoke_campaign_on_two_workers_matches_the_local_run_and_carries_eve
     local = {r.case_id: r for r in run_campaign(cases, bench=private_bench(law="hacs"))}
     for case in cases:  # each case's summary came back from its worker
         summary = json.loads((out / case.id / "summary.json").read_text())
-        assert summary["law"] == "hacs", case.id
+        assert summary["as_run"]["law"] == "hacs", case.id
         failed = sorted(v["criterion"] for v in summary["verdicts"] if not v["passed"])
         assert (summary["passed"], failed) == _verdicts([local[case.id]])[case.id]
     assert f'tests="{len(cases)}"' in (out / "junit.xml").read_text()

@@ -238,7 +238,7 @@ def test_operator_estop_crosses_hosts_and_hosts_without_a_certificate_get_nothin
     steps = [(e["to_state"], e["cause"]) for e in summary["safety"]["events"]]
     assert ("STOPPING", "OPERATOR_ESTOP") in steps, steps
     assert reply["round_trip_ms"] is not None, reply  # a figure, printed above; timing is no test's claim
-    assert summary["fallen"] is None
+    assert summary["fallen"] is False
 
 
 def test_the_default_embedded_bench_is_unreachable_from_another_host(hosts, tmp_path):

@@ -45,7 +45,7 @@ def test_run_folder(shipped):
     folder = shipped[1] / "speed_limiting"
     summary = json.loads((folder / "summary.json").read_text())
     assert summary["passed"] is True and summary["scenario"]["name"] == "speed_limiting"
-    assert summary["versions"]["python-can"] and summary["seed"] == 0
+    assert summary["versions"]["python-can"] and summary["as_run"]["seed"] == 0
     ticks = round(load("speed_limiting").duration * 400)
     assert summary["bus"]["sent"]["SYNC"] == summary["rig"]["ticks"] == ticks
     assert summary["timing"]["speed"] > 0
@@ -251,7 +251,7 @@ def test_replay_reproduces_the_controllers_commands(tmp_path):
     assert result.identical, result.mismatches[:3]
     # Test the test: the same inputs into a controller in the other mode answer differently.
     summary = json.loads((tmp_path / "summary.json").read_text())
-    summary["law"] = "hacs"
+    summary["as_run"]["law"] = "hacs"
     (tmp_path / "summary.json").write_text(json.dumps(summary))
     other = replay(tmp_path, private_bench(), limit=400)
     assert other.mismatches and other.mismatches[0].startswith("tick ")
@@ -263,7 +263,7 @@ def test_replay_compares_only_a_lockstep_run(tmp_path, capsys):
     run(msgspec.structs.replace(DETERMINISM, duration=0.25), private_bench(), out=tmp_path)
     assert main(["replay", str(tmp_path)]) == 0, "a lockstep run replays"
     summary = json.loads((tmp_path / "summary.json").read_text())
-    summary["clock"] = "realtime"
+    summary["as_run"]["clock"] = "realtime"
     (tmp_path / "summary.json").write_text(json.dumps(summary))
     capsys.readouterr()
     assert main(["replay", str(tmp_path)]) == 2

@@ -160,7 +160,7 @@ def test_a_scenario_runs_through_the_router_and_only_certified_roles_reach_the_s
     assert summary["stopped_early"] and summary["simulated"] < 120.0
     steps = [(e["to_state"], e["cause"]) for e in summary["safety"]["events"]]
     assert ("STOPPING", "OPERATOR_ESTOP") in steps, steps
-    assert summary["safety"]["ended_resting"] and summary["fallen"] is None
+    assert summary["safety"]["ended_resting"] and summary["fallen"] is False
     # The rig's SC agent reached the supervisor's key (positive control); the intruder's requests did not.
     assert any(r.mode == "limit" for r in requests), "the rig's SC requests crossed the router"
     assert not any(r.mode == "idle" for r in requests), "the TES certificate cannot put pure/sc/request"

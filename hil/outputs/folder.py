@@ -1,13 +1,16 @@
-"""A run's folder: summary.json (the scenario, the bench, seed, versions, measurements, verdicts, the
-supervisor's record, bus and timing statistics), can.log (candump -L; written during the run by the bus
-recorder), zenoh_inputs.msgpack (what the controller was told over zenoh, for `pure-hil replay`),
-run.mcap (written during the run, checked here), recording.rrd (rerun) and plots.png; and the table
-`pure-hil run` prints."""
+"""A run's folder: summary.json (the scenario as loaded, what ran (`as_run`: law, clock, seed), the bench,
+versions, measurements, verdicts, the supervisor's record, bus and timing statistics, the names and units of
+trace.npy's columns), can.log (candump -L; written during the run by the bus recorder), zenoh_inputs.msgpack
+(what the controller was told over zenoh, for `pure-hil replay`), trace.npy (streamed during the run,
+hil/outputs/trace_log.py), run.mcap (written during the run, checked here), recording.rrd (rerun) and
+plots.png; and the table `pure-hil run` prints."""
 
 from __future__ import annotations
 
+import functools
 import math
 import platform
+import subprocess
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
@@ -15,6 +18,7 @@ import msgspec
 import numpy as np
 
 from hil.outputs.mcap_log import check as check_mcap
+from hil.outputs.trace_log import describe
 from hil.run.judge import RunResult
 from hil.run.measurements import unavailable
 from hil.run.trace import Trace
@@ -42,20 +46,48 @@ def versions() -> dict[str, str]:
     return out
 
 
+SOURCE = Path(__file__).resolve().parents[2]
+"""Where pure-hil's packages are: a git checkout's root, or site-packages for an installed wheel."""
+
+
+@functools.cache
+def commit(root: Path = SOURCE) -> str | None:
+    """The git commit pure-hil runs from (its source at `root`), `+dirty` when its tracked files differ
+    from it; None when it does not run from a git checkout (an installed wheel, no git)."""
+    try:
+        # A wheel installed in a virtual environment inside someone's checkout is not that checkout.
+        if Path(_git(root, "rev-parse", "--show-toplevel")).resolve() != root.resolve():
+            return None
+        dirty = _git(root, "status", "--porcelain", "--untracked-files=no")
+        return _git(root, "rev-parse", "HEAD") + ("+dirty" if dirty else "")
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def _git(root: Path, *args: str) -> str:
+    done = subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=10)
+    if done.returncode:
+        raise OSError(done.stderr.strip())
+    return done.stdout.strip()
+
+
 def summary(result: RunResult) -> dict:
     tr = result.trace
     t = tr.timing
     return {
         "scenario": msgspec.to_builtins(result.scenario),
+        # The scenario's own law, clock and seed are its wishes; the bench and the command line may
+        # override them: these ran.
+        "as_run": {"law": result.law, "clock": result.clock, "seed": result.seed},
         "bench": result.bench,
-        "law": result.law,
-        "clock": result.clock,
-        "seed": result.seed,
         "versions": versions(),
+        "commit": commit(),
         "passed": result.passed,
         "verdict": result.verdict,
         "failure": None if tr.failure is None else {"stage": tr.failure.stage, "error": tr.failure.error},
-        "fallen": tr.fallen,
+        # The same meaning as the `fallen` measurement (a criterion's value 1 or 0); how and when beside it.
+        "fallen": tr.fallen is not None,
+        "fall_cause": tr.fallen,
         "simulated": round(float(tr.t[-1]), 6) if len(tr.t) else 0.0,
         "stopped_early": tr.stopped_early,
         "metrics": {k: None if math.isnan(v) else v for k, v in result.metrics.items()},
@@ -141,8 +173,10 @@ def write_outputs(
     is named in the summary, and the rest are still written). Returns the failed outputs and why."""
     summary_file = out / "summary.json"
 
+    trace = describe(len(result.trace.t)) if (out / "trace.npy").exists() else None
+
     def write_summary(failed: dict[str, str]) -> None:
-        data = {**summary(result), "outputs_failed": failed}
+        data = {**summary(result), "trace": trace, "outputs_failed": failed}
         summary_file.write_bytes(msgspec.json.format(msgspec.json.encode(data), indent=2))
 
     write_summary({})
@@ -175,12 +209,10 @@ def _outputs(result: RunResult, out: Path, recording: bool, plots: bool, mcap: b
     from hil.outputs.plots import write_plots
     from hil.outputs.recording import write_rrd
 
-    caps = [e.cap for e in result.scenario.sc if e.mode == "limit"]
-    title = f"{result.scenario.name} ({result.law}, {result.clock})"
     if recording:
         yield "recording.rrd", lambda: write_rrd(out / "recording.rrd", tr, result.scenario.name)
     if plots:
-        yield "plots.png", lambda: write_plots(out / "plots.png", tr, title, caps[0] if caps else None)
+        yield "plots.png", lambda: write_plots(out / "plots.png", result)
 
 
 def format_table(result: RunResult) -> str:

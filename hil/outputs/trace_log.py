@@ -1,5 +1,6 @@
 """The run's rows, one per tick (the plant's truth beside what the supervisor and the controller said): the
-run folder's trace.npy, a plain numpy file (`np.load("trace.npy")`, columns in `COLUMNS`, SI units).
+run folder's trace.npy, a plain numpy file (`np.load("trace.npy")`, columns in `COLUMNS`, SI units). The
+run's summary.json names the columns, their units and the supervisor's state codes (`trace`, `describe`).
 
 With a run folder the rows stream to disk in blocks as the run goes and the run's Trace reads them back
 through a read-only memory map: file pages the kernel may drop, not memory the process holds, so a run of
@@ -11,36 +12,49 @@ from __future__ import annotations
 
 import struct
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
+from safety.machine import State
+
+
+class Column(NamedTuple):
+    name: str
+    unit: str
+    """SI; "" for a code or a flag (0/1)."""
+    meaning: str
+
+
 COLUMNS = (
-    "t",
-    "velocity.forward",
-    "velocity.left",
-    "tilt.pitch",
-    "tilt.roll",
-    "lean.pitch",
-    "lean.roll",
-    "position.x",
-    "position.y",
-    "yaw_rate",
-    "ball_rate.pitch",
-    "ball_rate.roll",
-    "motor_torque.1",
-    "motor_torque.2",
-    "motor_torque.3",
-    "safety_state",
-    "safety_speed",
-    "powered",
-    "resting",
+    Column("t", "s", "simulated time"),
+    Column("velocity.forward", "m/s", "ground speed, heading frame"),
+    Column("velocity.left", "m/s", "ground speed, heading frame"),
+    Column("tilt.pitch", "rad", "chassis tilt"),
+    Column("tilt.roll", "rad", "chassis tilt"),
+    Column("lean.pitch", "rad", "torso lean relative to the chassis"),
+    Column("lean.roll", "rad", "torso lean relative to the chassis"),
+    Column("position.x", "m", "ball contact point from the start, world frame"),
+    Column("position.y", "m", "ball contact point from the start, world frame"),
+    Column("yaw_rate", "rad/s", "chassis yaw rate"),
+    Column("ball_rate.pitch", "rad/s", "ball rate"),
+    Column("ball_rate.roll", "rad/s", "ball rate"),
+    Column("motor_torque.1", "Nm", "torque drive 1 produced"),
+    Column("motor_torque.2", "Nm", "torque drive 2 produced"),
+    Column("motor_torque.3", "Nm", "torque drive 3 produced"),
+    Column("safety_state", "", "the supervisor's state as on the bus (SAFETY_STATES)"),
+    Column("safety_speed", "m/s", "the embedded supervisor's speed estimate (NaN: none)"),
+    Column("powered", "", "1: a drive's power stage on"),
+    Column("resting", "", "1: powered off at standstill, held by the rider's feet or the stand"),
     # From the controller's telemetry (NaN: none for that tick).
-    "command_speed.pitch",
-    "command_speed.roll",
-    "tilt_command.pitch",
-    "tilt_command.roll",
+    Column("command_speed.pitch", "m/s", "the controller's command speed (its telemetry; NaN: none)"),
+    Column("command_speed.roll", "m/s", "the controller's command speed (its telemetry; NaN: none)"),
+    Column("tilt_command.pitch", "rad", "the controller's tilt command θ_EQ (its telemetry; NaN: none)"),
+    Column("tilt_command.roll", "rad", "the controller's tilt command θ_EQ (its telemetry; NaN: none)"),
 )
-TELEMETRY = COLUMNS.index("command_speed.pitch")
+SAFETY_STATES = {-1: "no frame yet", **{s.value: s.name for s in State}}
+"""The `safety_state` column's codes (SUPERVISOR_ESTOP.State, safety/machine.py)."""
+TELEMETRY = [c.name for c in COLUMNS].index("command_speed.pitch")
 """Columns before this one come from the rig each tick; the rest from the controller's telemetry."""
 BLOCK = 1024
 """Rows per write (188 kB, 2.6 s of a 400 Hz run; a write costs ~0.2 ms of the tick that makes it)."""
@@ -108,3 +122,14 @@ class TraceLog:
         if not self.rows:
             return np.zeros((0, len(COLUMNS)))
         return np.load(self.path, mmap_mode="r")
+
+
+def describe(rows: int) -> dict:
+    """trace.npy as summary.json names it: its shape, each column's name, unit and meaning, and the
+    `safety_state` codes."""
+    return {
+        "file": "trace.npy",
+        "rows": rows,
+        "columns": [c._asdict() for c in COLUMNS],
+        "safety_states": {str(code): name for code, name in SAFETY_STATES.items()},
+    }

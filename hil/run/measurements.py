@@ -248,6 +248,21 @@ def summary_metrics(trace: Trace, ball_radius: float) -> dict[str, float]:
     return out
 
 
+def release_end(trace: Trace, initial_tilt_deg: tuple[float, float]) -> float | None:
+    """When the release ended (s): the first tick by which every plane the robot was released tilted in
+    has come back through upright (its tilt reached 0 or changed sign). Until then the tilt is the
+    release's, decaying from where the scenario put it; after it, every tilt is the run's own. 0.0 for a
+    release upright; None if the robot never came back through upright (the release never ended)."""
+    ends = [0.0]
+    for plane, released in enumerate(initial_tilt_deg):
+        if released:
+            back = np.nonzero(trace.tilt[:, plane] * np.sign(released) <= 0.0)[0]
+            if not len(back):
+                return None
+            ends.append(float(trace.t[back[0]]))
+    return max(ends)
+
+
 def unavailable(trace: Trace, name: str) -> str:
     """Why a measurement of this run is NaN ('' if it is not, or not for a reason of the run's)."""
     if not len(trace.t):

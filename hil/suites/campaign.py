@@ -33,6 +33,7 @@ from drivers.config import load_toml
 from drivers.resources import find
 from hil.bench.bench import Bench, load_bench
 from hil.faults import Fault
+from hil.run.measurements import measure, release_end
 from hil.run.scenario import OperatorEntry, Scenario
 from hil.suites.coverage import Bounds, Classification, Outcome, classify, false_trip, outcome
 
@@ -235,7 +236,12 @@ class CaseResult:
     verdicts: list[dict] = field(default_factory=list)
     error: str = ""
     fallen: str | None = None
-    peak_tilt_deg: float = 0.0
+    peak_tilt_after_release_deg: float = 0.0
+    """The largest chassis tilt (either plane) from the release's end on, deg: the release's own tilt is
+    the scenario's, the same in every case of it, so it would sort nothing."""
+    release_end: float | None = 0.0
+    """When the release ended, s (hil/run/measurements.py release_end); None: it never did, and the peak
+    is the whole run's."""
     safety_events: list[str] = field(default_factory=list)
     role: str = "plain"
     twin: str = ""
@@ -289,6 +295,7 @@ def run_case(case: Case, out: Path | None = None, bench: Bench | None = None) ->
         return CaseResult.errored(case, detail, time.monotonic() - start)
     tr = result.trace
     judged = case.role != "plain"
+    released = release_end(tr, result.scenario.initial_tilt_deg) if len(tr.t) else 0.0
     res = CaseResult(
         case.id,
         case.scenario,
@@ -296,7 +303,10 @@ def run_case(case: Case, out: Path | None = None, bench: Bench | None = None) ->
         time.monotonic() - start,
         [asdict(v) for v in result.verdicts],
         fallen=tr.fallen,
-        peak_tilt_deg=float(np.degrees(np.abs(tr.tilt).max())) if len(tr.t) else 0.0,
+        peak_tilt_after_release_deg=measure(tr, "max_tilt_deg", "both", released or 0.0)
+        if len(tr.t)
+        else 0.0,
+        release_end=released,
         safety_events=[
             f"{e.t:.3f} {e.to_state}/{e.cause}" for e in tr.safety_events if e.kind == "transition"
         ],
@@ -402,8 +412,30 @@ def _quiet_worker() -> None:
 
 
 def worst_first(results: list[CaseResult]) -> list[CaseResult]:
-    """Errors, then failures (most failed verdicts first), then passes closest to a fall (peak tilt)."""
-    return sorted(results, key=lambda r: (not r.error, r.passed, -len(r.failed), -r.peak_tilt_deg))
+    """Errors, then failures (most failed verdicts first), then passes closest to a fall (peak tilt after
+    the release)."""
+    return sorted(
+        results, key=lambda r: (not r.error, r.passed, -len(r.failed), -r.peak_tilt_after_release_deg)
+    )
+
+
+PEAK_TILT = (
+    "peak tilt: the largest chassis tilt after the release, from the first time the robot, released "
+    "tilted, came back through upright (never: the whole run's)"
+)
+
+
+def provenance() -> str:
+    """What wrote a report: the pure-hil version, and its git commit when it runs from a checkout."""
+    from hil.outputs.folder import commit, versions
+
+    where = commit()
+    return f"pure-hil {versions()['pure-hil']}" + (f", commit {where}" if where else " (not a git checkout)")
+
+
+def peak_tilt(r: CaseResult) -> str:
+    """A case's peak tilt after the release for a table, deg."""
+    return f"{r.peak_tilt_after_release_deg:.2f}" + (" (never upright)" if r.release_end is None else "")
 
 
 def coverage_report(results: list[CaseResult]) -> str:
@@ -481,7 +513,7 @@ def report(campaign: str, results: list[CaseResult]) -> str:
         (
             "ERROR" if r.error else "PASS" if r.passed else "FAIL",
             r.case_id,
-            f"{r.peak_tilt_deg:.2f}",
+            peak_tilt(r),
             "fell" if r.fallen else "",
             "; ".join(r.safety_events[:2]),
             f"{r.wall:.1f}",
@@ -489,9 +521,11 @@ def report(campaign: str, results: list[CaseResult]) -> str:
         )
         for r in worst_first(results)
     ]
-    head = ("verdict", "case", "peak tilt deg", "fall", "supervisor", "wall s", "why")
+    head = ("verdict", "case", "peak tilt after release deg", "fall", "supervisor", "wall s", "why")
     lines = [
         f"# Campaign {campaign}: {sum(r.passed for r in results)}/{len(results)} passed",
+        "",
+        f"{provenance()}. Worst first: errors, failures, then passes by {PEAK_TILT}.",
         "",
         "| " + " | ".join(head) + " |",
         "|" + "---|" * len(head),
@@ -528,8 +562,10 @@ def report_json(campaign: str, results: list[CaseResult]) -> bytes:
             "passed": r.passed,
             "error": r.error,
             "why": "" if r.passed else r.message(),
-            "fallen": r.fallen,
-            "peak_tilt_deg": r.peak_tilt_deg,
+            "fallen": r.fallen is not None,
+            "fall_cause": r.fallen,
+            "peak_tilt_after_release_deg": r.peak_tilt_after_release_deg,
+            "release_end": r.release_end,
             "safety_events": r.safety_events,
             "wall": r.wall,
             "coverage": coverage(r),
@@ -537,7 +573,15 @@ def report_json(campaign: str, results: list[CaseResult]) -> bytes:
         }
         for r in worst_first(results)
     ]
-    summary = {"campaign": campaign, "passed": sum(r.passed for r in results), "total": len(results)}
+    from hil.outputs.folder import commit, versions
+
+    summary = {
+        "campaign": campaign,
+        "version": versions()["pure-hil"],
+        "commit": commit(),
+        "passed": sum(r.passed for r in results),
+        "total": len(results),
+    }
     return msgspec.json.format(msgspec.json.encode({**summary, "cases": cases}), indent=2)
 
 

@@ -1,7 +1,8 @@
-"""report.html: a campaign on one page for the lab's nightly page. The table worst first (errors, failures,
-then passes closest to a fall), each case's verdicts, its plot, and links to its run folder, summary and
-recording; the coverage table of a coverage campaign. Links are relative to the report's folder, so the
-folder can be served or copied as it is."""
+"""report.html: a campaign on one page for the lab's nightly page: what wrote it (version, commit), the
+table worst first (errors, failures, then passes closest to a fall by their peak tilt after the release),
+each case's verdicts, its plot, and links to its run folder, summary and recording; the coverage table of a
+coverage campaign. Links are relative to the report's folder, so the folder can be served or copied as it
+is."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import html
 import time
 from pathlib import Path
 
-from hil.suites.campaign import CaseResult, coverage_report, worst_first
+from hil.suites.campaign import PEAK_TILT, CaseResult, coverage_report, peak_tilt, provenance, worst_first
 
 STYLE = """
 body { font: 14px system-ui, sans-serif; margin: 1.5em; }
@@ -32,11 +33,11 @@ def html_report(campaign: str, results: list[CaseResult], folder: Path) -> str:
 <style>{STYLE}</style></head>
 <body>
 <h1>Campaign {html.escape(campaign)}: {passed}/{len(results)} passed</h1>
-<p>Written {time.strftime("%Y-%m-%d %H:%M:%S")}. Worst first: errors, failures, then passes closest to a
-fall.</p>
+<p>Written {time.strftime("%Y-%m-%d %H:%M:%S")} by {html.escape(provenance())}. Worst first: errors,
+failures, then passes closest to a fall by {html.escape(PEAK_TILT)}.</p>
 <table>
-<tr><th>verdict</th><th>case</th><th>peak tilt</th><th>supervisor</th><th>wall</th><th>verdicts</th>
-<th>plot</th></tr>
+<tr><th>verdict</th><th>case</th><th>peak tilt after release</th><th>supervisor</th><th>wall</th>
+<th>verdicts</th><th>plot</th></tr>
 {rows}
 </table>
 {f"<h2>Diagnostic coverage</h2><pre>{html.escape(coverage)}</pre>" if coverage else ""}
@@ -67,6 +68,6 @@ def _row(r: CaseResult, folder: Path) -> str:
     supervisor = "<br>".join(html.escape(e) for e in r.safety_events[:3])
     return (
         f'<tr class="{verdict}"><td>{verdict}{" (fell)" if r.fallen else ""}</td>'
-        f"<td>{' · '.join(links)}</td><td>{r.peak_tilt_deg:.2f} deg</td><td>{supervisor}</td>"
+        f"<td>{' · '.join(links)}</td><td>{peak_tilt(r)} deg</td><td>{supervisor}</td>"
         f"<td>{r.wall:.1f} s</td><td><ul>{''.join(items)}</ul></td><td>{plot}</td></tr>"
     )

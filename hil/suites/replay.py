@@ -21,6 +21,7 @@ import msgspec
 
 from drivers.can_bus import BusConfig, open_bus, private_channel
 from drivers.can_codec import DRIVE_COMMAND, Catalog, MessageName
+from drivers.config import ConfigError
 from drivers.dut import DutSpec, start_dut
 from drivers.resources import find
 from drivers.zenoh_link import ZenohAccess, ZenohLink
@@ -75,6 +76,9 @@ def replay(run_dir: Path, bench: Bench | None = None, limit: int | None = None) 
     a private bus and hub, and compare its answers with the recorded ones."""
     bench = bench or load_bench()
     summary = json.loads((run_dir / "summary.json").read_text())
+    if "as_run" not in summary:
+        # A folder of an older pure-hil, whose summary had the law at its top level.
+        raise ConfigError(run_dir / "summary.json", "no `as_run.law` (written by an older pure-hil?)")
     scenario = summary["scenario"]
     catalog = Catalog()
     ticks = _ticks(run_dir / "can.log", catalog)[:limit]
@@ -95,7 +99,7 @@ def replay(run_dir: Path, bench: Bench | None = None, limit: int | None = None) 
             DutSpec(
                 can=bus_config,
                 zenoh=access,
-                mode=summary["law"],
+                mode=summary["as_run"]["law"],
                 robot=str(find(bench.controller.robot or scenario["robot"], "robot")),
                 rider=str(find(scenario["rider"], "riders")),
                 controller_config=str(find(bench.controller.config, "controller")),

@@ -161,7 +161,7 @@ def test_three_processes_pass_the_smoke_scenario_and_candump_agrees(tmp_path, ca
         f"\nbench_smoke on vcan0: {s['timing']['wall_time']} s wall for {s['simulated']} s simulated; "
         f"missing commands {s['rig']['missing_commands']} of {3 * s['rig']['ticks']}"
     )
-    assert s["safety"]["final_state"] == "NORMAL" and s["fallen"] is None
+    assert s["safety"]["final_state"] == "NORMAL" and s["fallen"] is False
 
     # can-utils saw exactly what the rig logged, frame for frame. The order is compared per CAN id (each id
     # has one sender): vcan delivers a frame to every socket inside its sender's send(), so frames that two
@@ -196,7 +196,7 @@ def test_a_controller_written_from_the_contract_alone_balances_the_robot(tmp_pat
     run = run_bench(tmp_path, SMOKE, controller=example)
     assert run.rig_exit == 0, run.logs["rig"] + run.logs.get("controller", "")
     s = run.summary
-    assert s["fallen"] is None and s["safety"]["final_state"] == "NORMAL"
+    assert s["fallen"] is False and s["safety"]["final_state"] == "NORMAL"
     # Its own frames only: under the VM's emulation the rig may miss one of the supervisor process's frames
     # (SUPERVISOR_ESTOP:LOST 1 was seen once), which says nothing of the example's E2E.
     sent_by_example = ("DRIVE1_COMMAND", "DRIVE2_COMMAND", "DRIVE3_COMMAND", "CONTROLLER_HEARTBEAT")
@@ -229,7 +229,7 @@ def test_cansend_estop_trips_the_supervisor_and_the_drives(tmp_path):
     pressed = run.actions[0][0] * TICK
     assert pressed <= s["events"][0]["t"] <= pressed + 0.1, "reacts within a few ticks of the frame"
     assert s["drives_off_at"] is not None and s["ended_resting"], "standstill, then drives off: at rest"
-    assert run.summary["fallen"] is None
+    assert run.summary["fallen"] is False
 
 
 def _failing_payload(length: int = 8) -> str:
@@ -265,7 +265,7 @@ def test_cangen_flood_is_survived_and_the_supervisor_reacts(tmp_path):
     # 100 corrupt frames on one stream exceed the integrity limit (20 per second): controlled stop.
     steps = [(e["to_state"], e["cause"]) for e in summary["safety"]["events"]]
     assert ("STOPPING", "E2E_ERRORS") in steps, steps
-    assert summary["fallen"] is None
+    assert summary["fallen"] is False
     for name in ("supervisor", "rig"):  # the rig's log holds the spawned controller's output too
         assert "Traceback" not in run.logs[name], run.logs[name]
 
@@ -295,7 +295,7 @@ def test_controller_killed_is_taken_over_within_the_watchdog_bound(tmp_path):
     assert lost["t"] <= silent_from + 0.05 + 2 * TICK, (
         "the supervisor's heartbeat watchdog (50 ms)\n" + (run.logs["supervisor"][-3000:])
     )
-    assert run.summary["fallen"] is None and s["ended_resting"]
+    assert run.summary["fallen"] is False and s["ended_resting"]
 
 
 def test_a_controller_killed_at_speed_is_caught_by_the_supervisors_recovery_law_in_its_own_process(tmp_path):
@@ -310,4 +310,4 @@ def test_a_controller_killed_at_speed_is_caught_by_the_supervisors_recovery_law_
     steps = [(e["to_state"], e["cause"]) for e in s["events"]]
     assert steps[:2] == [("RECOVERY", "HEARTBEAT_LOST"), ("ESTOP", "HEARTBEAT_LOST")], steps
     assert s["recovery_commands"] > 0, "the drives followed the supervisor's SUPERVISOR_RECOVERY"
-    assert run.summary["fallen"] is None and s["ended_resting"], "at rest and upright, power off at rest"
+    assert run.summary["fallen"] is False and s["ended_resting"], "at rest and upright, power off at rest"
