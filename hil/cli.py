@@ -194,7 +194,8 @@ def _run(args: argparse.Namespace) -> int:
         )
         return 2 if failure.config else 1
     print(format_table(result))
-    print(f"outputs: {out}/summary.json, can.log, recording.rrd, plots.png, trace.npy")
+    written = sorted(p.name for p in out.iterdir() if p.is_file() and p.name != "summary.json")
+    print(f"outputs: {out}/summary.json, {', '.join(written)}")
     if result.trace.stopped_early:
         simulated = float(result.trace.t[-1]) if len(result.trace.t) else 0.0
         print(f"pure-hil run: stopped at t = {simulated:.2f} s of {scenario.duration:g} s", file=sys.stderr)

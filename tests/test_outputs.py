@@ -196,3 +196,15 @@ def test_the_commit_is_the_checkouts_and_none_elsewhere(tmp_path, monkeypatch):
         assert commit(repo) is None, "no git"
     finally:
         commit.cache_clear()
+
+
+def test_a_real_time_run_says_its_overruns_beside_its_verdict(shipped):
+    from hil.outputs.folder import format_table
+
+    result = shipped[0]["speed_limiting"]
+    timing = dataclasses.replace(result.trace.timing, overruns=113)
+    trace = dataclasses.replace(result.trace, timing=timing)
+    late = dataclasses.replace(result, clock="realtime", trace=trace)
+    last = format_table(late).splitlines()[-1]
+    assert f"113 overruns of {timing.ticks} ticks; " in last and last.endswith(result.verdict)
+    assert "overruns" not in format_table(result), "a lockstep run has no deadlines to overrun"

@@ -233,10 +233,12 @@ def format_table(result: RunResult) -> str:
     tr = result.trace
     if tr.failure is not None:
         lines.append(f"the run failed at {tr.failure.stage}: {tr.failure.error}")
+    # Under the real-time clock a late tick explains missing commands: say how many there were.
+    late = f", {tr.timing.overruns} overruns of {tr.timing.ticks} ticks" if result.clock == "realtime" else ""
     lines.append(
         f"{result.scenario.name}: {tr.t[-1] if len(tr.t) else 0:.2f} s simulated "
         f"({result.law}, {result.clock}) in {tr.timing.wall_time:.1f} s wall "
-        f"({tr.timing.speed:.1f}x real time); " + result.verdict
+        f"({tr.timing.speed:.1f}x real time){late}; {result.verdict}"
     )
     if math.isfinite(tr.timing.speed) and tr.fallen:
         lines.append(f"the robot fell: {tr.fallen}")
