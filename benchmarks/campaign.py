@@ -59,7 +59,7 @@ def cluster(cases, workers: int) -> float:
             ]
             with Client(address, timeout="30s") as client:
                 client.wait_for_workers(workers, timeout=60)
-                client.run(lambda: __import__("hil.run.pipeline"))  # imports once, before the clock starts
+                client.run(lambda: __import__("hil.pipeline"))  # imports once, before the clock starts
             t0 = time.perf_counter()
             results = run_campaign(cases, scheduler=address)
             wall = time.perf_counter() - t0

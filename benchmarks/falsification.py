@@ -28,7 +28,7 @@ import msgspec
 from drivers.config import load_toml
 from drivers.resources import find
 from hil.bench.bench import load_bench
-from hil.run.pipeline import load_scenario
+from hil.pipeline import load_scenario
 from hil.suites.adversary import SPACE, candidate, evaluate, requirement, search
 from hil.suites.campaign import run_pool
 from plant.params import RiderParams

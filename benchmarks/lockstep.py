@@ -31,8 +31,8 @@ from drivers.contract import CONTRACT_VERSION
 from drivers.dut import DutSpec
 from drivers.e2e import COUNTER, CRC
 from hil.bench.bench import load_bench
+from hil.pipeline import load_scenario, run
 from hil.run.build import RunOptions
-from hil.run.pipeline import load_scenario, run
 from plant.ballbot import Plant
 from safety.node import SupervisorNode
 

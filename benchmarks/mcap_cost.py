@@ -21,10 +21,10 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import msgspec
 
-import hil.run.pipeline as pipeline
+import hil.pipeline as pipeline
 from hil.bench.bench import load_bench
 from hil.outputs.mcap_log import McapLog
-from hil.run.pipeline import load_scenario, run
+from hil.pipeline import load_scenario, run
 
 TIMED = ("on_message_received", "zenoh", "trace")
 

@@ -78,7 +78,7 @@ def full(args) -> None:
     import msgspec
 
     from hil.bench.bench import load_bench
-    from hil.run.pipeline import load_scenario, run
+    from hil.pipeline import load_scenario, run
 
     # The machine's own stalls: the same clock with no work. On a shared VM a few wake-ups a minute come
     # late by a whole period or more, which no work in the loop can avoid.

@@ -22,7 +22,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 from drivers.keys import Keys
 from drivers.zenoh_link import free_loopback_endpoint, open_session
 from hil.bench.bench import load_bench
-from hil.bench.service import RigService
+from hil.service import RigService
 
 WARM_UP = 10
 """Runs before the baseline: the first runs load modules and grow malloc's per-thread arenas to their size."""

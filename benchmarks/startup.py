@@ -41,7 +41,7 @@ def first_tick(scenario: str, out: Path) -> tuple[float, float]:
 
 
 def dearest_imports(n: int = 10) -> list[tuple[str, float]]:
-    code = "import hil.run.pipeline, controller.embedded"
+    code = "import hil.pipeline, controller.embedded"
     err = subprocess.run(
         [sys.executable, "-X", "importtime", "-c", code], capture_output=True, text=True, check=True
     ).stderr

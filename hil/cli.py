@@ -167,9 +167,9 @@ DURATION = _number(float, 0.0, MAX_DURATION, low_open=True)
 
 def _run(args: argparse.Namespace) -> int:
     from hil.bench.parts import check
-    from hil.outputs.folder import format_table
+    from hil.pipeline import load_scenario, run
+    from hil.report.folder import format_table
     from hil.run.build import RunOptions
-    from hil.run.pipeline import load_scenario, run
 
     scenario = load_scenario(args.scenario)
     bench = bench_from(args)
@@ -280,7 +280,7 @@ def _campaign(args: argparse.Namespace) -> int:
 
 def _compare(args: argparse.Namespace) -> int:
     from hil.bench.parts import check
-    from hil.run.pipeline import load_scenario
+    from hil.pipeline import load_scenario
     from hil.suites.compare import compare, write
     from hil.suites.paper import load_paper
     from plant.params import RiderParams
@@ -361,7 +361,7 @@ def _calibrate(args: argparse.Namespace) -> int:
 
 
 def _adversary(args: argparse.Namespace) -> int:
-    from hil.run.pipeline import load_scenario
+    from hil.pipeline import load_scenario
     from hil.suites.adversary import requirement, search, summary, write_worst
 
     scenario = load_scenario(args.scenario)
@@ -452,7 +452,7 @@ def _until_interrupted(message: str) -> None:
 
 def _serve(args: argparse.Namespace) -> int:
     from hil.bench.parts import check
-    from hil.bench.service import RigService
+    from hil.service import RigService
 
     bench = bench_from(args)
     check(bench)

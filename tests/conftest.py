@@ -17,7 +17,7 @@ pytest_plugins = ["pytester"]  # tests of the HIL pytest plugin run pytest insid
 def shipped(tmp_path_factory):
     """Every shipped scenario run once in lockstep (speed_limiting with its run folder): (results, folder)."""
     from drivers.config import load_toml
-    from hil.run.pipeline import run
+    from hil.pipeline import run
     from hil.run.scenario import Scenario
     from tests.helpers import ROOT
     from tests.zenoh_helpers import private_bench

@@ -9,7 +9,7 @@ import pytest
 pytest.importorskip("optuna")
 
 from drivers.config import load_toml
-from hil.run.pipeline import load_scenario, run
+from hil.pipeline import load_scenario, run
 from hil.run.scenario import Scenario
 from hil.suites.adversary import SPACE, profile, requirement, search, write_worst
 from plant.params import RiderParams

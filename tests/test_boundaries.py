@@ -126,3 +126,110 @@ d = "SYNCHRONISED"
         (4, "DRIVE2_TORQUE"),
         (4, "DRIVE3_TORQUE"),
     ]
+
+
+# ------------------------------------------------------------------------------------- hil's rooms
+FLOORS = (
+    {"bench", "faults", "outputs"},  # the bench file, the fault catalog, what streams during a run
+    {"run"},  # one run: build, tick loop, judge
+    {"report", "contract"},  # the run folder's summary and plots; the contract's generated tables
+    {"pipeline"},  # build -> tick loop -> judge -> write
+    {"service", "suites"},  # `pure-hil serve`; many runs
+    {"cli"},
+    {"cli_reference"},
+)
+"""hil's rooms (a sub-package, or a top-level module) from the ground floor up: a room imports only rooms
+on floors below its own (docs/architecture.md)."""
+FLOOR = {room: n for n, rooms in enumerate(FLOORS) for room in rooms}
+
+
+def hil_imports() -> dict[str, set[str]]:
+    """Each hil module (dotted name) and the hil modules it imports, whatever the import form."""
+    graph = {}
+    for path in modules("hil"):
+        name = ".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__")
+        graph[name] = {m for m in _imported_modules(path.read_text()) if m.startswith("hil.")}
+    return graph
+
+
+def _imported_modules(source: str) -> set[str]:
+    found = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            found |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found.add(node.module)
+    return found
+
+
+def room(module: str) -> str:
+    return module.split(".")[1]
+
+
+def upward(graph: dict[str, set[str]]) -> list[str]:
+    return [
+        f"{m} imports {i}: {room(i)} is not below {room(m)}"
+        for m, imports in graph.items()
+        for i in imports
+        if room(i) != room(m) and FLOOR[room(i)] >= FLOOR[room(m)]
+    ]
+
+
+def circles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The import circles among modules: strongly connected components of more than one (a package that
+    imports its own submodules by its name is no circle)."""
+    index, low, stack, on, found = {}, {}, [], set(), []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in graph:
+                continue  # a package's name imported as itself, or an outside module
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_every_room_of_hil_is_on_a_floor():
+    rooms = {room(m) for m in hil_imports() if m != "hil"}
+    assert rooms == set(FLOOR), f"rooms without a floor: {rooms - set(FLOOR)}; gone: {set(FLOOR) - rooms}"
+
+
+def test_hil_imports_only_downwards_and_has_no_import_circle():
+    graph = hil_imports()
+    graph.pop("hil", None)
+    assert not upward(graph), "\n".join(upward(graph))
+    assert not circles(graph), circles(graph)
+
+
+def test_positive_control_an_upward_import_and_a_circle_are_seen():
+    graph = {
+        "hil.faults.base": {"hil.run.rig"},  # what the faults once did
+        "hil.run.rig": {"hil.faults.base"},
+        "hil.suites.campaign": {"hil.suites.cluster"},
+        "hil.suites.cluster": {"hil.suites.campaign"},
+    }
+    assert upward(graph) == ["hil.faults.base imports hil.run.rig: run is not below faults"]
+    assert sorted(circles(graph)) == [
+        ["hil.faults.base", "hil.run.rig"],
+        ["hil.suites.campaign", "hil.suites.cluster"],
+    ]

@@ -7,7 +7,7 @@ import json
 import msgspec
 import pytest
 
-from hil.run.pipeline import load_scenario
+from hil.pipeline import load_scenario
 from hil.suites.calibrate import Unknown, calibrate, with_values, write, write_world
 from hil.suites.compare import compare
 from hil.suites.paper import load_paper, table_from

@@ -128,7 +128,7 @@ def test_compare_json_prints_one_object_on_stdout_and_its_progress_on_stderr(tmp
     import msgspec
 
     from drivers.config import dump_toml
-    from hil.run.pipeline import load_scenario
+    from hil.pipeline import load_scenario
 
     short = tmp_path / "speed_limiting.toml"  # a paper task by name, 2 s long
     short.write_bytes(dump_toml(msgspec.structs.replace(load_scenario("speed_limiting"), duration=2.0)))

@@ -17,7 +17,7 @@ import pytest
 
 from drivers.can_bus import BusConfig, private_channel
 from drivers.config import load_toml
-from hil.run.pipeline import run
+from hil.pipeline import run
 from hil.run.scenario import Scenario
 from tests.helpers import ROOT
 from tests.zenoh_helpers import private_bench

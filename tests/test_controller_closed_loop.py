@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from hil.run.pipeline import run
+from hil.pipeline import run
 from hil.run.scenario import Intent, Scenario, ScEntry
 from plant.rider import Hold, Ramp
 from tests.helpers import ROOT

@@ -26,7 +26,7 @@ from drivers.schemas import ControllerCommand, PayloadError, ScCommand, TesWrenc
 from hil.faults import parse_fault
 from hil.outputs.mcap_file import McapFile
 from hil.outputs.trace_log import COLUMNS, TELEMETRY
-from hil.run.pipeline import run
+from hil.pipeline import run
 from hil.run.scenario import Intent, OperatorEntry, Scenario, ScEntry
 from plant.rider import Ramp
 from tests.zenoh_helpers import private_bench
@@ -200,7 +200,7 @@ def test_one_trace_message_per_tick_equal_to_trace_npy(folder):
     def flat(message: dict) -> list:
         return [
             message[c] if "." not in c else message[c.split(".")[0]][c.split(".")[1]]
-            for c in COLUMNS[:TELEMETRY]
+            for c in (column.name for column in COLUMNS[:TELEMETRY])
         ]
 
     values = np.array([flat(m) for _, m in got], dtype=float)  # JSON's null -> NaN

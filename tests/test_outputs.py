@@ -15,8 +15,8 @@ import numpy as np
 from matplotlib.collections import LineCollection
 
 from hil.faults import Fault
-from hil.outputs.folder import commit, summary
-from hil.outputs.plots import FAULT_COLOR, SHADES, figure
+from hil.report.folder import commit, summary
+from hil.report.plots import FAULT_COLOR, SHADES, figure
 from hil.run.scenario import Verdict
 from safety.machine import State
 
@@ -199,7 +199,7 @@ def test_the_commit_is_the_checkouts_and_none_elsewhere(tmp_path, monkeypatch):
 
 
 def test_a_real_time_run_says_its_overruns_beside_its_verdict(shipped):
-    from hil.outputs.folder import format_table
+    from hil.report.folder import format_table
 
     result = shipped[0]["speed_limiting"]
     timing = dataclasses.replace(result.trace.timing, overruns=113)

@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from hil.run.pipeline import load_scenario
+from hil.pipeline import load_scenario
 from hil.suites.compare import compare, write
 from hil.suites.paper import against, load_paper
 from tests.zenoh_helpers import private_bench

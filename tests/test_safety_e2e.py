@@ -11,8 +11,8 @@ from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
 from drivers.config import load_toml
 from drivers.zenoh_link import ZenohLink, open_session
 from hil.faults.processes import Kill
+from hil.pipeline import run
 from hil.run.build import RunOptions
-from hil.run.pipeline import run
 from hil.run.rig import Rig
 from hil.run.scenario import OperatorEntry, Scenario
 from plant.params import RobotParams

@@ -15,8 +15,8 @@ from drivers.can_codec import Catalog
 from drivers.config import load_toml
 from drivers.e2e import E2EChecker, E2EStatus, is_protected
 from hil.cli import main
+from hil.pipeline import run
 from hil.run.build import RunOptions
-from hil.run.pipeline import run
 from hil.run.scenario import Intent, Scenario
 from plant.rider import Ramp
 from tests.helpers import ROOT
@@ -186,7 +186,7 @@ def test_the_trace_and_the_recording_stream_to_the_run_folder_as_the_run_goes(tm
 
 
 def test_a_long_run_is_plotted_by_stretches_that_keep_every_peak():
-    from hil.outputs.plots import STRETCHES, _stretched
+    from hil.report.plots import STRETCHES, _stretched
 
     t = np.arange(100 * STRETCHES) * 0.0025
     values = np.sin(t)

@@ -9,7 +9,7 @@ import pytest
 
 from drivers.keys import Keys
 from drivers.zenoh_link import open_session
-from hil.bench.service import RigService
+from hil.service import RigService
 from tests.helpers import ROOT
 from tests.zenoh_helpers import hub_endpoint, private_bench
 

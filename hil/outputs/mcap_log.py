@@ -15,7 +15,7 @@ publish time alike):
 
 It streams, a chunk at a time (hil/outputs/mcap_file.py: memory flat in a run's length). Writing never
 fails a run: an error stops the messages there, stop() still completes the file and records the error as
-metadata `failed`, and `check` (run with the other outputs, hil/outputs/folder.py) raises it, so the
+metadata `failed`, and `check` (run with the other outputs, hil/report/folder.py) raises it, so the
 summary lists run.mcap in `outputs_failed`.
 """
 
@@ -153,21 +153,25 @@ def _rejected_schema() -> bytes:
 def _trace_layout() -> tuple[list[tuple[str, int]], dict[str, list[tuple[str, int]]]]:
     """ROW's columns as fields: "t" -> t, "velocity.forward" -> velocity.forward (a Foxglove message path)."""
     scalars, groups = [], {}
-    for i, name in enumerate(ROW):
-        group, _, field = name.partition(".")
+    for i, column in enumerate(ROW):
+        group, _, field = column.name.partition(".")
         if field:
             groups.setdefault(group, []).append((field, i))
         else:
-            scalars.append((name, i))
+            scalars.append((column.name, i))
     return scalars, groups
 
 
 def _trace_schema() -> bytes:
     scalars, groups = _trace_layout()
-    number = {"type": ["number", "null"]}
-    properties = {name: number for name, _ in scalars}
+
+    def number(i: int) -> dict:  # the column's unit and meaning, as Foxglove shows a field's description
+        unit = f" ({ROW[i].unit})" if ROW[i].unit else ""
+        return {"type": ["number", "null"], "description": ROW[i].meaning + unit}
+
+    properties = {name: number(i) for name, i in scalars}
     for group, fields in groups.items():
-        properties[group] = {"type": "object", "properties": {field: number for field, _ in fields}}
+        properties[group] = {"type": "object", "properties": {field: number(i) for field, i in fields}}
     return _schema(
         "Trace", properties, "a tick's row of trace.npy (hil/outputs/trace_log.py COLUMNS), SI units"
     )

@@ -96,7 +96,7 @@ def requirement(objective: Objective, scenario: Scenario, bench: Bench) -> Requi
 
 def evaluate(scenario: Scenario, bench: Bench) -> dict[str, float]:
     """One lockstep run's metrics (in a worker process)."""
-    from hil.run.pipeline import run
+    from hil.pipeline import run
 
     return run(scenario, bench).metrics
 
@@ -198,7 +198,7 @@ def _run_all(pool, scenarios: list[Scenario], bench: Bench) -> list[dict[str, fl
 def write_worst(found: Search, out: Path, bench: Bench | None = None) -> Path:
     """The worst profile as a scenario file (its rider, law, seed, SC schedule and intent) and its run
     folder next to it; returns the scenario file."""
-    from hil.run.pipeline import run
+    from hil.pipeline import run
 
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"{found.worst.name}.toml"

@@ -134,7 +134,7 @@ class Evaluations:
         scenarios: list[Scenario] | None = None,
         workers: int = 1,
     ):
-        from hil.run.pipeline import load_scenario
+        from hil.pipeline import load_scenario
 
         self.target = target
         self.scenarios = scenarios or [load_scenario(t) for t in target.tasks]

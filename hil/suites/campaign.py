@@ -281,7 +281,7 @@ def run_case(case: Case, out: Path | None = None, bench: Bench | None = None) ->
     zenoh hub on a free loopback port, so cases in parallel never meet); with `out`, its whole run folder
     there (summary, CAN log, trace, recording, plots: the bench's outputs)."""
     from drivers.zenoh_link import free_loopback_endpoint
-    from hil.run.pipeline import run
+    from hil.pipeline import run
 
     bench = bench or load_bench()
     if bench.self_contained and bench.zenoh.mode == "loopback" and bench.zenoh.endpoint is None:
@@ -378,7 +378,7 @@ def run_campaign(
         from hil.suites.cluster import run_on_cluster
 
         phases = [[c for c in cases if c.role != "faulty"], [c for c in cases if c.role == "faulty"]]
-        run_on_cluster(scheduler, phases, bench, out, done)
+        run_on_cluster(scheduler, phases, bench, out, run_case, CaseResult.errored, done)
     elif workers <= 1 or not parallel:
         for case in cases:
             done(case, run_case(case, folder(case), bench))
@@ -427,7 +427,7 @@ PEAK_TILT = (
 
 def provenance() -> str:
     """What wrote a report: the pure-hil version, and its git commit when it runs from a checkout."""
-    from hil.outputs.folder import commit, versions
+    from hil.report.folder import commit, versions
 
     where = commit()
     return f"pure-hil {versions()['pure-hil']}" + (f", commit {where}" if where else " (not a git checkout)")
@@ -573,7 +573,7 @@ def report_json(campaign: str, results: list[CaseResult]) -> bytes:
         }
         for r in worst_first(results)
     ]
-    from hil.outputs.folder import commit, versions
+    from hil.report.folder import commit, versions
 
     summary = {
         "campaign": campaign,

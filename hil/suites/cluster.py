@@ -16,9 +16,21 @@ import tempfile
 import uuid
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import Protocol, TypeVar
 
 from hil.bench.bench import Bench
-from hil.suites.campaign import Case, CaseResult, run_case
+
+
+class Task(Protocol):
+    id: str
+    """Names the task on the cluster and its folder in `out`."""
+
+
+T = TypeVar("T", bound=Task)
+R = TypeVar("R")
+Run = Callable[[T, Path | None, Bench], R]
+"""How a worker runs one case (hil/suites/campaign.py's run_case): it travels by reference, so this module
+needs nothing of the campaign's."""
 
 CONNECT_TIMEOUT = "20s"
 
@@ -28,33 +40,37 @@ RETURNED = ("summary.json", "plots.png")
 behind (rerun the case by its id and seed for them)."""
 
 
-def run_remote(case: Case, bench: Bench, keep: bool) -> tuple[CaseResult, dict[str, bytes]]:
+def run_remote(run: Run, case: T, bench: Bench, keep: bool) -> tuple[R, dict[str, bytes]]:
     """On a worker: the case, and the files of its folder in RETURNED when the campaign keeps folders."""
     if not keep:
-        return run_case(case, None, bench), {}
+        return run(case, None, bench), {}
     with tempfile.TemporaryDirectory(prefix="pure-hil-case-") as tmp:
-        result = run_case(case, Path(tmp), bench)
+        result = run(case, Path(tmp), bench)
         files = {name: (Path(tmp) / name).read_bytes() for name in RETURNED if (Path(tmp) / name).exists()}
         return result, files
 
 
 def run_on_cluster(
     scheduler: str,
-    phases: Iterable[list[Case]],
+    phases: Iterable[list[T]],
     bench: Bench,
     out: Path | None,
-    done: Callable[[Case, CaseResult], None],
+    run: Run,
+    errored: Callable[[T, str], R],
+    done: Callable[[T, R], None],
 ) -> None:
-    """Each phase's cases as tasks (a phase completes before the next is submitted: coverage twins before
-    their faulty cases); `done` sees every case's result as it comes back."""
+    """Each phase's cases as tasks, each run by `run` on a worker (a phase completes before the next is
+    submitted: coverage twins before their faulty cases); `done` sees every case's result as it comes
+    back, `errored` makes the result of one that could not run."""
     from distributed import Client, as_completed
 
     check_tls(scheduler)
     run_id = uuid.uuid4().hex[:8]
     with Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False) as client:
         for phase in phases:
+            keep = out is not None
             futures = {
-                client.submit(run_remote, c, bench, out is not None, key=f"{c.id}-{run_id}", pure=False): c
+                client.submit(run_remote, run, c, bench, keep, key=f"{c.id}-{run_id}", pure=False): c
                 for c in phase
             }
             for future in as_completed(futures, loop=client.loop):  # (not the default client's)
@@ -62,7 +78,7 @@ def run_on_cluster(
                 try:
                     result, files = future.result()
                 except Exception as exc:  # the worker died too often, or the task could not run there
-                    result, files = CaseResult.errored(case, f"{type(exc).__name__}: {exc}"), {}
+                    result, files = errored(case, f"{type(exc).__name__}: {exc}"), {}
                 for name, data in files.items():
                     (out / case.id).mkdir(parents=True, exist_ok=True)
                     (out / case.id / name).write_bytes(data)

@@ -14,7 +14,7 @@ import msgspec
 
 from drivers.resources import find
 from hil.bench.bench import Bench, load_bench
-from hil.run.pipeline import run
+from hil.pipeline import run
 from hil.run.scenario import Scenario
 from hil.suites.campaign import distributable, run_pool
 from hil.suites.paper import LAWS, WITHIN, PaperTable, against, load_paper, mean_sd

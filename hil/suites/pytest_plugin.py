@@ -148,9 +148,9 @@ class HilRig:
         self.bench = bench
 
     def run(self, scenario, **kwargs):
-        """`hil.run.pipeline.run(scenario, bench, **kwargs)` -> RunResult."""
+        """`hil.pipeline.run(scenario, bench, **kwargs)` -> RunResult."""
         from drivers.zenoh_link import free_loopback_endpoint
-        from hil.run.pipeline import run
+        from hil.pipeline import run
 
         bench = self.bench.with_overrides(clock="lockstep")
         if bench.self_contained and bench.zenoh.mode == "loopback" and bench.zenoh.endpoint is None:

@@ -28,8 +28,8 @@ from drivers.keys import Keys
 from hil.bench.bench import Bench, load_bench
 from hil.bench.rigs import announce
 from hil.faults import FaultSet, parse_fault
+from hil.pipeline import load_scenario, run
 from hil.run.build import RunOptions
-from hil.run.pipeline import load_scenario, run
 from hil.run.scenario import Intent, Scenario
 from plant.ballbot import Plant, RiderIntent
 

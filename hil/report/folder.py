@@ -206,8 +206,8 @@ def _outputs(result: RunResult, out: Path, recording: bool, plots: bool, mcap: b
         return  # nothing ran: no recording, no plots
     # Imported here: matplotlib and rerun cost seconds of start-up (a minute on an emulated CPU), and a
     # run without a folder never needs them.
-    from hil.outputs.plots import write_plots
     from hil.outputs.recording import write_rrd
+    from hil.report.plots import write_plots
 
     if recording:
         yield "recording.rrd", lambda: write_rrd(out / "recording.rrd", tr, result.scenario.name)

@@ -15,7 +15,7 @@ from pathlib import Path
 from drivers.config import load_toml
 from drivers.resources import find
 from hil.bench.bench import Bench, load_bench
-from hil.outputs.folder import write_outputs
+from hil.report.folder import write_outputs
 from hil.run.build import RunOptions, build, clock_of, law_of, start_up, supervisor_config
 from hil.run.judge import RunResult, judge
 from hil.run.loop import tick_loop
