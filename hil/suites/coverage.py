@@ -33,6 +33,7 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import msgspec
@@ -346,3 +347,49 @@ def _hazard(o: Outcome, bounds: Bounds) -> tuple[float | None, str]:
     if not found:
         return None, ""
     return min(found)
+
+
+# ------------------------------------------------------------------------------------ the table of docs
+ENDED = {"AT_REST": "at rest", "MOVING": "upright, moving", "FELL": "fell"}
+
+
+def cell(coverage: dict) -> str:
+    """One faulty case of a campaign's report.json as docs/safety.md's coverage table shows it: the first
+    reaction and its delay, the modes from the fault on, how the run ended."""
+    kind = coverage["class"]
+    if kind == "BENIGN":
+        return "benign"
+    if kind == "MISSED":
+        return f"MISSED: {coverage['note']}"
+    after = coverage["after"] or {}
+    late = " (LATE)" if kind.startswith("LATE") else ""
+    ended = ENDED.get(after.get("ended", ""), after.get("ended", "?"))
+    if ended == "fell" and after.get("excused"):
+        ended += " (unrecoverable)"
+    ms = round(coverage["reaction"] * 1e3, 1)  # ticks are 2.5 ms: 47.5, not 47 or 48
+    return f"{coverage['cause']} {ms:g} ms{late}; {after.get('modes', '')}; {ended}"
+
+
+def table(report: dict, scenarios: tuple[str, ...] = ("speed_limiting", "slalom", "balance")) -> str:
+    """docs/safety.md's coverage table from a coverage campaign's report.json: a row per fault set, a
+    column per scenario."""
+    cells: dict[str, dict[str, str]] = {}
+    for case in report["cases"]:
+        if case["role"] != "faulty" or not case.get("coverage"):
+            continue
+        scenario = Path(case["scenario"]).stem
+        fault_set = case["case"].removeprefix(f"{scenario}-").rsplit("-seed", 1)[0]
+        cells.setdefault(fault_set, {})[scenario] = cell(case["coverage"])
+    head = ["fault set", *scenarios]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for fault_set in sorted(cells):
+        row = [f"`{fault_set}`", *(cells[fault_set].get(s, "") for s in scenarios)]
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    import json
+    import sys
+
+    print(table(json.loads(Path(sys.argv[1]).read_text())))
