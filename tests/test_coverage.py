@@ -105,3 +105,37 @@ def test_what_followed_a_detection_its_modes_and_who_held_the_drives():
     assert c.name == "DETECTED+AT_REST" and c.passed
     assert (c.after.modes, c.after.held_by) == ("NORMAL>RECOVERY>ESTOP", "recovery law")
     assert abs(c.after.to_rest - 0.8) < 1e-9 and abs(c.after.peak_speed - 0.3) < 1e-9
+
+
+def test_the_docs_table_names_each_cases_reaction_modes_and_end():
+    from hil.suites.coverage import cell, table
+
+    fell = {
+        "class": "DETECTED+FELL",
+        "cause": "DRIVES_SILENT",
+        "reaction": 0.0475,
+        "note": "then fell",
+        "after": {"ended": "FELL", "modes": "NORMAL>ESTOP", "excused": "no frame reaches the drives"},
+    }
+    assert cell(fell) == "DRIVES_SILENT 47.5 ms; NORMAL>ESTOP; fell (unrecoverable)"
+    assert cell({**fell, "after": {**fell["after"], "excused": ""}}).endswith("; fell")
+    assert cell({"class": "BENIGN", "after": None}) == "benign"
+    report = {
+        "cases": [
+            {
+                "case": "slalom-can.babble-seed0",
+                "scenario": "configs/scenarios/slalom.toml",
+                "role": "faulty",
+                "coverage": fell,
+            },
+            {
+                "case": "slalom-fault_free-seed0",
+                "scenario": "configs/scenarios/slalom.toml",
+                "role": "baseline",
+                "coverage": None,
+            },
+        ]
+    }
+    rows = table(report).splitlines()
+    assert rows[2] == "| `can.babble` |  | DRIVES_SILENT 47.5 ms; NORMAL>ESTOP; fell (unrecoverable) |  |"
+    assert len(rows) == 3
