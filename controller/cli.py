@@ -17,13 +17,12 @@ import signal
 import sys
 import threading
 
-import msgspec
-
-from controller.config import ControllerConfig, RiderInfo, RobotModel
-from controller.core import Controller
+from controller.config import ControllerConfig
+from controller.embedded import build_controller
 from controller.node import ControllerNode
 from drivers.can_bus import BusConfigError, CanNode, open_bus, parse_can_spec
 from drivers.config import ConfigError, load_toml
+from drivers.dut import DutSpec
 from drivers.keys import Keys
 from drivers.resources import find
 from drivers.zenoh_link import LOOPBACK, ZenohConfigError, ZenohLink, open_session
@@ -59,12 +58,20 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     try:
-        config = load_toml(find(args.config, "controller"), ControllerConfig)
-        if args.mode:
-            config = msgspec.structs.replace(config, mode=args.mode)
-        robot = load_toml(find(args.robot, "robot"), RobotModel)
-        controller = Controller(config, robot, load_toml(find(args.rider, "riders"), RiderInfo))
-        bus = open_bus(parse_can_spec(args.can))
+        config_path = find(args.config, "controller")
+        config = load_toml(config_path, ControllerConfig)
+        mode = args.mode or config.mode
+        spec = DutSpec(
+            can=parse_can_spec(args.can),
+            mode=mode,
+            robot=str(find(args.robot, "robot")),
+            rider=str(find(args.rider, "riders")),
+            controller_config=str(config_path),
+            lockstep=args.lockstep,
+            tick_hz=config.timing.tick_hz,
+        )
+        controller = build_controller(spec)  # as the rig's embedded plugin builds it: one place
+        bus = open_bus(spec.can)
         session = open_session(
             args.zenoh, "member", args.hub, args.allow_network, certs=args.certs, identity=args.identity
         )
@@ -76,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(sig, lambda *_: stop.set())
     link = ZenohLink(session, Keys(args.prefix))
     node = ControllerNode(controller, CanNode(bus, name="controller"), link, lockstep=args.lockstep)
-    logging.info("pure-controller (%s) on %s, zenoh %s: running", config.mode, args.can, args.zenoh)
+    logging.info("pure-controller (%s) on %s, zenoh %s: running", mode, args.can, args.zenoh)
     try:
         node.run(stop)
     finally:
