@@ -667,11 +667,12 @@ def _console(args: argparse.Namespace) -> int:
     from drivers.keys import Keys
     from hil.console.events import Broadcast
     from hil.console.rig_link import RigLink, fault_catalog
-    from hil.console.server import Console, ListenError, parse_listen, tls_context
+    from hil.console.server import Console, ListenError, check_exposure, parse_listen, tls_context
 
-    try:
+    try:  # the options first: a mistake costs no zenoh session
         listen = parse_listen(args.listen)
         tls = tls_context(args.tls_cert, args.tls_key)
+        check_exposure(listen, tls)
     except ListenError as exc:
         print(f"pure-hil console: {exc}", file=sys.stderr)
         return 2

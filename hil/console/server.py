@@ -89,6 +89,15 @@ def tls_context(cert: str | None, key: str | None) -> ssl.SSLContext | None:
     return context
 
 
+def check_exposure(listen: tuple[str, int], tls: ssl.SSLContext | None) -> None:
+    """Off loopback the page (and the role's actions) would cross a network in the clear: refused."""
+    host, port = listen
+    if not is_loopback(host) and tls is None:
+        raise ListenError(
+            f"--listen {host}:{port} is not loopback: give --tls-cert and --tls-key to expose the console"
+        )
+
+
 def _static() -> dict[str, tuple[bytes, str]]:
     """The page's files, read once from the package (they ship in the wheel)."""
     folder = resources.files("hil.console") / "static"
@@ -112,11 +121,8 @@ class Console(ThreadingHTTPServer):
         tls: ssl.SSLContext | None = None,
     ):
         """`info`: what /api/info adds (the rig's card, the bench, the fault catalog)."""
+        check_exposure(listen, tls)
         host, port = listen
-        if not is_loopback(host) and tls is None:
-            raise ListenError(
-                f"--listen {host}:{port} is not loopback: give --tls-cert and --tls-key to expose the console"
-            )
         self.address_family = socket.AF_INET6 if ":" in host else socket.AF_INET
         try:
             super().__init__((host, port), Handler)
