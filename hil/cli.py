@@ -958,8 +958,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--listen",
         default="127.0.0.1:0",
         metavar="IP:PORT",
-        help="where the page is served (default 127.0.0.1:0: a free port); off loopback it needs "
-        "--tls-cert and --tls-key",
+        help="where the page is served (port 0: a free one); off loopback it needs --tls-cert and --tls-key",
     )
     con.add_argument(
         "--tls-cert", default=None, metavar="PEM", help="serve HTTPS with this certificate (chain)"

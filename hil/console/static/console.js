@@ -258,6 +258,13 @@ function requestDraw() {
   });
 }
 
+function niceStep(rough) {
+  // 1, 2 or 5 times a power of ten: grid lines at round values.
+  const power = Math.pow(10, Math.floor(Math.log10(rough)));
+  const m = rough / power;
+  return (m <= 1 ? 1 : m <= 2 ? 2 : m <= 5 ? 5 : 10) * power;
+}
+
 function chart(canvas, unit, lines, minSpan) {
   const ctx = canvas.getContext("2d");
   const W = canvas.width, H = canvas.height, L = 48, R = 8, T = 22, B = 20;
@@ -278,16 +285,20 @@ function chart(canvas, unit, lines, minSpan) {
   const y = (v) => T + (1 - (v - lo) / (hi - lo)) * (H - T - B);
   // The supervisor's interventions shaded, as plots.png does.
   ctx.fillStyle = "rgba(198, 40, 40, 0.10)";
-  for (let i = 1; i < data.length; i++) {
-    if (data[i].supervisor && data[i].supervisor !== "NORMAL") {
-      ctx.fillRect(x(data[i - 1].t), T, x(data[i].t) - x(data[i - 1].t) + 1, H - T - B);
+  let from = null;
+  for (let i = 1; i <= data.length; i++) {
+    const acting = i < data.length && data[i].supervisor && data[i].supervisor !== "NORMAL";
+    if (acting && from === null) from = data[i - 1].t;
+    if (!acting && from !== null) {
+      ctx.fillRect(x(Math.max(from, t0)), T, x(data[i - 1].t) - x(Math.max(from, t0)), H - T - B);
+      from = null;
     }
   }
   ctx.strokeStyle = "#d9dde3"; ctx.fillStyle = "#6b7280"; ctx.font = "11px sans-serif"; ctx.lineWidth = 1;
-  for (let k = 0; k <= 4; k++) {
-    const v = lo + ((hi - lo) * k) / 4;
+  const step = niceStep((hi - lo) / 4);
+  for (let v = Math.ceil(lo / step) * step; v <= hi; v += step) {
     ctx.beginPath(); ctx.moveTo(L, y(v)); ctx.lineTo(W - R, y(v)); ctx.stroke();
-    ctx.fillText(v.toFixed(2), 4, y(v) + 4);
+    ctx.fillText(v.toFixed(step < 1 ? 1 : 0).replace("-0.0", "0.0"), 4, y(v) + 4);
   }
   for (let t = Math.ceil(t0); t <= t1; t += 2) ctx.fillText(`${t}`, x(t) - 4, H - 5);
   ctx.fillText(unit, 4, 14);
