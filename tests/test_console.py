@@ -234,6 +234,24 @@ def test_the_page_starts_a_run_sees_it_live_estops_it_and_keeps_it_in_the_histor
         link = browser.find_element(By.CSS_SELECTOR, '#history tr[data-run="1"] a[href$="plots.png"]')
         status, png = request(link.get_attribute("href"))
         assert status == 200 and png == (folder / "plots.png").read_bytes()
+
+        # A monitor's console on the same rig: the same screen, no button at all.
+        watcher = Proc(["console", "--identity", "monitor"], env)
+        try:
+            browser.get(watcher.wait_line(r"console: (http://127\.0\.0\.1:\d+/)").group(1))
+            page_wait(browser, "return document.getElementById('role').textContent == 'monitor'")
+            page_wait(
+                browser, "return document.querySelector('#history tr[data-run=\"1\"]')", what="the history"
+            )
+            shown = [
+                b.get_attribute("id")
+                for b in browser.find_elements(By.TAG_NAME, "button")
+                if b.is_displayed()
+            ]
+            assert shown == [], f"a monitor's page shows no action: {shown}"
+            assert "may not" in browser.find_element(By.ID, "estop-none").text
+        finally:
+            watcher.stop()
     finally:
         browser.quit()
         shutil.rmtree(browser.profile_dir, ignore_errors=True)

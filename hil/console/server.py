@@ -288,8 +288,12 @@ class Handler(BaseHTTPRequestHandler):
         # A run's HTML report is shown, never run as part of the console's origin.
         self.send_header("Content-Security-Policy", "sandbox")
         self.end_headers()
-        for chunk in chunks:
-            self.wfile.write(chunk)
+        try:
+            for chunk in chunks:
+                self.wfile.write(chunk)
+        except Refused as exc:  # the service went away mid-file: the page sees a short body
+            log.warning("run %s file %s: %s", run, name, exc)
+            self.close_connection = True
 
     def _events(self) -> None:
         pages = self.server.pages
