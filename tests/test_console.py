@@ -165,8 +165,11 @@ def test_the_page_starts_a_run_sees_it_live_estops_it_and_keeps_it_in_the_histor
     browser = chromium()
     env, runs = _env(tmp_path), tmp_path / "runs"
     hub = f"tcp/127.0.0.1:{free_port()}"
-    # Real time: the run takes its 12 s of wall time however fast this machine is, so the page meets it.
-    serve_args = ["serve", "--hub", hub, "--out", str(runs), "--clock", "realtime"]
+    # Lockstep, as the scenario says: a real-time run's embedded controller misses its deadlines on a busy
+    # machine and the supervisor stops the robot before the page does. The page reacts within a fraction of a
+    # second of wall time, a few tenths of simulated time at this rig's speed, and the e-stop then lands
+    # early in the scenario's 7 s of leaning: the robot is stopped and at rest long before its 12 s end.
+    serve_args = ["serve", "--hub", hub, "--out", str(runs)]
     serve = Proc(serve_args, env)
     console = None
     try:
@@ -187,11 +190,11 @@ def test_the_page_starts_a_run_sees_it_live_estops_it_and_keeps_it_in_the_histor
         browser.find_element(By.ID, "start").click()
         page_wait(
             browser,
-            "return parseFloat(document.getElementById('speed').textContent) > 0.3",
-            what="the live speed rising past 0.3 m/s",
+            "return parseFloat(document.getElementById('speed').textContent) > 0.15",
+            what="the live speed rising past 0.15 m/s",
         )
-        samples = browser.execute_script("return window.pureConsole.samples")
-        assert samples >= 5, "the speed came from the live stream"
+        speeds = browser.execute_script("return window.pureConsole.series.map(s => s.speed)")
+        assert min(speeds) < 0.05 and max(speeds) > 0.15, f"the live stream showed it rise: {speeds}"
 
         browser.find_element(By.ID, "estop").click()
         message = page_wait(
