@@ -66,6 +66,22 @@ class Keys:
         """Queryable: the rig service's status."""
         return f"{self.prefix}/rig/status"
 
+    @property
+    def rig_live(self) -> str:
+        """JSON, about 20 Hz of wall time while the service runs a scenario: what the console draws
+        (hil/live.py)."""
+        return f"{self.prefix}/rig/live"
+
+    @property
+    def rig_history(self) -> str:
+        """Queryable: the service's past runs (hil/history.py)."""
+        return f"{self.prefix}/rig/history"
+
+    @property
+    def rig_file(self) -> str:
+        """Queryable: a file of a past run's folder, in chunks (hil/service.py)."""
+        return f"{self.prefix}/rig/file"
+
     def rig(self, name: str) -> str:
         """Queryables and topics of the rig service's control API (start, stop, intent, ...)."""
         return f"{self.prefix}/rig/{name}"

@@ -659,6 +659,50 @@ def _ask_service(args: argparse.Namespace, name: str, payload: str, who: str) ->
     return 0 if json.loads(body).get("ok") else 1
 
 
+def _console(args: argparse.Namespace) -> int:
+    """The rig's screen in a browser: a zenoh client of `pure-hil serve` that serves one page over HTTP."""
+    import getpass
+    import socket
+    from dataclasses import asdict
+
+    from drivers.keys import Keys
+    from hil.console.events import Broadcast
+    from hil.console.rig_link import RigLink, fault_catalog
+    from hil.console.server import Console, ListenError, check_exposure, parse_listen, tls_context
+
+    try:  # the options first: a mistake costs no zenoh session
+        listen = parse_listen(args.listen)
+        tls = tls_context(args.tls_cert, args.tls_key)
+        check_exposure(listen, tls)
+    except ListenError as exc:
+        print(f"pure-hil console: {exc}", file=sys.stderr)
+        return 2
+    source = (args.source or f"console {args.identity} {getpass.getuser()}@{socket.gethostname()}")[:64]
+    bench, session, card = _join_rig(args)
+    link = RigLink(session, Keys(bench.zenoh.prefix), args.identity, source, Broadcast())
+    info = {
+        "card": None if card is None else asdict(card),
+        "bench": bench.name,
+        "source": source,
+        "faults": fault_catalog(),
+    }
+    try:
+        console = Console(link, info, listen, tls).start()
+    except ListenError as exc:
+        link.close()
+        session.close()
+        print(f"pure-hil console: {exc}", file=sys.stderr)
+        return 2
+    rig = card.describe() if card else f"bench {bench.name} through its router"
+    _until_interrupted(
+        f"pure-hil console: {rig}, role {args.identity}; Ctrl-C to stop\nconsole: {console.url}"
+    )
+    console.close()
+    link.close()
+    session.close()
+    return 0
+
+
 def _fault(args: argparse.Namespace) -> int:
     """The fault catalog, or live injection into a running `pure-hil serve` over its zenoh API."""
     from hil.faults import describe_catalog, parse_fault
@@ -907,6 +951,31 @@ def build_parser() -> argparse.ArgumentParser:
     flt.add_argument("--identity", default="fault-injector", help="its certificate's role (secured bench)")
     add_bench_options(flt)
     flt.set_defaults(func=_fault)
+
+    con = sub.add_parser(
+        "console", help="the rig's screen in a browser: a client of `pure-hil serve` (docs/rig.md)"
+    )
+    con.add_argument(
+        "--listen",
+        default="127.0.0.1:0",
+        metavar="IP:PORT",
+        help="where the page is served (port 0: a free one); off loopback it needs --tls-cert and --tls-key",
+    )
+    con.add_argument(
+        "--tls-cert", default=None, metavar="PEM", help="serve HTTPS with this certificate (chain)"
+    )
+    con.add_argument("--tls-key", default=None, metavar="PEM", help="the private key of --tls-cert")
+    con.add_argument(
+        "--identity",
+        default="operator",
+        help="its certificate's role (secured bench); the page offers that role's actions only: operator "
+        "(start, stop, e-stop, reset), fault-injector (faults), any other watches",
+    )
+    con.add_argument(
+        "--source", default=None, help="who its e-stops say they are from (default: console ROLE user@host)"
+    )
+    add_bench_options(con)
+    con.set_defaults(func=_console)
 
     crt = sub.add_parser("certs", help="certificates for the secured bench router (docs/security.md)")
     crt.add_argument("action", choices=("init",), help="make a CA and every role's certificate")

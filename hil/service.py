@@ -7,9 +7,15 @@
     pure/rig/fault/inject <- JSON fault {"kind": "sensor.stuck", "channel": "imu.pitch", ...}: into the
                          running run, `at` counted from the tick that takes it in (docs/faults.md)
     pure/rig/fault/clear  <- a fault's number, or nothing for all: ends it (them) at the next tick
+    pure/rig/history  <- JSON {"limit": N, "before": RUN} or nothing -> the runs it made, newest first
+    pure/rig/file     <- JSON {"run": RUN, "name": "plots.png", "offset": BYTES} -> that file's bytes from
+                         `offset` (at most CHUNK of them; the attachment says the size), or an error reply
+    pure/rig/live     -> about 20 samples a second of wall time while a run goes (hil/live.py)
 
-Every reply is JSON with "ok" and either the result or an "error" that says what was wrong. Queryable
+Every reply is JSON with "ok" and either the result or an "error" that says what was wrong (a file's bytes
+are the one exception: raw, with the JSON in the attachment; its errors are error replies). Queryable
 callbacks only validate and hand over; runs happen on a worker thread, so zenoh's threads never block.
+Every run is written to the output folder's history (hil/history.py) as it begins and ends.
 """
 
 from __future__ import annotations
@@ -25,15 +31,20 @@ import zenoh
 
 from drivers.config import ConfigError, decode_toml
 from drivers.keys import Keys
+from drivers.resources import shipped
 from hil.bench.bench import Bench, load_bench
 from hil.bench.rigs import announce
 from hil.faults import FaultSet, parse_fault
-from hil.pipeline import load_scenario, run
-from hil.run.build import RunOptions
+from hil.history import History, NotServed
+from hil.live import LiveStream
+from hil.pipeline import describe, load_scenario, run
+from hil.run.build import RunOptions, RunStatus, clock_of, law_of
 from hil.run.scenario import Intent, Scenario
 from plant.ballbot import Plant, RiderIntent
 
 NO_FAULTS = "bench {bench} says a person is on the robot (rider_on_board): fault injection is refused"
+CHUNK = 1 << 19
+"""Bytes of a file per pure/rig/file reply: a large recording crosses in pieces, never whole in memory."""
 
 
 class RigService:
@@ -59,6 +70,12 @@ class RigService:
         self.scenario: Scenario | None = None
         self.sim_time = 0.0
         self.last: dict | None = None
+        self.run_id: int | None = None
+        """The history's id of the current (or last) run."""
+        self.scenarios = tuple(shipped("scenarios"))
+        """What a console offers to start: the shipped scenarios, by name."""
+        self.history = History(out_root)
+        self._live = LiveStream(session, self.keys)
         self._stop = threading.Event()
         self._pending_intent: RiderIntent | None = None
         self._lock = threading.Lock()
@@ -72,6 +89,8 @@ class RigService:
                 ("intent", self._intent),
                 ("fault/inject", self._fault_inject),
                 ("fault/clear", self._fault_clear),
+                ("history", self._history),
+                ("file", self._file),
             )
         ]
         self._faults: FaultSet | None = None
@@ -98,6 +117,9 @@ class RigService:
             "sim_time": round(self.sim_time, 3),
             "faults": self._fault_status(),
             "last": self.last,
+            "run": self.run_id,
+            "bench": {**describe(self.bench), "description": self.bench.description},
+            "scenarios": list(self.scenarios),
         }
 
     def _fault_status(self) -> list[dict]:
@@ -128,12 +150,36 @@ class RigService:
             # The run's faults exist before the reply: an injection right after "running" is never lost.
             self._faults = FaultSet(scenario.faults, scenario.seed)
             self._faults.on_event = self._fault_event
-            out = self.out_root / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}"
+            out = self._fresh_folder(scenario.name)
+            self.run_id = self.history.begin(
+                out,
+                scenario.name,
+                self.bench.name,
+                self._controller(scenario),
+                clock_of(self.bench, scenario),
+            )
+            self._live.begin(scenario.name, self._faults, self.run_id)
             self._worker = threading.Thread(
                 target=self._run, args=(scenario, out), name="rig-run", daemon=True
             )
             self._worker.start()
-        self._reply(query, {"ok": True, "scenario": scenario.name, "out": str(out)})
+        self._reply(query, {"ok": True, "scenario": scenario.name, "out": str(out), "run": self.run_id})
+
+    def _controller(self, scenario: Scenario) -> str:
+        """Where the controller runs and its law, for the history: 'embedded reference ihacs'."""
+        part = self.bench.controller
+        plugin = [part.plugin] if part.where == "embedded" else []
+        return " ".join([part.where, *plugin, law_of(self.bench, scenario)])
+
+    def _fresh_folder(self, name: str) -> Path:
+        """NAME-TIMESTAMP, or NAME-TIMESTAMP-2, ... when runs of one scenario start within a second."""
+        stem = self.out_root / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
+        out, n = stem, 1
+        while out.exists():
+            n += 1
+            out = stem.with_name(f"{stem.name}-{n}")
+        out.mkdir(parents=True)
+        return out
 
     def _scenario(self, text: str) -> Scenario:
         text = text.strip()
@@ -196,9 +242,50 @@ class RigService:
         faults.clear(number)
         self._reply(query, {"ok": True, "cleared": "all" if number is None else number})
 
+    def _history(self, query: zenoh.Query) -> None:
+        text = (query.payload.to_string() if query.payload is not None else "").strip()
+        try:
+            asked = json.loads(text) if text else {}
+            if not isinstance(asked, dict) or set(asked) - {"limit", "before"}:
+                raise ValueError('expected {"limit": N, "before": RUN} or nothing')
+            limit, before = asked.get("limit", 50), asked.get("before")
+            for name, value in (("limit", limit), ("before", before)):
+                if value is not None and (type(value) is not int or value < 1):
+                    raise ValueError(f"{name}: expected a whole number >= 1, got {value!r}")
+        except ValueError as exc:
+            self._reply(query, {"ok": False, "error": f"pure/rig/history payload: {exc}"})
+            return
+        runs = self.history.runs(limit, before)
+        self._reply(query, {"ok": True, "runs": runs, "total": self.history.count()})
+
+    def _file(self, query: zenoh.Query) -> None:
+        text = query.payload.to_string() if query.payload is not None else ""
+        try:
+            asked = json.loads(text)
+            run_id, name, offset = asked["run"], asked["name"], asked.get("offset", 0)
+            if type(run_id) is not int or type(offset) is not int or offset < 0:
+                raise ValueError("run and offset: whole numbers")
+            path = self.history.file(run_id, name)
+            size = path.stat().st_size
+            with path.open("rb") as f:
+                f.seek(offset)
+                data = f.read(CHUNK)
+        except (ValueError, KeyError, TypeError, AttributeError) as exc:
+            expected = '{"run": N, "name": FILE, "offset": BYTES}'
+            query.reply_err(
+                json.dumps({"ok": False, "error": f"pure/rig/file payload: expected {expected} ({exc})"})
+            )
+            return
+        except (NotServed, OSError) as exc:
+            query.reply_err(json.dumps({"ok": False, "error": str(exc)}))
+            return
+        query.reply(query.key_expr, data, attachment=json.dumps({"ok": True, "size": size, "offset": offset}))
+
     # ----------------------------------------------------------------------------------------- runs
     def _on_tick(self, plant: Plant) -> None:
         self.sim_time = plant.t
+        if self._live.due():
+            self._live.put(plant)
         if self._view is not None:
             self._view.add(plant.truth())
         intent, self._pending_intent = self._pending_intent, None
@@ -219,14 +306,19 @@ class RigService:
                 self.bench,
                 out=out,
                 options=RunOptions(
-                    on_tick=self._on_tick, stop=self._stop, session=self.session, fault_set=self._faults
+                    on_tick=self._on_tick,
+                    stop=self._stop,
+                    session=self.session,
+                    fault_set=self._faults,
+                    progress=self._progress,
                 ),
             )
             self.last = {
                 "scenario": scenario.name,
                 "passed": result.passed,
                 "verdict": result.verdict,
-                "fallen": result.trace.fallen,
+                "fallen": result.trace.fallen is not None,
+                "fall_cause": result.trace.fallen,
                 "stopped_early": self._stop.is_set(),
                 "out": str(out),
                 "metrics": result.metrics,
@@ -235,14 +327,26 @@ class RigService:
                 else msgspec.to_builtins(result.trace.failure),
                 "fault_events": [msgspec.to_builtins(e) for e in result.trace.fault_events],
             }
+            transitions = [e for e in result.trace.safety_events if e.kind == "transition"]
+            failure = result.trace.failure
+            self.history.end(
+                self.run_id,
+                result.verdict,
+                transitions[0].cause if transitions else None,
+                None if failure is None else f"{failure.stage}: {failure.error}",
+            )
         except Exception as exc:  # a failed run is reported on status, never kills the service
             self.last = {"scenario": scenario.name, "passed": False, "error": f"{type(exc).__name__}: {exc}"}
+            self.history.end(self.run_id, "ERROR", error=self.last["error"])
         finally:
             if self._view is not None:
                 self._view.mark(self.sim_time, f"run {scenario.name} ended: {self.last}")
                 self._view.flush()
                 self._view = None
             self.state = "idle"
+
+    def _progress(self, status: RunStatus) -> None:
+        self._live.status = status
 
     def _fault_event(self, event) -> None:
         if self._view is not None:
@@ -262,5 +366,7 @@ class RigService:
         for q in self._queryables:
             q.undeclare()
         self._announced.close()
+        self._live.close()
+        self.history.close()
         for view in self._views.values():
             view.close()

@@ -130,11 +130,13 @@ d = "SYNCHRONISED"
 
 # ------------------------------------------------------------------------------------- hil's rooms
 FLOORS = (
-    {"bench", "faults", "outputs"},  # the bench file, the fault catalog, what streams during a run
+    {"faults", "outputs"},  # the fault catalog, what streams during a run
+    {"bench"},  # the bench file, the machine's rigs
     {"run"},  # one run: build, tick loop, judge
     {"report", "contract"},  # the run folder's summary and plots; the contract's generated tables
-    {"pipeline"},  # build -> tick loop -> judge -> write
+    {"pipeline", "live", "history"},  # build -> tick loop -> judge -> write; the service's stream and history
     {"service", "suites"},  # `pure-hil serve`; many runs
+    {"console"},  # the rig's screen: a client of the service
     {"cli"},
     {"cli_reference"},
 )

@@ -62,6 +62,8 @@ def test_the_wheel_holds_the_code_and_every_shipped_config(wheel):
         if path.suffix != ".py":
             assert f"pure_hil_configs/{path.relative_to(ROOT / 'configs')}" in names
     assert {"hil/cli.py", "hil/faults/__init__.py", "controller/embedded.py", "drivers/resources.py"} <= names
+    page = {f"hil/console/static/{name}" for name in ("index.html", "console.js", "console.css")}
+    assert page <= names, "the console's page ships in the wheel"
 
 
 def test_the_installed_wheel_runs_a_shipped_scenario_by_short_name_from_another_folder(wheel, tmp_path):

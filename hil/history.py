@@ -1,0 +1,151 @@
+"""The rig service's run history: one row per run the service made, in an SQLite file in its output folder.
+
+The service writes a row as a run begins (RUNNING) and completes it as the run ends, whether it passed,
+failed, was stopped or raised; a row still RUNNING whose service process is gone was cut short by that
+process's end (INTERRUPTED). The file stays across restarts; consoles read it through the service's
+`PREFIX/rig/history` queryable and fetch a run's files through `PREFIX/rig/file` (`History.file` decides
+what may be read: a plain file directly inside a run folder that resolves inside the output folder).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import sqlite3
+import threading
+import time
+from pathlib import Path
+
+FILE_NAME = "history.sqlite"
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS runs (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    folder TEXT NOT NULL,           -- the run folder, relative to the output folder
+    scenario TEXT NOT NULL,
+    bench TEXT NOT NULL,
+    controller TEXT NOT NULL,       -- where it ran and its law, e.g. "embedded reference ihacs"
+    clock TEXT NOT NULL,
+    verdict TEXT NOT NULL,          -- RUNNING, then PASSED FAILED ESTOPPED STOPPED ERROR or INTERRUPTED
+    first_cause TEXT,               -- the supervisor's first transition's cause, e.g. OPERATOR_ESTOP
+    error TEXT,
+    started REAL NOT NULL,          -- wall clock, s since the epoch
+    ended REAL,
+    files TEXT NOT NULL DEFAULT '', -- the run folder's files at its end, '/'-separated
+    pid INTEGER NOT NULL            -- the service process that made it
+)
+"""
+COLUMNS = ("id", "folder", "scenario", "bench", "controller", "clock", "verdict", "first_cause", "error")
+COLUMNS += ("started", "ended", "files")
+PLAIN_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]{0,127}")
+"""A file name a console may ask for: no separator, no leading dot (so neither '..' nor hidden files)."""
+MAX_LIMIT = 500
+
+
+class NotServed(LookupError):
+    """The file asked for is not one the history serves: why, in one line."""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+class History:
+    def __init__(self, folder: Path | str):
+        """The history of the runs under `folder` (the service's output folder), made if missing."""
+        self.folder = Path(folder).resolve()
+        self.folder.mkdir(parents=True, exist_ok=True)
+        # One connection for the service's threads (the run's worker writes, zenoh's threads read), behind a
+        # lock; autocommit, and a busy timeout for a second service sharing the folder.
+        self._db = sqlite3.connect(
+            self.folder / FILE_NAME, timeout=10.0, check_same_thread=False, isolation_level=None
+        )
+        self._lock = threading.Lock()
+        with self._lock:
+            self._db.execute(SCHEMA)
+            running = self._db.execute("SELECT id, pid FROM runs WHERE verdict = 'RUNNING'").fetchall()
+            for run_id, pid in running:
+                if pid == os.getpid() or not _alive(pid):
+                    self._db.execute(
+                        "UPDATE runs SET verdict = 'INTERRUPTED', error = ? WHERE id = ?",
+                        ("the service ended during the run", run_id),
+                    )
+
+    def begin(self, folder: Path, scenario: str, bench: str, controller: str, clock: str) -> int:
+        """A new run's row (RUNNING); its id."""
+        with self._lock:
+            cursor = self._db.execute(
+                "INSERT INTO runs (folder, scenario, bench, controller, clock, verdict, started, pid) "
+                "VALUES (?, ?, ?, ?, ?, 'RUNNING', ?, ?)",
+                (self._relative(folder), scenario, bench, controller, clock, time.time(), os.getpid()),
+            )
+            return int(cursor.lastrowid)
+
+    def end(
+        self, run_id: int, verdict: str, first_cause: str | None = None, error: str | None = None
+    ) -> None:
+        """The run's end: its verdict, the supervisor's first cause, and the files its folder holds now."""
+        with self._lock:
+            row = self._db.execute("SELECT folder FROM runs WHERE id = ?", (run_id,)).fetchone()
+            if row is None:
+                return
+            folder = self.folder / row[0]
+            files = sorted(p.name for p in folder.iterdir() if p.is_file()) if folder.is_dir() else []
+            self._db.execute(
+                "UPDATE runs SET verdict = ?, first_cause = ?, error = ?, ended = ?, files = ? WHERE id = ?",
+                (verdict, first_cause, error, time.time(), "/".join(files), run_id),
+            )
+
+    def runs(self, limit: int = 50, before: int | None = None) -> list[dict]:
+        """The newest `limit` runs (older than run `before`), newest first."""
+        limit = max(1, min(int(limit), MAX_LIMIT))
+        query = f"SELECT {', '.join(COLUMNS)} FROM runs"
+        args: tuple = ()
+        if before is not None:
+            query, args = query + " WHERE id < ?", (int(before),)
+        with self._lock:
+            rows = self._db.execute(query + " ORDER BY id DESC LIMIT ?", (*args, limit)).fetchall()
+        return [self._record(row) for row in rows]
+
+    def count(self) -> int:
+        with self._lock:
+            return int(self._db.execute("SELECT COUNT(*) FROM runs").fetchone()[0])
+
+    def file(self, run_id: int, name: str) -> Path:
+        """The path of file `name` of run `run_id`, if the history serves it: a plain name (no separator, no
+        leading dot), a regular file whose real path (symbolic links followed) is directly inside that run's
+        folder, inside the output folder. NotServed says why not."""
+        if not isinstance(name, str) or not PLAIN_NAME.fullmatch(name):
+            raise NotServed(f"{name!r} is not a plain file name")
+        with self._lock:
+            row = self._db.execute("SELECT folder FROM runs WHERE id = ?", (int(run_id),)).fetchone()
+        if row is None:
+            raise NotServed(f"no run {run_id} in the history")
+        folder = (self.folder / row[0]).resolve()
+        path = (folder / name).resolve()
+        if not folder.is_relative_to(self.folder) or path.parent != folder:
+            raise NotServed(f"{name} of run {run_id} is outside the output folder")
+        if not path.is_file():
+            raise NotServed(f"run {run_id} has no file {name}")
+        return path
+
+    def close(self) -> None:
+        with self._lock:
+            self._db.close()
+
+    # ------------------------------------------------------------------------------------------- rows
+    def _relative(self, folder: Path) -> str:
+        resolved = Path(folder).resolve()
+        # A folder outside the output folder is kept absolute, and never served (see `file`).
+        return str(resolved.relative_to(self.folder) if resolved.is_relative_to(self.folder) else resolved)
+
+    @staticmethod
+    def _record(row: tuple) -> dict:
+        record = dict(zip(COLUMNS, row, strict=True))
+        record["files"] = [f for f in record["files"].split("/") if f]
+        return record
