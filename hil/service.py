@@ -72,8 +72,8 @@ class RigService:
         self.last: dict | None = None
         self.run_id: int | None = None
         """The history's id of the current (or last) run."""
-        self.scenarios = tuple(shipped("scenarios"))
-        """What a console offers to start: the shipped scenarios, by name."""
+        self.scenarios = tuple(dict.fromkeys([*shipped("scenarios"), *self.bench.scenarios]))
+        """What a console offers to start: the shipped scenarios by name, and the bench's own."""
         self.history = History(out_root)
         self._live = LiveStream(session, self.keys)
         self._stop = threading.Event()

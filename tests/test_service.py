@@ -149,6 +149,27 @@ def test_live_fault_injection_lands_in_the_event_log_and_the_recording(service, 
     assert rows == 4, "every fault event in the rerun recording"
 
 
+def test_a_console_is_offered_the_shipped_scenarios_and_the_benchs_own(tmp_path):
+    own = tmp_path / "lab_demo.toml"
+    own.write_text(SHORT)
+    endpoint = hub_endpoint()
+    hub = open_session(role="hub", hub_endpoint=endpoint)
+    bench = msgspec.structs.replace(private_bench(hub=endpoint), scenarios=(str(own),))
+    svc = RigService(hub, bench, out_root=tmp_path)
+    client = open_session(role="member", hub_endpoint=endpoint)
+    try:
+        offered = ask(client, "status")["scenarios"]
+        assert str(own) in offered and "speed_limiting" in offered
+        # Positive control: a bench that lists nothing offers the shipped scenarios only.
+        plain = RigService(hub, private_bench(hub=endpoint), out_root=tmp_path / "plain")
+        plain.close()
+        assert str(own) not in plain.scenarios
+    finally:
+        svc.close()
+        client.close()
+        hub.close()
+
+
 def test_a_bench_with_a_rider_on_board_refuses_every_fault(tmp_path):
     # The same requests the test above has accepted on the default bench (the positive control).
     endpoint = hub_endpoint()

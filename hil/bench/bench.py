@@ -98,6 +98,9 @@ class Bench(_Part):
     realtime: RealtimePart = RealtimePart()
     rider_on_board: bool = False
     """A person sits on the robot: fault injection is refused outright."""
+    scenarios: tuple[str, ...] = ()
+    """Scenario files (or shipped names) this bench offers beside the shipped scenarios: what a console may
+    start (a browser names one of these, never a path of its own)."""
 
     def __post_init__(self) -> None:
         spawned = [part for part in self.separate() if getattr(self, part).where == "spawned"]
