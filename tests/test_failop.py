@@ -12,8 +12,8 @@ import pytest
 
 from drivers.can_codec import Catalog, MessageName
 from drivers.config import load_toml
+from hil import pipeline
 from hil.faults import parse_fault
-from hil.run import pipeline
 from hil.run.scenario import Scenario
 from safety.config import RobotGeometry, SupervisorConfig
 from safety.machine import (

@@ -7,8 +7,8 @@ import numpy as np
 
 from drivers.config import load_toml
 from drivers.schemas import ScCommand, decode
+from hil import pipeline
 from hil.faults import parse_fault
-from hil.run import pipeline
 from hil.run.scenario import OperatorEntry, Scenario
 from safety.config import SupervisorConfig
 from tests.helpers import ROOT
