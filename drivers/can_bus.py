@@ -210,19 +210,24 @@ class CanNode:
     def decode(self, msg: can.Message) -> Received | None:
         """A received frame -> Received, or None (counted and logged) if it is not a catalog frame."""
         if msg.is_error_frame:
-            return self._reject("error_frame", msg)
+            self._reject("error_frame", msg)
+            return None
         if msg.is_remote_frame:
-            return self._reject("remote", msg)
+            self._reject("remote", msg)
+            return None
         if msg.is_extended_id:
-            return self._reject("extended_id", msg)
+            self._reject("extended_id", msg)
+            return None
         known = self._codecs.get(msg.arbitration_id)
         if known is None:
-            return self._reject("unknown_id", msg)
+            self._reject("unknown_id", msg)
+            return None
         codec, protected = known
         try:
             signals = codec.decode(msg.data)
         except CanCodecError:
-            return self._reject("wrong_length", msg)
+            self._reject("wrong_length", msg)
+            return None
         event = self._check(codec, msg.data) if protected else None
         self.stats.received[codec.name] += 1
         return Received(codec.name, signals, msg.timestamp, event)
@@ -265,7 +270,6 @@ class CanNode:
     def _reject(self, reason: str, msg: can.Message) -> None:
         self.stats.malformed[reason] += 1
         self._warn(reason, msg.arbitration_id, msg)
-        return None
 
     def _warn(self, reason: str, frame_id: int, detail: object) -> None:
         # First occurrence per (reason, id) at WARNING; a flood must not flood the log too.

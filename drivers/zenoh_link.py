@@ -394,9 +394,15 @@ class ZenohLink:
         """Block until someone subscribes to `key` (a put before that reaches nobody), at most `timeout` s."""
         pub = self.publisher(key)
         matched = threading.Event()
-        listener = pub.declare_matching_listener(lambda status: status.matching and matched.set())
+
+        def on_change(status: zenoh.MatchingStatus) -> None:
+            if status.matching:
+                matched.set()
+
+        listener = pub.declare_matching_listener(on_change)
         try:
-            return pub.matching_status.matching or matched.wait(timeout)
+            # zenoh's stub types `matching_status` as bool; it is a MatchingStatus (zenoh 1.x).
+            return pub.matching_status.matching or matched.wait(timeout)  # type: ignore[attr-defined]
         finally:
             listener.undeclare()
 
