@@ -166,7 +166,7 @@ class TesModel:
         cells = np.asarray(cells, float)
         fx, fy, fz, mx, my, mz = (self._neg_calibration @ cells).tolist()
         cop_xy = cop(fx, fy, fz, mx, my, self.seat_height)
-        return TesSample((fx, fy, fz), (mx, my, mz), cop_xy, tuple(cells.tolist()))  # type: ignore[arg-type]
+        return TesSample((fx, fy, fz), (mx, my, mz), cop_xy, tuple(cells.tolist()))
 
 
 def cop(fx: float, fy: float, fz: float, mx: float, my: float, seat_height: float) -> tuple[float, float]:
