@@ -15,7 +15,7 @@ import socket
 import time
 import uuid
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -178,7 +178,7 @@ class CanNode:
         self.rx_hook: Callable[[can.Message], can.Message | None] | None = None
         """Sees every received frame before decoding; returns it (maybe altered) or None (lost)."""
 
-    def message(self, name: str, values: dict[str, float]) -> can.Message:
+    def message(self, name: str, values: Mapping[str, float]) -> can.Message:
         codec = self.catalog[name]
         raw = codec.encode_int(values)
         if is_protected(codec):
@@ -187,7 +187,7 @@ class CanNode:
             payload = raw.to_bytes(codec.length, "little")
         return can.Message(arbitration_id=codec.frame_id, is_extended_id=False, data=payload)
 
-    def send(self, name: str, values: dict[str, float]) -> bool:
+    def send(self, name: str, values: Mapping[str, float]) -> bool:
         """Send a frame; a full transmit queue (ENOBUFS on SocketCAN with a real qdisc) or a bus that
         refuses it loses the frame, as on a real bus: counted and logged, never raised."""
         msg = self.message(name, values)

@@ -60,27 +60,27 @@ class _Layout:
     length: int
 
 
+_found: dict[int, _Layout | None] = {}
+"""Every message looked at, by frame id: its layout, or None if it is not protected."""
 _layouts: dict[int, _Layout] = {}
-"""Protected messages' layouts by frame id (the hot path's one lookup)."""
-_unprotected: set[int] = set()
+"""The protected ones alone (what sealing and checking look up)."""
 
 
 def _find_layout(codec: MessageCodec) -> _Layout | None:
-    """The message's layout, or None if it has no counter and CRC (either way cached)."""
-    if codec.frame_id in _unprotected:
-        return None
+    """The message's layout, or None if it has no counter and CRC (cached either way)."""
     try:
-        return _layouts[codec.frame_id]
+        return _found[codec.frame_id]
     except KeyError:
         pass
     counter, crc = codec.field_position(COUNTER), codec.field_position(CRC)
     if counter is None or crc is None:
-        _unprotected.add(codec.frame_id)
-        return None
-    if counter[1] != COUNTER_MODULO - 1 or crc[1] != 0xFF:
-        raise ValueError(f"{codec.name}: E2E needs a 4-bit {COUNTER} and an 8-bit {CRC} signal")
-    seed = _crc_continue(0xFF, codec.frame_id.to_bytes(2, "little"))
-    layout = _layouts[codec.frame_id] = _Layout(counter[0], crc[0], ~(0xFF << crc[0]), seed, codec.length)
+        layout = None
+    else:
+        if counter[1] != COUNTER_MODULO - 1 or crc[1] != 0xFF:
+            raise ValueError(f"{codec.name}: E2E needs a 4-bit {COUNTER} and an 8-bit {CRC} signal")
+        seed = _crc_continue(0xFF, codec.frame_id.to_bytes(2, "little"))
+        layout = _layouts[codec.frame_id] = _Layout(counter[0], crc[0], ~(0xFF << crc[0]), seed, codec.length)
+    _found[codec.frame_id] = layout
     return layout
 
 
