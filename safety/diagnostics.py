@@ -97,15 +97,16 @@ class Replay:
     repeats a whole cycle. A constant stream is not a replay (that is the stuck check's, with evidence)."""
 
     def __init__(self, period: int):
+        self.period = period
         self.history: deque[tuple] = deque(maxlen=period)
         self.matches = 0
 
     def frame(self, data: tuple) -> bool:
         """One trusted frame's data signals (without counter and CRC); True while replayed."""
-        full = len(self.history) == self.history.maxlen
+        full = len(self.history) == self.period
         self.matches = self.matches + 1 if full and data == self.history[0] else 0
         self.history.append(data)
-        return self.matches >= self.history.maxlen and len(set(self.history)) > 1
+        return self.matches >= self.period and len(set(self.history)) > 1
 
 
 class EncoderCheck(Check):
@@ -213,7 +214,9 @@ class TrendCheck(Check):
     def __init__(self, plane: str, rules: SensorRules, period: float):
         super().__init__(f"{plane} speed trend vs accelerometer")
         self.rules = rules
-        self.history: deque[tuple[float, float]] = deque(maxlen=max(round(rules.trend_window / period), 2))
+        self.window = max(round(rules.trend_window / period), 2)
+        """Samples the trend is judged over (the history's length)."""
+        self.history: deque[tuple[float, float]] = deque(maxlen=self.window)
         self.integral = 0.0
         self.previous_accel: float | None = None
 
@@ -224,7 +227,7 @@ class TrendCheck(Check):
             self.integral += 0.5 * (accel + self.previous_accel) * dt
         self.previous_accel = accel
         self.history.append((velocity, self.integral))
-        if len(self.history) < self.history.maxlen:
+        if len(self.history) < self.window:
             return None
         v0, i0 = self.history[0]
         changed, integrated = velocity - v0, self.integral - i0

@@ -17,6 +17,8 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import Counter, deque
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -41,18 +43,19 @@ from safety.diagnostics import (
 from safety.machine import STREAMS, Cause, DriveReport, Finding, Observation, Request
 from safety.recovery import ENCODERS, IsolatedEstimator, leave_one_out
 
-MOTOR = {
+# Keyed by message name as a frame carries it (Received.name, a str; MessageName members are str).
+MOTOR: dict[str, int] = {
     name: motor for names in (DRIVE_FEEDBACK, DRIVE_COMMAND, DRIVE_TORQUE) for motor, name in enumerate(names)
 }
 """Which motor (0, 1, 2) a drive's message is about."""
-IMU_CHANNELS = {
+IMU_CHANNELS: dict[str, tuple[str, str, str]] = {
     MessageName.IMU_ATTITUDE: ("Roll", "Pitch", "Yaw"),
     MessageName.IMU_RATE: ("RateX", "RateY", "RateZ"),
     MessageName.IMU_ACCEL: ("AccX", "AccY", "AccZ"),
 }
 REPLAY_CHECKED = (*DRIVE_FEEDBACK, *DRIVE_TORQUE, *IMU_CHANNELS)
 """Sensor streams checked for a replay from one counter period back."""
-CHANNEL_INPUT = {
+CHANNEL_INPUT: dict[str, tuple[str, ...]] = {
     **{name: (f"Encoder{motor + 1}",) for name, motor in zip(DRIVE_FEEDBACK, range(3), strict=True)},
     **{name: () for name in DRIVE_TORQUE},  # an actuator's read-back, not an input of balance
     MessageName.IMU_ATTITUDE: ("Roll", "Pitch", ""),
@@ -160,15 +163,15 @@ class Monitors:
         self.seat = SeatCheck(
             config.seat, config.motion.rider_min_load, robot.body.seat_height, period, MOVED
         )
-        self.imu = {name: [0.0, 0.0, 0.0] for name in IMU_CHANNELS}
-        self._imu_seen = dict.fromkeys(IMU_CHANNELS, -math.inf)
-        self._imu_stuck = {
+        self.imu: dict[str, list[float]] = {name: [0.0, 0.0, 0.0] for name in IMU_CHANNELS}
+        self._imu_seen: dict[str, float] = dict.fromkeys(IMU_CHANNELS, -math.inf)
+        self._imu_stuck: dict[str, list[Stuck]] = {
             name: [Stuck(sensors.stuck_samples, MOVED) for _ in names] for name, names in IMU_CHANNELS.items()
         }
         self._attitude_at_rate = (0.0, 0.0)
         self._imu_motion = 0.0
         """rad the chassis turned (|rates| × dt) since the last seat sample: evidence for the seat's."""
-        self._replay = {name: Replay(COUNTER_MODULO) for name in REPLAY_CHECKED}
+        self._replay: dict[str, Replay] = {name: Replay(COUNTER_MODULO) for name in REPLAY_CHECKED}
         self._found: dict[tuple[str, str], Finding | None] = {}
         """What the frame-driven checks found at their last frame, by (message, check) (None: nothing)."""
         self._checks_at: float | None = None
@@ -197,7 +200,7 @@ class Monitors:
         self.rejected_identity: Counter[str] = Counter()
         """SC requests and resets ignored because their source is not a configured operator."""
         self.sc = ScArbiter(config.sc)
-        self._readers = {
+        self._readers: dict[str, Callable[[str, Any, float, int], None]] = {
             **dict.fromkeys(DRIVE_FEEDBACK, self._feedback),
             **dict.fromkeys(DRIVE_COMMAND, self._commanded),
             **dict.fromkeys(DRIVE_TORQUE, self._measured),
@@ -433,9 +436,9 @@ class Monitors:
         ax, ay, _ = world_acceleration(self.imu[MessageName.IMU_ACCEL], roll, pitch)
         found.append(self.trend[0].update(forward + h * math.cos(pitch) * rate[1], ax, dt))
         found.append(self.trend[1].update(left - h * math.cos(roll) * rate[0], ay, dt))
-        for check, finding in zip(("yaw", "roll", "pitch", "pitch trend", "roll trend"), found, strict=True):
+        for failed, finding in zip(("yaw", "roll", "pitch", "pitch trend", "roll trend"), found, strict=True):
             if finding is not None:
-                self._failed.add(check)
+                self._failed.add(failed)
         return [f for f in found if f is not None]
 
     def findings(self, t: float) -> tuple[Finding, ...]:

@@ -109,7 +109,7 @@ class IsolatedEstimator:
         self._candidates: list[tuple[float, float]] | None = None
         """The ball rates (x, y) under each single-fault hypothesis: the gyro wrong (three encoders), or
         encoder 1, 2 or 3 wrong (the other two and the gyro)."""
-        self._roughness = [deque(maxlen=ODD_ONE_OUT_TICKS) for _ in range(4)]
+        self._roughness: list[deque[float]] = [deque(maxlen=ODD_ONE_OUT_TICKS) for _ in range(4)]
         self._odd: str | None = None
         self.ready = False
         """The inputs needed to balance are there: attitude or rate per plane, and the ball rates from three
@@ -281,7 +281,7 @@ class IsolatedEstimator:
         ]
         if not bad:
             m0, m1, m2 = velocities
-            return tuple(r0 * m0 + r1 * m1 + r2 * m2 for r0, r1, r2 in self._rows)  # type: ignore[return-value]
+            return tuple(r0 * m0 + r1 * m1 + r2 * m2 for r0, r1, r2 in self._rows)
         if len(bad) > 1 or rate is None or "RateZ" in suspects:
             return None
         solve, others = self._leave_one_out[bad[0]]
