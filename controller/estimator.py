@@ -26,7 +26,8 @@ DERIVATIVE_FILTER = 0.02
 STREAMS = ("imu_attitude", "imu_rate", "drive0", "drive1", "drive2")
 
 
-def _dot(row: tuple[float, float, float], v) -> float:
+def _dot(row: tuple[float, ...], v) -> float:
+    """row · v for 3-vectors."""
     return row[0] * v[0] + row[1] * v[1] + row[2] * v[2]
 
 
