@@ -56,13 +56,17 @@ class DriveFeedbackModel:
     def sample(self, angles, velocities, torques) -> tuple[DriveFeedback, DriveFeedback, DriveFeedback]:
         n = self.noise.draw()
         sv, st = self.drive.velocity_noise, self.drive.torque_noise
-        return tuple(  # type: ignore[return-value]
+        enc = self.encoder
+        return (
             DriveFeedback(
-                counts_from_angle(angles[i], self.encoder),
-                velocities[i] + sv * n[i],
-                torques[i] + st * n[3 + i],
-            )
-            for i in range(3)
+                counts_from_angle(angles[0], enc), velocities[0] + sv * n[0], torques[0] + st * n[3]
+            ),
+            DriveFeedback(
+                counts_from_angle(angles[1], enc), velocities[1] + sv * n[1], torques[1] + st * n[4]
+            ),
+            DriveFeedback(
+                counts_from_angle(angles[2], enc), velocities[2] + sv * n[2], torques[2] + st * n[5]
+            ),
         )
 
 

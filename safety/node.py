@@ -19,10 +19,20 @@ import math
 import threading
 import time
 from collections.abc import Callable
+from typing import cast
 
 from drivers.can_bus import CanNode, Received
 from drivers.can_codec import MessageName
-from drivers.schemas import EstopCommand, SafetyAlert, SafetyState, ScCommand, ScRequest, TesWrench, encode
+from drivers.schemas import (
+    EstopCommand,
+    SafetyAlert,
+    SafetyState,
+    SafetyStateName,
+    ScCommand,
+    ScRequest,
+    TesWrench,
+    encode,
+)
 from drivers.zenoh_link import Fence, ZenohLink
 from safety.config import RobotGeometry, SupervisorConfig
 from safety.machine import PARTS, Decision, Event, Forward, Observation, State, Supervisor
@@ -164,7 +174,7 @@ class SupervisorNode:
                 SafetyState(
                     seq=self._state_seq,
                     stamp=stamp,
-                    state=d.state.name,  # type: ignore[arg-type]
+                    state=cast(SafetyStateName, d.state.name),  # State's names are SafetyStateName
                     reason=d.cause.name + (f" (reset refused: {refused})" if refused else ""),
                     cap=d.cap,
                     since=max(d.since, 0.0),

@@ -388,4 +388,5 @@ class RecoveryLaw:
             motor = np.zeros(3)
             motor[others] = inverse @ np.asarray(ball)
         limit = self.limit
-        return tuple(min(max(float(m), -limit), limit) for m in motor)  # type: ignore[return-value]
+        m0, m1, m2 = (float(m) for m in motor)
+        return min(max(m0, -limit), limit), min(max(m1, -limit), limit), min(max(m2, -limit), limit)
