@@ -12,7 +12,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Iterable, Iterator
-from typing import Literal, cast
+from typing import NamedTuple, cast
 
 import can
 import msgspec
@@ -27,8 +27,11 @@ from hil.faults.topics import TopicFault
 
 log = logging.getLogger(__name__)
 
-_Request = tuple[Literal["inject"], FaultSpec] | tuple[Literal["clear"], int | None]
-"""A live request, queued by another thread until the next tick takes it in."""
+
+class _Clear(NamedTuple):
+    """A live request to end fault number `fault` (None: all of them)."""
+
+    fault: int | None
 
 
 class FaultSet:
@@ -40,7 +43,8 @@ class FaultSet:
         self.states: list[FaultState] = []
         self.events: list[FaultEvent] = []
         self._cleared: set[int] = set()
-        self._requests: list[_Request] = []
+        self._requests: list[FaultSpec | _Clear] = []
+        """Live requests (a fault to inject, or one to clear), queued by other threads until the next tick."""
         self._lock = threading.Lock()
         self.rig: FaultTarget | None = None
         """The rig the faults act on, from attach(). Before it the hooks are handed None for the rig: only
@@ -94,36 +98,35 @@ class FaultSet:
         if self.rig is not None:
             spec.validate(self.rig)
         with self._lock:
-            self._requests.append(("inject", spec))
+            self._requests.append(spec)
 
     def clear(self, fault: int | None = None) -> None:
         """From any thread: end fault number `fault` (None: every fault active or still to come)."""
         with self._lock:
-            self._requests.append(("clear", fault))
+            self._requests.append(_Clear(fault))
 
     def _take_requests(self, k: int, t: float) -> None:
         with self._lock:
             requests, self._requests = self._requests, []
         rig = cast(FaultTarget, self.rig)  # None before attach(): see `rig`
         for request in requests:
-            match request:
-                case ("inject", asked):
-                    # Recorded with its absolute start; scheduled from tick 0: `at` counts once, from now.
-                    spec = msgspec.structs.replace(asked, at=t + asked.at)
-                    try:
-                        spec.validate(rig)
-                    except ValueError as exc:  # queued before the rig was there to check it
-                        log.error("live fault %s refused: %s", spec.describe(), exc)
-                        continue
-                    n = self._add(spec)
-                    self._schedule(n)
-                    self._log(t, n, "inject", spec.describe())
-                case ("clear", fault):
-                    targets = range(len(self.specs)) if fault is None else [fault]
-                    for n in targets:
-                        if 0 <= n < len(self.specs) and n not in self._cleared:
-                            self._cleared.add(n)
-                            self._log(t, n, "clear", "")
+            if isinstance(request, FaultSpec):
+                # Recorded with its absolute start; scheduled from tick 0, so `at` counts once from this tick.
+                spec = msgspec.structs.replace(request, at=t + request.at)
+                try:
+                    spec.validate(rig)
+                except ValueError as exc:  # queued before the rig was there to check it
+                    log.error("live fault %s refused: %s", spec.describe(), exc)
+                    continue
+                n = self._add(spec)
+                self._schedule(n)
+                self._log(t, n, "inject", spec.describe())
+            else:
+                targets = range(len(self.specs)) if request.fault is None else [request.fault]
+                for n in targets:
+                    if 0 <= n < len(self.specs) and n not in self._cleared:
+                        self._cleared.add(n)
+                        self._log(t, n, "clear", "")
 
     # -------------------------------------------------------------------------------------- ticks
     def update(self, k: int, t: float) -> None:
