@@ -15,6 +15,7 @@ yaw rate) does the estimate fault.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,7 +27,7 @@ DERIVATIVE_FILTER = 0.02
 STREAMS = ("imu_attitude", "imu_rate", "drive0", "drive1", "drive2")
 
 
-def _dot(row: tuple[float, ...], v) -> float:
+def _dot(row: tuple[float, ...], v: Sequence[float]) -> float:
     """row · v for 3-vectors."""
     return row[0] * v[0] + row[1] * v[1] + row[2] * v[2]
 

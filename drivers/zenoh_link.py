@@ -25,7 +25,7 @@ from collections import Counter, deque
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Generic, Literal, TypeVar, cast
+from typing import Any, Generic, Literal, TypeVar, cast
 
 import msgspec
 import zenoh
@@ -374,7 +374,7 @@ class ZenohLink:
         self.keys = keys or Keys()
         self._congestion = zenoh.CongestionControl.BLOCK if lossless else zenoh.CongestionControl.DROP
         self._publishers: dict[str, zenoh.Publisher] = {}
-        self._subscriptions: list[Subscription] = []
+        self._subscriptions: list[Subscription[Any]] = []
         self.puts: Counter[str] = Counter() if puts is None else puts
         """Payloads put on each key by this link (and the links sharing its counter)."""
 
@@ -438,7 +438,7 @@ class Fence:
     them before the seat wrench's, whose subscriber the rig waits for. A wait that times out with a count
     still short takes the shortfall as lost for good, so a lost sample costs one tick, not every tick."""
 
-    def __init__(self, link: ZenohLink, reads: list[Subscription]):
+    def __init__(self, link: ZenohLink, reads: list[Subscription[Any]]):
         self.link, self.reads = link, reads
         self.ticks = link.subscribe(link.keys.rig_tick, RigTick, capacity=64)
         self.tick = -1
@@ -446,7 +446,7 @@ class Fence:
         self.lost: Counter[str] = Counter()
         """Per key, samples the fence counted that never arrived."""
 
-    def _short(self, s: Subscription) -> int:
+    def _short(self, s: Subscription[Any]) -> int:
         return self._puts.get(s.key, 0) - self.lost[s.key] - s.received
 
     def _ready(self, k: int) -> bool:

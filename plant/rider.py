@@ -12,6 +12,7 @@ saturates at max_hip_torque.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from typing import Annotated, Literal
 
 import msgspec
@@ -96,9 +97,15 @@ DEFAULT_STYLE = LeanStyle(_RIDER_DEFAULTS["lean_amplitude_deg"], _RIDER_DEFAULTS
 """A rider's style when a profile is made without one: RiderParams' defaults."""
 
 
-def _compile(segments, t: float, value: float, style: LeanStyle):
+_Span = tuple[float, float, "Segment", float]
+"""(start, end, segment, value at the start)."""
+
+
+def _compile(
+    segments: Iterable[Segment], t: float, value: float, style: LeanStyle
+) -> tuple[list[_Span], float, float]:
     """Spans (start, end, segment, start value) from time t and value; the end time and final value."""
-    spans: list[tuple[float, float, Segment, float]] = []
+    spans: list[_Span] = []
     for seg in segments:
         if isinstance(seg, Step):
             spans.append((t, t, seg, value))

@@ -98,10 +98,10 @@ class Replay:
 
     def __init__(self, period: int):
         self.period = period
-        self.history: deque[tuple] = deque(maxlen=period)
+        self.history: deque[tuple[float | int, ...]] = deque(maxlen=period)
         self.matches = 0
 
-    def frame(self, data: tuple) -> bool:
+    def frame(self, data: tuple[float | int, ...]) -> bool:
         """One trusted frame's data signals (without counter and CRC); True while replayed."""
         full = len(self.history) == self.period
         self.matches = self.matches + 1 if full and data == self.history[0] else 0

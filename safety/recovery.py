@@ -81,7 +81,9 @@ class Plane:
     derivative: float = 0.0
     """The attitude's derivative, low-passed."""
     last_attitude: float | None = None
-    history: deque = field(default_factory=lambda: deque(maxlen=ATTITUDE_WINDOW + 1))
+    history: deque[tuple[float, float, float, float]] = field(
+        default_factory=lambda: deque(maxlen=ATTITUDE_WINDOW + 1)
+    )
     """Per tick: the IMU point's velocity if the rate is right, if the attitude is right; the specific
     force (forward, up) in the plane."""
     force_sum: list[float] = field(default_factory=lambda: [0.0, 0.0])
@@ -219,7 +221,7 @@ class IsolatedEstimator:
                 continue  # free fall or a dead accelerometer: no tilt to be had
             offset = math.atan2(f_fwd, f_up)
 
-            def tilt(a: float, norm=norm, offset=offset) -> float:
+            def tilt(a: float, norm: float = norm, offset: float = offset) -> float:
                 return math.asin(min(max(a / norm, -1.0), 1.0)) - offset
 
             tilt_if_rate_wrong = tilt((v_attitude - first[1]) / span)
@@ -327,7 +329,8 @@ def plane_gain(robot: RobotGeometry, rules: RecoveryRules, rider_mass: float, in
     q = np.diag([rules.q_tilt, rules.q_position, rules.q_tilt_rate, rules.q_ball_rate])
     rr = np.array([[rules.r]])
     p = solve_continuous_are(a, b, q, rr)
-    return (np.linalg.solve(rr, b.T @ p))[0]
+    gain: np.ndarray = np.linalg.solve(rr, b.T @ p)[0]
+    return gain
 
 
 class RecoveryLaw:

@@ -8,7 +8,7 @@ object decodes to the right one with a clear error for a wrong field.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Union
+from typing import TYPE_CHECKING, Any, Union
 
 import msgspec
 
@@ -33,7 +33,7 @@ else:
 """Any fault of the catalog (decode with msgspec.convert(obj, Fault))."""
 
 
-def parse_fault(obj: dict, where: str = "fault") -> FaultSpec:
+def parse_fault(obj: dict[str, Any], where: str = "fault") -> FaultSpec:
     """A fault from a plain mapping (TOML table, JSON object); ValueError names what was wrong."""
     kind = obj.get("kind") if isinstance(obj, dict) else None
     if kind not in CATALOG:

@@ -195,7 +195,7 @@ class Replay(CanFault, frozen=True, tag="can.replay"):
     both_ways: ClassVar[bool] = False
 
     def tx(self, msg, rig, state):
-        recorded: list = state.memory.setdefault("recorded", [])
+        recorded: list[can.Message] = state.memory.setdefault("recorded", [])
         if len(recorded) < self.frames:
             recorded.append(msg)
             return [msg]

@@ -186,7 +186,7 @@ class Delayed(SensorFault, frozen=True, tag="sensor.delayed"):
     delay: Positive
 
     def faulty(self, x, t, state):
-        history: deque = state.memory.setdefault("history", deque())
+        history: deque[tuple[float, float]] = state.memory.setdefault("history", deque())
         history.append((t, x))
         while len(history) > 1 and history[1][0] <= t - self.delay + 1e-9:
             history.popleft()
