@@ -17,8 +17,8 @@ import numpy as np
 from controller.balance import PlaneBalancer, equilibrium
 from controller.command import CommandSpeed, YawCommand
 from controller.config import ControllerConfig, RiderInfo, RobotModel
-from controller.estimator import PITCH, ROLL, Estimator
-from controller.model import G0, lqr_gain, motor_jacobian, plane_model, seat_load_height
+from controller.estimator import PITCH, ROLL, Estimate, Estimator
+from controller.model import G0, PlaneModel, lqr_gain, motor_jacobian, plane_model, seat_load_height
 
 PLANES = ("pitch", "roll")
 YAW_RATE_GAIN = 20.0
@@ -107,7 +107,7 @@ class Controller:
         self.seat_load_height = seat_load_height(robot, rider.height)
         self._alpha = 1.0 - math.exp(-2.0 * math.pi * hacs.filter_hz * self.dt)
 
-    def _models(self, mass: float, height: float):
+    def _models(self, mass: float, height: float) -> tuple[PlaneModel, ...]:
         return tuple(plane_model(self.robot, mass, height, p) for p in PLANES)
 
     # ---------------------------------------------------------------------------------------- control
@@ -189,7 +189,7 @@ class Controller:
     def _off(self) -> Output:
         return Output((0.0, 0.0, 0.0), False, self.state, self.fault)
 
-    def _start(self, t: float, estimate) -> None:
+    def _start(self, t: float, estimate: Estimate) -> None:
         self.state, self.fault, self.enable_requested = State.BALANCING, Fault.NONE, False
         self.balancing_since = t
         for b, plane in zip(self.balancers, estimate.planes, strict=True):

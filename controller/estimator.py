@@ -149,7 +149,9 @@ class Estimator:
         degraded += [f"Encoder{i + 1}" for i in bad_drives]
         return Estimate((pitch_state, roll_state), yaw_rate, None, tuple(degraded))
 
-    def _planes(self, t: float, tilt, tilt_rate, bad_drives) -> tuple[PlaneState, PlaneState]:
+    def _planes(
+        self, t: float, tilt: Sequence[float], tilt_rate: Sequence[float], bad_drives: Sequence[int]
+    ) -> tuple[PlaneState, PlaneState]:
         """(roll, pitch) plane states from the encoders, or from two and the gyro's yaw rate."""
         dt = 0.0 if self._estimated_at is None else max(t - self._estimated_at, 0.0)
         self._estimated_at = t

@@ -310,5 +310,5 @@ class BusRecorder:
     def __enter__(self) -> BusRecorder:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.stop()

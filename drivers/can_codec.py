@@ -8,7 +8,7 @@ hand-written offsets. `tests/test_can.py` proves them identical to cantools on r
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
@@ -163,5 +163,5 @@ class Catalog:
     def by_id(self, frame_id: int) -> MessageCodec | None:
         return self._by_id.get(frame_id)
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[MessageCodec]:
         return iter(self.codecs)

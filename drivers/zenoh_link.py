@@ -52,11 +52,11 @@ class ZenohConfigError(ValueError):
     pass
 
 
-def _get(config: zenoh.Config, key: str):
+def _get(config: zenoh.Config, key: str) -> Any:
     return json.loads(config.get_json(key))
 
 
-def _endpoints(value) -> list[str]:
+def _endpoints(value: list[str] | dict[str, list[str] | None] | None) -> list[str]:
     # listen/connect endpoints are a list, or a per-mode map {"peer": [...], "router": [...]}.
     if isinstance(value, dict):
         return [e for v in value.values() for e in (v or [])]
@@ -204,7 +204,7 @@ class LentSession:
     def __init__(self, session: zenoh.Session):
         self._session = session
 
-    def __getattr__(self, name: str):
+    def __getattr__(self, name: str) -> Any:
         return getattr(self._session, name)
 
     def close(self) -> None:

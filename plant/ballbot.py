@@ -17,7 +17,7 @@ from plant.anthropometry import SeatedRider, composite, robot_body_segment, seat
 from plant.drives import DriveArray
 from plant.omniwheel import motor_jacobian, wheel_inertia_equivalents
 from plant.params import RiderParams, RobotParams, SimParams
-from plant.plane import G0, STICK_TIME_CONSTANT, PlaneDynamics, PlaneParams, Wrench
+from plant.plane import G0, STICK_TIME_CONSTANT, HipPolicy, PlaneDynamics, PlaneParams, Wrench
 from plant.rider import LeanStyle, Profile, Segment, Step, TorsoController, TwistController
 from plant.sensors import DriveFeedback, DriveFeedbackModel, ImuModel, ImuSample, TesModel, TesSample
 
@@ -211,7 +211,7 @@ class Plant:
         yaw += h / 6.0 * (rate + 2.0 * (rate + hh * k1) + 2.0 * (rate + hh * k2) + (rate + h * k3))
         return yaw, rate + h / 6.0 * (k1 + 2.0 * (k2 + k3) + k4)
 
-    def _hip_policies(self):
+    def _hip_policies(self) -> tuple[HipPolicy | None, HipPolicy | None]:
         if self.torso is None:
             return None, None
         return self.torso[PITCH].hip_torque, self.torso[ROLL].hip_torque

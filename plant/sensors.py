@@ -8,6 +8,7 @@ frequency. Bias random walks advance with √dt.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -53,7 +54,9 @@ class DriveFeedbackModel:
         self.encoder, self.drive = encoder, drive
         self.noise = NoiseStream(rng, 6)
 
-    def sample(self, angles, velocities, torques) -> tuple[DriveFeedback, DriveFeedback, DriveFeedback]:
+    def sample(
+        self, angles: Sequence[float], velocities: Sequence[float], torques: Sequence[float]
+    ) -> tuple[DriveFeedback, DriveFeedback, DriveFeedback]:
         n = self.noise.draw()
         sv, st = self.drive.velocity_noise, self.drive.torque_noise
         enc = self.encoder
@@ -94,7 +97,7 @@ class ImuModel:
         self.gyro_step = params.gyro_bias_walk * math.sqrt(period)
         self.accel_step = params.accel_bias_walk * math.sqrt(period)
 
-    def sample(self, attitude, rate, accel) -> ImuSample:
+    def sample(self, attitude: Sequence[float], rate: Sequence[float], accel: Sequence[float]) -> ImuSample:
         """One output sample from the true attitude, body rate and body specific force."""
         n = self.noise.draw()
         gb, ab = self.gyro_bias, self.accel_bias
@@ -160,12 +163,12 @@ class TesModel:
         self._neg_calibration = -self.calibration
         self.noise = NoiseStream(rng, 6)
 
-    def sample(self, wrench) -> TesSample:
+    def sample(self, wrench: Sequence[float]) -> TesSample:
         """wrench: true [Fx, Fy, Fz, Mx, My, Mz] of the rider on the seat at P, body axes."""
         cells = self.to_cells @ np.array(wrench) + self.p.cell_noise * np.array(self.noise.draw())
         return self.from_cells(cells)
 
-    def from_cells(self, cells) -> TesSample:
+    def from_cells(self, cells: Sequence[float] | np.ndarray) -> TesSample:
         """What the seat reports for these cell readings (N): wrench through its calibration, and COP."""
         cells = np.asarray(cells, float)
         fx, fy, fz, mx, my, mz = (self._neg_calibration @ cells).tolist()

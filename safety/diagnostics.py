@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -289,7 +290,14 @@ class SeatCheck(Check):
         self.peaks = {"weight": 0.0, "cop": 0.0, "consistency": 0.0, "force rate": 0.0, "moment rate": 0.0}
 
     def sample(
-        self, force, moment, cop, vertical_accel: float, moved: float, cells=None, g: float = 9.80665
+        self,
+        force: Sequence[float],
+        moment: Sequence[float],
+        cop: Sequence[float],
+        vertical_accel: float,
+        moved: float,
+        cells: Sequence[float] | None = None,
+        g: float = 9.80665,
     ) -> Finding | None:
         """One payload; `vertical_accel`: the IMU's vertical specific force (m/s², ~g at rest); `moved`:
         how much other evidence (the IMU) changed since the previous sample (for the frozen checks);
@@ -372,7 +380,7 @@ def motor_jacobian(robot: RobotGeometry) -> np.ndarray:
     return np.array(rows)
 
 
-def world_acceleration(accel, roll: float, pitch: float) -> tuple[float, float, float]:
+def world_acceleration(accel: Sequence[float], roll: float, pitch: float) -> tuple[float, float, float]:
     """The body specific force in the heading frame: world = Ry(pitch) Rx(roll) body."""
     bx, by, bz = accel
     sr, cr, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)

@@ -17,8 +17,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import Counter, deque
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
@@ -70,6 +69,8 @@ ATTITUDE_LSB = 1e-4
 """rad: IMU_ATTITUDE's resolution (the DBC); "it moved" means several of these."""
 MOVED = 3 * ATTITUDE_LSB
 G0 = 9.80665
+Signals = Mapping[str, float | int]
+"""A trusted frame's decoded signals (Received.signals)."""
 
 
 class Drive:
@@ -98,7 +99,7 @@ class Drive:
         self.enable_since: float | None = None
         self.findings: dict[str, Finding | None] = {}
 
-    def feedback(self, s, t: float, lost: int) -> None:
+    def feedback(self, s: Signals, t: float, lost: int) -> None:
         counts = int(s["Position"])
         if t - self.seen > 8 * self.period + 1e-9:
             self.encoder.reset()  # a gap the window must not span
@@ -118,7 +119,7 @@ class Drive:
             else None
         )
 
-    def commanded(self, s, t: float) -> None:
+    def commanded(self, s: Signals, t: float) -> None:
         enable = bool(s["Enable"])
         self.command = (float(s["Torque"]), enable)
         if not enable:
@@ -200,7 +201,7 @@ class Monitors:
         self.rejected_identity: Counter[str] = Counter()
         """SC requests and resets ignored because their source is not a configured operator."""
         self.sc = ScArbiter(config.sc)
-        self._readers: dict[str, Callable[[str, Any, float, int], None]] = {
+        self._readers: dict[str, Callable[[str, Signals, float, int], None]] = {
             **dict.fromkeys(DRIVE_FEEDBACK, self._feedback),
             **dict.fromkeys(DRIVE_COMMAND, self._commanded),
             **dict.fromkeys(DRIVE_TORQUE, self._measured),
@@ -234,11 +235,11 @@ class Monitors:
         if read is not None:
             read(name, s, t, 0 if e2e is None else e2e.lost)
 
-    def _feedback(self, name: str, s, t: float, lost: int) -> None:
+    def _feedback(self, name: str, s: Signals, t: float, lost: int) -> None:
         self.drives[MOTOR[name]].feedback(s, t, lost)
         self.last["drives"] = min(d.seen for d in self.drives)
 
-    def _commanded(self, name: str, s, t: float, lost: int) -> None:
+    def _commanded(self, name: str, s: Signals, t: float, lost: int) -> None:
         self.torque_peak = max(self.torque_peak, abs(float(s["Torque"])))
         if not self.recovering:
             self.drives[MOTOR[name]].commanded(s, t)
@@ -250,17 +251,17 @@ class Monitors:
         for drive, torque in zip(self.drives, torques, strict=True):
             drive.command = (torque, True)
 
-    def _measured(self, name: str, s, t: float, lost: int) -> None:
+    def _measured(self, name: str, s: Signals, t: float, lost: int) -> None:
         self.drives[MOTOR[name]].measured(float(s["Torque"]))
 
-    def _heartbeat(self, name: str, s, t: float, lost: int) -> None:
+    def _heartbeat(self, name: str, s: Signals, t: float, lost: int) -> None:
         self.controller_state = int(s["State"])
         self.last["heartbeat"] = t
 
-    def _button(self, name: str, s, t: float, lost: int) -> None:
+    def _button(self, name: str, s: Signals, t: float, lost: int) -> None:
         self.button = bool(s["Request"])
 
-    def _imu_frame(self, name: str, s, t: float, lost: int) -> None:
+    def _imu_frame(self, name: str, s: Signals, t: float, lost: int) -> None:
         if not s["Valid"]:
             return
         values, signals = self.imu[name], IMU_CHANNELS[name]

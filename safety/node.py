@@ -25,6 +25,7 @@ from drivers.can_bus import CanNode, Received
 from drivers.can_codec import MessageName
 from drivers.schemas import (
     EstopCommand,
+    Payload,
     SafetyAlert,
     SafetyState,
     SafetyStateName,
@@ -35,7 +36,7 @@ from drivers.schemas import (
 )
 from drivers.zenoh_link import Fence, ZenohLink
 from safety.config import RobotGeometry, SupervisorConfig
-from safety.machine import PARTS, Decision, Event, Forward, Observation, State, Supervisor
+from safety.machine import PARTS, Cause, Decision, Event, Forward, Observation, State, Supervisor
 from safety.monitors import Monitors
 from safety.recovery import RecoveryLaw
 
@@ -210,7 +211,7 @@ class SupervisorNode:
             },
         )
 
-    def _send_frame(self, state: State, cause, contactor_closed: bool, takeover: bool = False) -> None:
+    def _send_frame(self, state: State, cause: Cause, contactor_closed: bool, takeover: bool = False) -> None:
         self.can.send(
             MessageName.SUPERVISOR_ESTOP,
             {
@@ -226,7 +227,7 @@ class SupervisorNode:
         """Stamps are in the controller's time base: the SYNC tick count over the tick rate."""
         return t if self.tick is None else self.tick / self.tick_hz
 
-    def _put(self, key: str, payload) -> None:
+    def _put(self, key: str, payload: Payload) -> None:
         data = encode(payload)
         self.link.put_bytes(key, data)
         if self.on_put is not None:
