@@ -24,13 +24,13 @@ class _Strict(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=T
 
 
 # ---------------------------------------------------------------------- the robot, as the controller sees it
-class ModelBall(_Lenient):
+class ModelBall(_Lenient, frozen=True):
     radius: Positive = 0.1145
     mass: Positive = 3.6
     inertia: Positive = 0.047
 
 
-class ModelBody(_Lenient):
+class ModelBody(_Lenient, frozen=True):
     mass: Positive = 30.0
     com_height: Positive = 0.25
     inertia_pitch: Positive = 0.5
@@ -39,7 +39,7 @@ class ModelBody(_Lenient):
     seat_height: NonNegative = 0.03
 
 
-class ModelDrivetrain(_Lenient):
+class ModelDrivetrain(_Lenient, frozen=True):
     wheel_radius: Positive = 0.0625
     zenith_deg: Positive = 45.0
     azimuth0_deg: float = 0.0
@@ -49,23 +49,23 @@ class ModelDrivetrain(_Lenient):
     rotor_inertia: NonNegative = 1.2e-4
 
 
-class ModelDrive(_Lenient):
+class ModelDrive(_Lenient, frozen=True):
     torque_limit: Positive = 3.75
     permission_timeout: Positive = 0.05
     """s of silence of SUPERVISOR_ESTOP after which the supervisor is lost: this controller then stops on
     its own (the drives follow it for their grace)."""
 
 
-class ModelFriction(_Lenient):
+class ModelFriction(_Lenient, frozen=True):
     rolling_viscous: NonNegative = 0.75
     drivetrain_viscous: NonNegative = 0.5
 
 
-class ModelEncoder(_Lenient):
+class ModelEncoder(_Lenient, frozen=True):
     counts_per_rev: Annotated[int, msgspec.Meta(gt=0)] = 8192
 
 
-class RobotModel(_Lenient):
+class RobotModel(_Lenient, frozen=True):
     """Decoded from the same robot TOML as the plant (configs/robot/pure.toml)."""
 
     ball: ModelBall = ModelBall()
@@ -76,7 +76,7 @@ class RobotModel(_Lenient):
     encoder: ModelEncoder = ModelEncoder()
 
 
-class RiderInfo(_Lenient):
+class RiderInfo(_Lenient, frozen=True):
     """What the controller is told about the rider: a name (for the sensitivity profile) and a height.
     The weight is measured on the seat while parked (iHACS)."""
 
@@ -85,7 +85,7 @@ class RiderInfo(_Lenient):
 
 
 # ----------------------------------------------------------------------------------------------- tuning
-class Lqr(_Strict):
+class Lqr(_Strict, frozen=True):
     q_tilt: Positive = 100.0
     """Weight on θ (rad)."""
     q_tilt_rate: Positive = 10.0
@@ -96,7 +96,7 @@ class Lqr(_Strict):
     """Weight on the ball torque (Nm)."""
 
 
-class SpeedPi(_Strict):
+class SpeedPi(_Strict, frozen=True):
     kp: NonNegative = 3.0
     """Nm per rad/s of ball-rate error against the reference model."""
     ki: NonNegative = 15.0
@@ -105,7 +105,7 @@ class SpeedPi(_Strict):
     """|τ_e| the integrator may hold, Nm."""
 
 
-class Hacs(_Strict):
+class Hacs(_Strict, frozen=True):
     """Command speed (docs/physics.md §8): tared seat moment -> deadband -> gain -> mass-damper -> limits."""
 
     filter_hz: Positive = 8.0
@@ -124,7 +124,7 @@ class Hacs(_Strict):
     max_yaw_rate: Positive = 1.5
 
 
-class Ihacs(_Strict):
+class Ihacs(_Strict, frozen=True):
     planes: tuple[Literal["pitch", "roll"], ...] = ("pitch", "roll")
     """Planes with interaction compensation (the paper applied it to the sagittal plane)."""
     personalise_gains: bool = True
@@ -132,7 +132,7 @@ class Ihacs(_Strict):
     """Share of body mass the seat carries (torso + thighs, Winter): weight = −Fz / (g × this)."""
 
 
-class Timing(_Strict):
+class Timing(_Strict, frozen=True):
     tick_hz: Positive = 400.0
     tare_time: Positive = 0.5
     """Taring (and weighing) the seat at start, with the command speed held at 0, s."""
@@ -144,7 +144,7 @@ class Timing(_Strict):
     """An SC command older than this (controller time) falls back to idle, s."""
 
 
-class RiderProfile(_Strict):
+class RiderProfile(_Strict, frozen=True):
     """Per-rider sensitivity (the paper's riders each tuned theirs)."""
 
     deadband: NonNegative | None = None
@@ -153,7 +153,7 @@ class RiderProfile(_Strict):
     yaw_gain: NonNegative | None = None
 
 
-class ControllerConfig(_Strict):
+class ControllerConfig(_Strict, frozen=True):
     mode: Literal["hacs", "ihacs"] = "hacs"
     reference_rider_mass: Positive = 60.0
     reference_rider_height: Positive = 1.80

@@ -17,8 +17,8 @@ import numpy as np
 from controller.balance import PlaneBalancer, equilibrium
 from controller.command import CommandSpeed, YawCommand
 from controller.config import ControllerConfig, RiderInfo, RobotModel
-from controller.estimator import PITCH, ROLL, Estimator
-from controller.model import G0, lqr_gain, motor_jacobian, plane_model, seat_load_height
+from controller.estimator import PITCH, ROLL, Estimate, Estimator
+from controller.model import G0, PlaneModel, lqr_gain, motor_jacobian, plane_model, seat_load_height
 
 PLANES = ("pitch", "roll")
 YAW_RATE_GAIN = 20.0
@@ -97,7 +97,8 @@ class Controller:
         self.fault = Fault.NONE
         self.enable_requested = False
         self.ever_stopped = False
-        self.balancing_since: float | None = None
+        self.balancing_since = -math.inf
+        """When the controller last started balancing (−inf: never)."""
         self._tare_sum = np.zeros(6)
         self._tare_n = 0
         self.tare: np.ndarray | None = None
@@ -106,7 +107,7 @@ class Controller:
         self.seat_load_height = seat_load_height(robot, rider.height)
         self._alpha = 1.0 - math.exp(-2.0 * math.pi * hacs.filter_hz * self.dt)
 
-    def _models(self, mass: float, height: float):
+    def _models(self, mass: float, height: float) -> tuple[PlaneModel, ...]:
         return tuple(plane_model(self.robot, mass, height, p) for p in PLANES)
 
     # ---------------------------------------------------------------------------------------- control
@@ -164,7 +165,9 @@ class Controller:
                 and PLANES[k] in self.config.ihacs.planes
                 and self.tare is not None
             ):
-                tilt_cmd[k], feedforward = self._compensation(k, rider_wrench, planes[k].tilt, rate_cmd)
+                tilt_cmd[k], feedforward = self._compensation(
+                    k, rider_wrench, self.tare, planes[k].tilt, rate_cmd
+                )
             tau[k] = self.balancers[k].torque(s, rate_cmd, tilt_cmd[k], feedforward)
         tau_z = YAW_RATE_GAIN * (estimate.yaw_rate - yaw_cmd)
         ball = (tau[ROLL], tau[PITCH], tau_z)
@@ -186,7 +189,7 @@ class Controller:
     def _off(self) -> Output:
         return Output((0.0, 0.0, 0.0), False, self.state, self.fault)
 
-    def _start(self, t: float, estimate) -> None:
+    def _start(self, t: float, estimate: Estimate) -> None:
         self.state, self.fault, self.enable_requested = State.BALANCING, Fault.NONE, False
         self.balancing_since = t
         for b, plane in zip(self.balancers, estimate.planes, strict=True):
@@ -230,7 +233,7 @@ class Controller:
                 b.set_model(m, lqr_gain(m, self.config.lqr))
 
     def _compensation(
-        self, plane: int, tared: np.ndarray, tilt: float, ball_rate: float
+        self, plane: int, tared: np.ndarray, tare: np.ndarray, tilt: float, ball_rate: float
     ) -> tuple[float, float]:
         """θ_EQ, τ_EQ for one plane from the rider's interaction moment at P.
 
@@ -241,10 +244,11 @@ class Controller:
         are left out: at a steady lean they are only the rider's weight, and their dynamic part is the
         inertia of a rider moving with the chassis, which the lumped model already has; feeding it back
         closes a loop from the chassis motion into θ_EQ (the stability pitfall of docs/physics.md §10).
+        `tare`: the seat wrench averaged while taring (self.tare, set once taring has finished).
         """
-        weight = -self.tare[2]
+        weight = -tare[2]
         axis = 4 if plane == PITCH else 3
-        moment0 = self.tare[axis]
+        moment0 = tare[axis]
         moment = tared[axis] + moment0
         c, s = math.cos(tilt), math.sin(tilt)
         interaction = moment - (moment0 * c + weight * self.seat_load_height * s)

@@ -15,6 +15,7 @@ yaw rate) does the estimate fault.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,7 +27,8 @@ DERIVATIVE_FILTER = 0.02
 STREAMS = ("imu_attitude", "imu_rate", "drive0", "drive1", "drive2")
 
 
-def _dot(row: tuple[float, float, float], v) -> float:
+def _dot(row: tuple[float, ...], v: Sequence[float]) -> float:
+    """row · v for 3-vectors."""
     return row[0] * v[0] + row[1] * v[1] + row[2] * v[2]
 
 
@@ -147,7 +149,9 @@ class Estimator:
         degraded += [f"Encoder{i + 1}" for i in bad_drives]
         return Estimate((pitch_state, roll_state), yaw_rate, None, tuple(degraded))
 
-    def _planes(self, t: float, tilt, tilt_rate, bad_drives) -> tuple[PlaneState, PlaneState]:
+    def _planes(
+        self, t: float, tilt: Sequence[float], tilt_rate: Sequence[float], bad_drives: Sequence[int]
+    ) -> tuple[PlaneState, PlaneState]:
         """(roll, pitch) plane states from the encoders, or from two and the gyro's yaw rate."""
         dt = 0.0 if self._estimated_at is None else max(t - self._estimated_at, 0.0)
         self._estimated_at = t

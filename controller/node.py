@@ -14,6 +14,7 @@ import logging
 import math
 import threading
 import time
+from typing import Any
 
 from controller.core import Controller, Fault, Output, ScInput, State, Wrench
 from drivers.can_bus import CanNode, Received
@@ -21,12 +22,12 @@ from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, MessageName
 from drivers.contract import CONTRACT_VERSION
 from drivers.keys import Keys
 from drivers.schemas import ControllerCommand, ControllerTelemetry, ScCommand, TesWrench
-from drivers.zenoh_link import Fence, ZenohLink
+from drivers.zenoh_link import Fence, Subscription, ZenohLink
 
 log = logging.getLogger(__name__)
 
 TICK_MODULO = 1 << 16
-FEEDBACK = {name: motor for motor, name in enumerate(DRIVE_FEEDBACK)}
+FEEDBACK: dict[str, int] = {name: motor for motor, name in enumerate(DRIVE_FEEDBACK)}
 SEAT_FLAGGED = frozenset({"WRENCH_IMPLAUSIBLE"})
 """SUPERVISOR_ESTOP.Reason values that say the seat's wrench is not a rider's: the controller stops using it
 (as if the seat were silent) until the supervisor is back in NORMAL, instead of balancing on a phantom lean
@@ -59,7 +60,7 @@ class ControllerNode:
         # The seat's subscription last: the rig starts once it sees it, and a fence needs the others in place.
         self.sc = link.subscribe(keys.sc_command, ScCommand, capacity=16)
         self.operator = link.subscribe(keys.controller_command, ControllerCommand, capacity=16)
-        fence_reads = [self.sc, self.operator]
+        fence_reads: list[Subscription[Any]] = [self.sc, self.operator]
         self.fence = Fence(link, fence_reads) if lockstep else None
         self.tes = link.subscribe(keys.tes_wrench, TesWrench, capacity=64)
         fence_reads.append(self.tes)

@@ -15,7 +15,7 @@ import socket
 import time
 import uuid
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -178,7 +178,7 @@ class CanNode:
         self.rx_hook: Callable[[can.Message], can.Message | None] | None = None
         """Sees every received frame before decoding; returns it (maybe altered) or None (lost)."""
 
-    def message(self, name: str, values: dict[str, float]) -> can.Message:
+    def message(self, name: str, values: Mapping[str, float]) -> can.Message:
         codec = self.catalog[name]
         raw = codec.encode_int(values)
         if is_protected(codec):
@@ -187,7 +187,7 @@ class CanNode:
             payload = raw.to_bytes(codec.length, "little")
         return can.Message(arbitration_id=codec.frame_id, is_extended_id=False, data=payload)
 
-    def send(self, name: str, values: dict[str, float]) -> bool:
+    def send(self, name: str, values: Mapping[str, float]) -> bool:
         """Send a frame; a full transmit queue (ENOBUFS on SocketCAN with a real qdisc) or a bus that
         refuses it loses the frame, as on a real bus: counted and logged, never raised."""
         msg = self.message(name, values)
@@ -210,19 +210,24 @@ class CanNode:
     def decode(self, msg: can.Message) -> Received | None:
         """A received frame -> Received, or None (counted and logged) if it is not a catalog frame."""
         if msg.is_error_frame:
-            return self._reject("error_frame", msg)
+            self._reject("error_frame", msg)
+            return None
         if msg.is_remote_frame:
-            return self._reject("remote", msg)
+            self._reject("remote", msg)
+            return None
         if msg.is_extended_id:
-            return self._reject("extended_id", msg)
+            self._reject("extended_id", msg)
+            return None
         known = self._codecs.get(msg.arbitration_id)
         if known is None:
-            return self._reject("unknown_id", msg)
+            self._reject("unknown_id", msg)
+            return None
         codec, protected = known
         try:
             signals = codec.decode(msg.data)
         except CanCodecError:
-            return self._reject("wrong_length", msg)
+            self._reject("wrong_length", msg)
+            return None
         event = self._check(codec, msg.data) if protected else None
         self.stats.received[codec.name] += 1
         return Received(codec.name, signals, msg.timestamp, event)
@@ -265,7 +270,6 @@ class CanNode:
     def _reject(self, reason: str, msg: can.Message) -> None:
         self.stats.malformed[reason] += 1
         self._warn(reason, msg.arbitration_id, msg)
-        return None
 
     def _warn(self, reason: str, frame_id: int, detail: object) -> None:
         # First occurrence per (reason, id) at WARNING; a flood must not flood the log too.
@@ -312,5 +316,5 @@ class BusRecorder:
     def __enter__(self) -> BusRecorder:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.stop()

@@ -8,7 +8,7 @@ hand-written offsets. `tests/test_can.py` proves them identical to cantools on r
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from enum import StrEnum
 from pathlib import Path
@@ -138,7 +138,9 @@ class MessageCodec:
 
     def values(self, signal: str) -> dict[int, str]:
         """The signal's value table in the DBC (VAL_): raw value -> name; empty if it has none."""
-        choices = self.message.get_signal_by_name(signal).choices or {}
+        choices = self.message.get_signal_by_name(signal).choices
+        if choices is None:
+            return {}
         return {int(raw): str(name) for raw, name in choices.items()}
 
 
@@ -147,7 +149,10 @@ class Catalog:
 
     def __init__(self, dbc: Path | str = DEFAULT_DBC):
         self.path = Path(dbc)
-        self.database = cantools.database.load_file(str(self.path))
+        database = cantools.database.load_file(str(self.path))
+        if not isinstance(database, cantools.database.can.Database):
+            raise CanCodecError(f"{self.path}: not a CAN database (DBC, KCD, ARXML, SYM)")
+        self.database = database
         self.codecs = tuple(MessageCodec(m) for m in self.database.messages)
         self._by_name = {c.name: c for c in self.codecs}
         self._by_id = {c.frame_id: c for c in self.codecs}
@@ -158,5 +163,5 @@ class Catalog:
     def by_id(self, frame_id: int) -> MessageCodec | None:
         return self._by_id.get(frame_id)
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[MessageCodec]:
         return iter(self.codecs)

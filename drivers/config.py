@@ -53,7 +53,7 @@ def dump_toml(record: msgspec.Struct) -> bytes:
     """A record as a config file load_toml reads back equal. TOML has no null: a None field is left out,
     which reads back as its default (None, for every optional field of the configs)."""
 
-    def drop_none(value):
+    def drop_none(value: object) -> object:
         if isinstance(value, dict):
             return {k: drop_none(v) for k, v in value.items() if v is not None}
         if isinstance(value, list):

@@ -51,4 +51,5 @@ def start_dut(name: str, spec: DutSpec) -> DutHandle:
     found = {ep.name: ep for ep in entry_points(group=GROUP)}
     if name not in found:
         raise DutNotFound(f"no controller {name!r} in entry points {GROUP!r} (have: {sorted(found)})")
-    return found[name].load()(spec)
+    handle: DutHandle = found[name].load()(spec)  # an entry point: whatever it loads is untyped
+    return handle

@@ -60,12 +60,16 @@ class _Layout:
     length: int
 
 
-_layouts: dict[int, _Layout | None] = {}
+_found: dict[int, _Layout | None] = {}
+"""Every message looked at, by frame id: its layout, or None if it is not protected."""
+_layouts: dict[int, _Layout] = {}
+"""The protected ones alone (what sealing and checking look up)."""
 
 
-def _layout(codec: MessageCodec) -> _Layout | None:
+def _find_layout(codec: MessageCodec) -> _Layout | None:
+    """The message's layout, or None if it has no counter and CRC (cached either way)."""
     try:
-        return _layouts[codec.frame_id]
+        return _found[codec.frame_id]
     except KeyError:
         pass
     counter, crc = codec.field_position(COUNTER), codec.field_position(CRC)
@@ -75,13 +79,25 @@ def _layout(codec: MessageCodec) -> _Layout | None:
         if counter[1] != COUNTER_MODULO - 1 or crc[1] != 0xFF:
             raise ValueError(f"{codec.name}: E2E needs a 4-bit {COUNTER} and an 8-bit {CRC} signal")
         seed = _crc_continue(0xFF, codec.frame_id.to_bytes(2, "little"))
-        layout = _Layout(counter[0], crc[0], ~(0xFF << crc[0]), seed, codec.length)
-    _layouts[codec.frame_id] = layout
+        layout = _layouts[codec.frame_id] = _Layout(counter[0], crc[0], ~(0xFF << crc[0]), seed, codec.length)
+    _found[codec.frame_id] = layout
+    return layout
+
+
+def _layout(codec: MessageCodec) -> _Layout:
+    """The layout of a protected message; ValueError for a message without E2E fields (see is_protected)."""
+    try:
+        return _layouts[codec.frame_id]
+    except KeyError:
+        pass
+    layout = _find_layout(codec)
+    if layout is None:
+        raise ValueError(f"{codec.name} is not E2E-protected: it has no {COUNTER} and {CRC} signals")
     return layout
 
 
 def is_protected(codec: MessageCodec) -> bool:
-    return _layout(codec) is not None
+    return _find_layout(codec) is not None
 
 
 class E2EStatus(IntEnum):

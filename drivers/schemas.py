@@ -10,7 +10,7 @@ rig run (TES, supervisor), the wall clock (time.time) for operator tools.
 
 from __future__ import annotations
 
-from typing import Annotated, ClassVar, Literal, TypeVar
+from typing import Annotated, Any, ClassVar, Literal, TypeVar
 
 import msgspec
 
@@ -145,7 +145,7 @@ class RigTick(Payload, frozen=True, kw_only=True):
 P = TypeVar("P", bound=Payload)
 
 _encoder = msgspec.msgpack.Encoder()
-_decoders: dict[type, msgspec.msgpack.Decoder] = {}
+_decoders: dict[type, msgspec.msgpack.Decoder[Any]] = {}
 
 
 class PayloadError(ValueError):
@@ -164,7 +164,7 @@ def encode(payload: Payload) -> bytes:
 
 
 def decode(data: bytes | bytearray | memoryview, type: type[P]) -> P:
-    decoder = _decoders.get(type)
+    decoder: msgspec.msgpack.Decoder[P] | None = _decoders.get(type)
     if decoder is None:
         decoder = _decoders[type] = msgspec.msgpack.Decoder(type)
     try:

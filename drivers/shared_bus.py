@@ -37,14 +37,14 @@ class _Channel:
         with _lock:
             self.buses += (weakref.ref(bus, self._remove),)
 
-    def _remove(self, gone: weakref.ref) -> None:
+    def _remove(self, gone: weakref.ref[SharedBus] | None) -> None:
         with _lock:
             self.buses = tuple(ref for ref in self.buses if ref is not gone and ref() is not None)
             if not self.buses and _channels.get(self.name) is self:
                 del _channels[self.name]
 
     def remove(self, bus: SharedBus) -> None:
-        self._remove(next((ref for ref in self.buses if ref() is bus), None))  # type: ignore[arg-type]
+        self._remove(next((ref for ref in self.buses if ref() is bus), None))
 
 
 _channels: dict[Any, _Channel] = {}
@@ -72,10 +72,12 @@ class SharedBus(can.BusABC):
             self._channel.add(self)
 
     def _apply_filters(self, filters: can.typechecking.CanFilters | None) -> None:
-        exact = filters is not None and all(
+        if filters is not None and all(
             f["can_mask"] == 0x7FF and not f.get("extended", False) for f in filters
-        )
-        self._ids = frozenset(f["can_id"] for f in filters) if exact else None  # type: ignore[union-attr]
+        ):
+            self._ids = frozenset(f["can_id"] for f in filters)
+        else:
+            self._ids = None
 
     def _accepts(self, frame: can.Message) -> bool:
         if self._ids is not None:

@@ -25,7 +25,7 @@ from collections import Counter, deque
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Generic, Literal, TypeVar
+from typing import Any, Generic, Literal, TypeVar, cast
 
 import msgspec
 import zenoh
@@ -52,11 +52,11 @@ class ZenohConfigError(ValueError):
     pass
 
 
-def _get(config: zenoh.Config, key: str):
+def _get(config: zenoh.Config, key: str) -> Any:
     return json.loads(config.get_json(key))
 
 
-def _endpoints(value) -> list[str]:
+def _endpoints(value: list[str] | dict[str, list[str] | None] | None) -> list[str]:
     # listen/connect endpoints are a list, or a per-mode map {"peer": [...], "router": [...]}.
     if isinstance(value, dict):
         return [e for v in value.values() for e in (v or [])]
@@ -204,7 +204,7 @@ class LentSession:
     def __init__(self, session: zenoh.Session):
         self._session = session
 
-    def __getattr__(self, name: str):
+    def __getattr__(self, name: str) -> Any:
         return getattr(self._session, name)
 
     def close(self) -> None:
@@ -252,7 +252,7 @@ class ZenohAccess(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
         if self.mode == "loopback":
             hub = _lent.get(self.endpoint)
             if hub is not None:
-                return LentSession(hub)  # type: ignore[return-value]
+                return cast(zenoh.Session, LentSession(hub))  # a proxy: all but close() is the hub's
             return open_session(self.config_path, "member", self.endpoint)
         if self.certs is None:
             raise ZenohConfigError("zenoh mode router needs the certificate folder (--certs DIR)")
@@ -374,7 +374,7 @@ class ZenohLink:
         self.keys = keys or Keys()
         self._congestion = zenoh.CongestionControl.BLOCK if lossless else zenoh.CongestionControl.DROP
         self._publishers: dict[str, zenoh.Publisher] = {}
-        self._subscriptions: list[Subscription] = []
+        self._subscriptions: list[Subscription[Any]] = []
         self.puts: Counter[str] = Counter() if puts is None else puts
         """Payloads put on each key by this link (and the links sharing its counter)."""
 
@@ -394,9 +394,15 @@ class ZenohLink:
         """Block until someone subscribes to `key` (a put before that reaches nobody), at most `timeout` s."""
         pub = self.publisher(key)
         matched = threading.Event()
-        listener = pub.declare_matching_listener(lambda status: status.matching and matched.set())
+
+        def on_change(status: zenoh.MatchingStatus) -> None:
+            if status.matching:
+                matched.set()
+
+        listener = pub.declare_matching_listener(on_change)
         try:
-            return pub.matching_status.matching or matched.wait(timeout)
+            # zenoh's stub types `matching_status` as bool; it is a MatchingStatus (zenoh 1.x).
+            return pub.matching_status.matching or matched.wait(timeout)  # type: ignore[attr-defined]
         finally:
             listener.undeclare()
 
@@ -432,7 +438,7 @@ class Fence:
     them before the seat wrench's, whose subscriber the rig waits for. A wait that times out with a count
     still short takes the shortfall as lost for good, so a lost sample costs one tick, not every tick."""
 
-    def __init__(self, link: ZenohLink, reads: list[Subscription]):
+    def __init__(self, link: ZenohLink, reads: list[Subscription[Any]]):
         self.link, self.reads = link, reads
         self.ticks = link.subscribe(link.keys.rig_tick, RigTick, capacity=64)
         self.tick = -1
@@ -440,7 +446,7 @@ class Fence:
         self.lost: Counter[str] = Counter()
         """Per key, samples the fence counted that never arrived."""
 
-    def _short(self, s: Subscription) -> int:
+    def _short(self, s: Subscription[Any]) -> int:
         return self._puts.get(s.key, 0) - self.lost[s.key] - s.received
 
     def _ready(self, k: int) -> bool:

@@ -94,14 +94,15 @@ def seat_rider(robot: RobotParams, rider: RiderParams) -> SeatedRider:
     leg_long = leg_m * (LIMB_LONG_GYR * leg_len) ** 2
     w = rider.hip_half_width
     # Thighs lie along x: pitch and yaw are transverse axes, roll is the long axis. Legs stand along z.
-    thighs = tuple(
-        Segment(thigh_m, hip_x + thigh_dx, s * w, hip_z + thigh_dz, thigh_tr, thigh_long, thigh_tr)
-        for s in (1.0, -1.0)
+    thighs = (
+        Segment(thigh_m, hip_x + thigh_dx, w, hip_z + thigh_dz, thigh_tr, thigh_long, thigh_tr),
+        Segment(thigh_m, hip_x + thigh_dx, -w, hip_z + thigh_dz, thigh_tr, thigh_long, thigh_tr),
     )
-    legs = tuple(
-        Segment(leg_m, hip_x + leg_dx, s * w, hip_z + leg_dz, leg_tr, leg_tr, leg_long) for s in (1.0, -1.0)
+    legs = (
+        Segment(leg_m, hip_x + leg_dx, w, hip_z + leg_dz, leg_tr, leg_tr, leg_long),
+        Segment(leg_m, hip_x + leg_dx, -w, hip_z + leg_dz, leg_tr, leg_tr, leg_long),
     )
-    return SeatedRider(hat, hip_x, hip_z, thighs, legs)  # type: ignore[arg-type]
+    return SeatedRider(hat, hip_x, hip_z, thighs, legs)
 
 
 def robot_body_segment(robot: RobotParams) -> Segment:

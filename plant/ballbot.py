@@ -13,11 +13,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from plant.anthropometry import composite, robot_body_segment, seat_rider, yaw_inertia
+from plant.anthropometry import SeatedRider, composite, robot_body_segment, seat_rider, yaw_inertia
 from plant.drives import DriveArray
 from plant.omniwheel import motor_jacobian, wheel_inertia_equivalents
 from plant.params import RiderParams, RobotParams, SimParams
-from plant.plane import G0, STICK_TIME_CONSTANT, PlaneDynamics, PlaneParams, Wrench
+from plant.plane import G0, STICK_TIME_CONSTANT, HipPolicy, PlaneDynamics, PlaneParams, Wrench
 from plant.rider import LeanStyle, Profile, Segment, Step, TorsoController, TwistController
 from plant.sensors import DriveFeedback, DriveFeedbackModel, ImuModel, ImuSample, TesModel, TesSample
 
@@ -125,19 +125,20 @@ class Plant:
         rho = robot.ball.radius / robot.drivetrain.wheel_radius
         segments = [robot_body_segment(robot)]
         intent = intent or RiderIntent()
-        self.seated = seat_rider(robot, rider) if rider is not None else None
-        if self.seated is not None:
+        self.seated: SeatedRider | None = None
+        self.torso: tuple[TorsoController, TorsoController] | None = None
+        """The rider's lean (pitch, roll); None without a rider, or a torso left to itself."""
+        self.twist: TwistController | None = None
+        if rider is not None:
+            self.seated = seat_rider(robot, rider)
             segments += [*self.seated.lower_limbs, self.seated.hat_segment()]
             hat = self.seated.hat
-            self.style = LeanStyle(rider.lean_amplitude_deg, rider.lean_rate_deg)  # type: ignore[union-attr]
-            self.torso = tuple(
-                TorsoController(rider, hat.mass, hat.com_distance, Profile(p, style=self.style))  # type: ignore[arg-type]
-                for p in (intent.pitch, intent.roll)
+            self.style = LeanStyle(rider.lean_amplitude_deg, rider.lean_rate_deg)
+            self.torso = (
+                TorsoController(rider, hat.mass, hat.com_distance, Profile(intent.pitch, style=self.style)),
+                TorsoController(rider, hat.mass, hat.com_distance, Profile(intent.roll, style=self.style)),
             )
-            self.twist = TwistController(rider, Profile(intent.twist))  # type: ignore[arg-type]
-        else:
-            self.torso = None
-            self.twist = None
+            self.twist = TwistController(rider, Profile(intent.twist))
         self.yaw_inertia = yaw_inertia(segments) + theta_w_yaw * rho * rho
 
         self.drives = DriveArray(robot.drive)
@@ -167,7 +168,7 @@ class Plant:
         """Power off at standstill: the rider's feet (the seat is at chair height) or the parking stand
         hold the robot where it is, as `clamped` does, until a drive is powered again."""
         self._outputs_tick = self._wrench_tick = -1
-        self._wrench: tuple[float, ...] = (0.0,) * 6
+        self._wrench: tuple[float, float, float, float, float, float] = (0.0,) * 6
         self._accel_cache: tuple[tuple[float, ...], tuple[float, float]] = ((0.0,) * 6, (0.0, 0.0))
 
     def alert(self, level: int) -> None:
@@ -185,7 +186,8 @@ class Plant:
             controller.profile = Profile(
                 segments, start=self.t, value=math.degrees(controller.lean_cmd), style=self.style
             )
-        self.twist.profile = Profile(intent.twist, start=self.t, value=self.twist.torque)
+        if self.twist is not None:
+            self.twist.profile = Profile(intent.twist, start=self.t, value=self.twist.torque)
 
     # ------------------------------------------------------------------------------------------ dynamics
     def _yaw_acceleration(self, rate: float, tau_z: float) -> float:
@@ -209,7 +211,7 @@ class Plant:
         yaw += h / 6.0 * (rate + 2.0 * (rate + hh * k1) + 2.0 * (rate + hh * k2) + (rate + h * k3))
         return yaw, rate + h / 6.0 * (k1 + 2.0 * (k2 + k3) + k4)
 
-    def _hip_policies(self):
+    def _hip_policies(self) -> tuple[HipPolicy | None, HipPolicy | None]:
         if self.torso is None:
             return None, None
         return self.torso[PITCH].hip_torque, self.torso[ROLL].hip_torque
@@ -223,7 +225,8 @@ class Plant:
         if self.torso is not None:
             for k in (PITCH, ROLL):
                 self.torso[k].update(self.t, self.dt, self.velocity[k])
-            self.twist.update(self.t)
+            if self.twist is not None:
+                self.twist.update(self.t)
         hip_pitch, hip_roll = self._hip_policies()
         self._update_rest()
         held = self.clamped or self.resting
@@ -404,8 +407,8 @@ class Plant:
     def energy(self) -> float:
         """Mechanical energy of both planes and yaw (J); conserved without torques and friction."""
         x = self.x
-        e = sum(
-            self.planes[k].energy(tuple(x[6 * k : 6 * k + 3]), tuple(x[6 * k + 3 : 6 * k + 6]))  # type: ignore[arg-type]
-            for k in (PITCH, ROLL)
-        )
+        e: float = 0  # sum()'s start: 0 + e₁ + e₂
+        for k in (PITCH, ROLL):
+            q, dq = x[6 * k : 6 * k + 3], x[6 * k + 3 : 6 * k + 6]
+            e += self.planes[k].energy((q[0], q[1], q[2]), (dq[0], dq[1], dq[2]))
         return e + 0.5 * self.yaw_inertia * x[13] ** 2

@@ -36,7 +36,8 @@ def motor_jacobian(ball_radius: float, drivetrain: Drivetrain) -> np.ndarray:
     By power balance (Σ T_i q̇_i = τ·ω_rel) the torque on the ball from motor-shaft torques T is τ = Gᵀ T.
     """
     signs = np.diag(np.asarray(drivetrain.motor_sign, dtype=float))
-    return drivetrain.gear_ratio * signs @ wheel_jacobian(ball_radius, drivetrain)
+    g: np.ndarray = drivetrain.gear_ratio * signs @ wheel_jacobian(ball_radius, drivetrain)
+    return g
 
 
 def wheel_inertia_equivalents(ball_radius: float, drivetrain: Drivetrain) -> tuple[float, float]:

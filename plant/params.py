@@ -22,7 +22,7 @@ class _Record(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=T
 
 
 # --------------------------------------------------------------------------------------------- robot
-class Ball(_Record):
+class Ball(_Record, frozen=True):
     radius: Positive = 0.1145
     """r_K, m."""
     mass: Positive = 3.6
@@ -31,7 +31,7 @@ class Ball(_Record):
     """Θ_K about the ball centre, kg m²."""
 
 
-class Body(_Record):
+class Body(_Record, frozen=True):
     """Everything above the ball that is not the rider: chassis, drivetrain, seat, TES, battery, footrest."""
 
     mass: Positive = 30.0
@@ -52,7 +52,7 @@ class Body(_Record):
     """Body IMU above the ball centre on the body axis, m."""
 
 
-class Drivetrain(_Record):
+class Drivetrain(_Record, frozen=True):
     wheel_radius: Positive = 0.0625
     """r_W, m."""
     zenith_deg: Annotated[float, msgspec.Meta(gt=0, lt=90)] = 45.0
@@ -69,7 +69,7 @@ class Drivetrain(_Record):
     """Motor rotor inertia at the motor shaft, kg m²."""
 
 
-class Drive(_Record):
+class Drive(_Record, frozen=True):
     torque_limit: Positive = 3.75
     """Motor-shaft torque limit, Nm (× gear ratio at the wheel)."""
     current_loop_tau: Positive = 0.0005
@@ -91,7 +91,7 @@ class Drive(_Record):
     """1σ of the motor velocity feedback, rad/s."""
 
 
-class Friction(_Record):
+class Friction(_Record, frozen=True):
     rolling_viscous: NonNegative = 0.75
     """b_φ: ball-floor rolling resistance, Nm s/rad on φ."""
     drivetrain_viscous: NonNegative = 0.5
@@ -116,14 +116,14 @@ class Friction(_Record):
             raise ValueError("yaw_stiction must be >= yaw_coulomb (breakaway exceeds kinetic)")
 
 
-class Encoder(_Record):
+class Encoder(_Record, frozen=True):
     counts_per_rev: Annotated[int, msgspec.Meta(gt=0)] = 8192
     """Quadrature counts per motor revolution."""
     word_bits: Annotated[int, msgspec.Meta(ge=8, le=64)] = 32
     """The count wraps as a signed integer of this width."""
 
 
-class Imu(_Record):
+class Imu(_Record, frozen=True):
     rate_hz: Positive = 400.0
     gyro_noise_density: NonNegative = 6.1e-5
     """rad/s/√Hz (VN-100 class)."""
@@ -141,7 +141,7 @@ class Imu(_Record):
     """1σ white noise of the AHRS attitude output, deg."""
 
 
-class Tes(_Record):
+class Tes(_Record, frozen=True):
     """Force-sensing seat: six uniaxial load cells (three vertical, three tangential) under the seat plate."""
 
     rate_hz: Positive = 400.0
@@ -155,7 +155,7 @@ class Tes(_Record):
     """Relative 1σ error of each entry of the calibration matrix (0: perfect calibration)."""
 
 
-class RobotParams(_Record):
+class RobotParams(_Record, frozen=True):
     name: str = "PURE"
     ball: Ball = Ball()
     body: Body = Body()
@@ -168,7 +168,7 @@ class RobotParams(_Record):
 
 
 # --------------------------------------------------------------------------------------------- rider
-class RiderParams(_Record):
+class RiderParams(_Record, frozen=True):
     """A seated rider: anthropometry (Winter fractions of mass and height) and torso capability."""
 
     name: str
@@ -211,7 +211,7 @@ class RiderParams(_Record):
 
 
 # ----------------------------------------------------------------------------------------------- sim
-class SimParams(_Record):
+class SimParams(_Record, frozen=True):
     tick_hz: Positive = 400.0
     """Bus tick: rate of sensor frames and SYNC."""
     substeps: Annotated[int, msgspec.Meta(ge=1, le=100)] = 1

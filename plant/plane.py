@@ -222,7 +222,7 @@ class PlaneDynamics:
         phi, th, ga, _, _, dga = s
         hh = 0.5 * h
 
-        def f(g, dg):
+        def f(g: float, dg: float) -> float:
             return self.clamped_torso_acceleration(g, hip(g, g - th, dg) if hip else 0.0)
 
         c1 = f(ga, dga)

@@ -12,6 +12,7 @@ saturates at max_hip_torque.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from typing import Annotated, Literal
 
 import msgspec
@@ -25,20 +26,20 @@ class _Segment(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
     pass
 
 
-class Ramp(_Segment, tag="ramp"):
+class Ramp(_Segment, frozen=True, tag="ramp"):
     to: float
     duration: _Positive
 
 
-class Hold(_Segment, tag="hold"):
+class Hold(_Segment, frozen=True, tag="hold"):
     duration: _Positive
 
 
-class Step(_Segment, tag="step"):
+class Step(_Segment, frozen=True, tag="step"):
     to: float
 
 
-class Sine(_Segment, tag="sine"):
+class Sine(_Segment, frozen=True, tag="sine"):
     """Oscillation about the value reached so far."""
 
     amplitude: float
@@ -46,7 +47,7 @@ class Sine(_Segment, tag="sine"):
     duration: _Positive
 
 
-class Adversarial(_Segment, tag="adversarial"):
+class Adversarial(_Segment, frozen=True, tag="adversarial"):
     """Lean as far as the rider can in the direction the robot is moving (defeating a speed cap or idle);
     at first toward `direction`. The rider commits: they switch sides only when the robot has moved the
     other way faster than `speed_threshold` for `reaction_time` (a person does not flip every wobble).
@@ -60,7 +61,7 @@ class Adversarial(_Segment, tag="adversarial"):
     """How long the robot must move against the lean before the rider switches sides, s."""
 
 
-class Until(_Segment, tag="until"):
+class Until(_Segment, frozen=True, tag="until"):
     """The paper's protocol (docs/riders.md): lean toward `direction` x `amplitude` at `rate` until the
     robot's |speed| rises above `speed` ("lean until it moves", "brake past 1.4 m/s") or, with
     `when = "slower"`, falls below it ("lean back until it stops"); the rider acts `reaction_time` after
@@ -96,9 +97,15 @@ DEFAULT_STYLE = LeanStyle(_RIDER_DEFAULTS["lean_amplitude_deg"], _RIDER_DEFAULTS
 """A rider's style when a profile is made without one: RiderParams' defaults."""
 
 
-def _compile(segments, t: float, value: float, style: LeanStyle):
+_Span = tuple[float, float, "Segment", float]
+"""(start, end, segment, value at the start)."""
+
+
+def _compile(
+    segments: Iterable[Segment], t: float, value: float, style: LeanStyle
+) -> tuple[list[_Span], float, float]:
     """Spans (start, end, segment, start value) from time t and value; the end time and final value."""
-    spans: list[tuple[float, float, Segment, float]] = []
+    spans: list[_Span] = []
     for seg in segments:
         if isinstance(seg, Step):
             spans.append((t, t, seg, value))

@@ -8,6 +8,7 @@ frequency. Bias random walks advance with √dt.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -53,16 +54,22 @@ class DriveFeedbackModel:
         self.encoder, self.drive = encoder, drive
         self.noise = NoiseStream(rng, 6)
 
-    def sample(self, angles, velocities, torques) -> tuple[DriveFeedback, DriveFeedback, DriveFeedback]:
+    def sample(
+        self, angles: Sequence[float], velocities: Sequence[float], torques: Sequence[float]
+    ) -> tuple[DriveFeedback, DriveFeedback, DriveFeedback]:
         n = self.noise.draw()
         sv, st = self.drive.velocity_noise, self.drive.torque_noise
-        return tuple(  # type: ignore[return-value]
+        enc = self.encoder
+        return (
             DriveFeedback(
-                counts_from_angle(angles[i], self.encoder),
-                velocities[i] + sv * n[i],
-                torques[i] + st * n[3 + i],
-            )
-            for i in range(3)
+                counts_from_angle(angles[0], enc), velocities[0] + sv * n[0], torques[0] + st * n[3]
+            ),
+            DriveFeedback(
+                counts_from_angle(angles[1], enc), velocities[1] + sv * n[1], torques[1] + st * n[4]
+            ),
+            DriveFeedback(
+                counts_from_angle(angles[2], enc), velocities[2] + sv * n[2], torques[2] + st * n[5]
+            ),
         )
 
 
@@ -90,7 +97,7 @@ class ImuModel:
         self.gyro_step = params.gyro_bias_walk * math.sqrt(period)
         self.accel_step = params.accel_bias_walk * math.sqrt(period)
 
-    def sample(self, attitude, rate, accel) -> ImuSample:
+    def sample(self, attitude: Sequence[float], rate: Sequence[float], accel: Sequence[float]) -> ImuSample:
         """One output sample from the true attitude, body rate and body specific force."""
         n = self.noise.draw()
         gb, ab = self.gyro_bias, self.accel_bias
@@ -156,17 +163,17 @@ class TesModel:
         self._neg_calibration = -self.calibration
         self.noise = NoiseStream(rng, 6)
 
-    def sample(self, wrench) -> TesSample:
+    def sample(self, wrench: Sequence[float]) -> TesSample:
         """wrench: true [Fx, Fy, Fz, Mx, My, Mz] of the rider on the seat at P, body axes."""
         cells = self.to_cells @ np.array(wrench) + self.p.cell_noise * np.array(self.noise.draw())
         return self.from_cells(cells)
 
-    def from_cells(self, cells) -> TesSample:
+    def from_cells(self, cells: Sequence[float] | np.ndarray) -> TesSample:
         """What the seat reports for these cell readings (N): wrench through its calibration, and COP."""
         cells = np.asarray(cells, float)
         fx, fy, fz, mx, my, mz = (self._neg_calibration @ cells).tolist()
         cop_xy = cop(fx, fy, fz, mx, my, self.seat_height)
-        return TesSample((fx, fy, fz), (mx, my, mz), cop_xy, tuple(cells.tolist()))  # type: ignore[arg-type]
+        return TesSample((fx, fy, fz), (mx, my, mz), cop_xy, tuple(cells.tolist()))
 
 
 def cop(fx: float, fy: float, fz: float, mx: float, my: float, seat_height: float) -> tuple[float, float]:

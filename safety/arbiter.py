@@ -76,7 +76,7 @@ class ScArbiter:
         """Seconds since the stalest source was last heard (inf: none heard)."""
         return max((t - s.heard for s in self.sources.values()), default=math.inf)
 
-    def summary(self) -> dict:
+    def summary(self) -> dict[str, object]:
         return {
             "sources": {
                 name: {

@@ -26,13 +26,13 @@ class _Strict(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=T
 
 
 # --------------------------------------------------------------------- the robot, as the supervisor sees it
-class Ball(_Lenient):
+class Ball(_Lenient, frozen=True):
     radius: Positive = 0.1145
     mass: Positive = 3.6
     inertia: Positive = 0.047
 
 
-class Body(_Lenient):
+class Body(_Lenient, frozen=True):
     mass: Positive = 30.0
     """kg of the chassis without ball and rider (the recovery law's model)."""
     com_height: Positive = 0.25
@@ -47,12 +47,12 @@ class Body(_Lenient):
     """m of the seat surface above P (the seat's COP is computed on it)."""
 
 
-class Encoder(_Lenient):
+class Encoder(_Lenient, frozen=True):
     counts_per_rev: Annotated[int, msgspec.Meta(gt=0)] = 8192
     word_bits: Annotated[int, msgspec.Meta(ge=8, le=64)] = 32
 
 
-class Drivetrain(_Lenient):
+class Drivetrain(_Lenient, frozen=True):
     wheel_radius: Positive = 0.0625
     zenith_deg: Positive = 45.0
     azimuth0_deg: float = 0.0
@@ -60,13 +60,13 @@ class Drivetrain(_Lenient):
     gear_ratio: Positive = 8.0
 
 
-class DriveLimits(_Lenient):
+class DriveLimits(_Lenient, frozen=True):
     torque_limit: Positive = 3.75
     watchdog_timeout: Positive = 0.02
     """The drives' own command watchdog, s (for the root-cause rule: it trips before the heartbeat's)."""
 
 
-class RobotGeometry(_Lenient):
+class RobotGeometry(_Lenient, frozen=True):
     """Decoded from the robot TOML the plant and the controller read (configs/robot/pure.toml)."""
 
     ball: Ball = Ball()
@@ -77,7 +77,7 @@ class RobotGeometry(_Lenient):
 
 
 # --------------------------------------------------------------------------------------------- rules
-class SpeedRules(_Strict):
+class SpeedRules(_Strict, frozen=True):
     absolute_cap: Positive = 2.0
     """m/s: the cap in NORMAL; a `free` SC request is forwarded as `limit` at this cap."""
     reduced_cap: NonNegative = 0.3
@@ -107,7 +107,7 @@ class SpeedRules(_Strict):
     """m/s: above this, a controlled stop whatever the cap."""
 
 
-class StopRules(_Strict):
+class StopRules(_Strict, frozen=True):
     standstill_speed: Positive = 0.05
     """m/s at or below which the robot is at standstill."""
     standstill_tilt_deg: Positive = 3.0
@@ -129,7 +129,7 @@ class StopRules(_Strict):
     motion is motion_after_standstill's)."""
 
 
-class MotionRules(_Strict):
+class MotionRules(_Strict, frozen=True):
     tilt_limit_deg: Positive = 20.0
     """Chassis tilt beyond this in either plane: balance is lost, drives off."""
     torque_range: Positive = 1.05
@@ -144,7 +144,7 @@ class MotionRules(_Strict):
     """s without a rider while moving: controlled stop."""
 
 
-class Watchdogs(_Strict):
+class Watchdogs(_Strict, frozen=True):
     """Consumer timeouts, each several producer periods (drives and IMU 400 Hz, heartbeat 400 Hz in the
     rig, TES 400 Hz, SC requests at least 2 Hz)."""
 
@@ -159,14 +159,14 @@ class Watchdogs(_Strict):
     """A silent seat (TES) is a fault: the rider's input is lost."""
 
 
-class Integrity(_Strict):
+class Integrity(_Strict, frozen=True):
     e2e_window: Positive = 1.0
     """s over which E2E errors (CRC, repeated, out of order, lost frames) are counted."""
     e2e_max_errors: Annotated[int, msgspec.Meta(ge=1)] = 20
     """This many in the window: the bus cannot be trusted, controlled stop."""
 
 
-class DriveRules(_Strict):
+class DriveRules(_Strict, frozen=True):
     confirm: Positive = 0.02
     """s for the drives' feedback to confirm a change: off after the e-stop (else the main contactor
     opens: DRIVE_NOT_DISABLED), on once permitted and told to enable (else DRIVE_FAULT), the DC bus gone
@@ -179,7 +179,7 @@ class DriveRules(_Strict):
     """Consecutive DRIVEn_TORQUE samples (100 Hz) beyond the tolerance: ACTUATOR_MISMATCH."""
 
 
-class SensorRules(_Strict):
+class SensorRules(_Strict, frozen=True):
     """Cross-checks between independent measurements (docs/safety.md "Diagnostics")."""
 
     window: Positive = 0.025
@@ -205,7 +205,7 @@ class SensorRules(_Strict):
     moved is stuck."""
 
 
-class SeatRules(_Strict):
+class SeatRules(_Strict, frozen=True):
     """Plausibility of the seat wrench (a rider's weight, posture and how fast they can change)."""
 
     tare_time: Positive = 0.5
@@ -227,7 +227,7 @@ class SeatRules(_Strict):
     """Samples in a row with every value unchanged while the chassis moves: frozen."""
 
 
-class ScRules(_Strict):
+class ScRules(_Strict, frozen=True):
     """Several SC agents: the most restrictive request of those heard wins (docs/safety.md)."""
 
     rate: Positive = 50.0
@@ -238,7 +238,7 @@ class ScRules(_Strict):
     """Sources tracked at once; a request from one more is refused and counted."""
 
 
-class RecoveryRules(_Strict):
+class RecoveryRules(_Strict, frozen=True):
     """The recovery law (safety/recovery.py): an LQR per plane on the supervisor's own model, weights on
     [tilt, ball angle since the takeover, tilt rate, ball rate] (docs/safety.md "Fail-operational")."""
 
@@ -266,7 +266,7 @@ class RecoveryRules(_Strict):
     """s: low-pass on the attitude's derivative that stands in for a faulty or silent rate channel."""
 
 
-class Output(_Strict):
+class Output(_Strict, frozen=True):
     estop_frame_period: Positive = 0.01
     """s between SUPERVISOR_ESTOP frames (the DBC's 100 Hz); also sent at once on every transition."""
     sc_period: Positive = 0.05
@@ -277,14 +277,14 @@ class Output(_Strict):
     """Standalone: the supervisor's own timer (it also updates on every SYNC)."""
 
 
-class Identity(_Strict):
+class Identity(_Strict, frozen=True):
     operators: list[str] = []
     """Sources (the payload's `source`) allowed to reset an e-stop or request an SC mode. Empty: not checked
     (the loopback default). On a bench this is defence in depth behind the router's ACL (docs/security.md):
     anything else is counted and ignored. An e-stop is accepted from anyone, always."""
 
 
-class SupervisorConfig(_Strict):
+class SupervisorConfig(_Strict, frozen=True):
     identity: Identity = Identity()
     speed: SpeedRules = SpeedRules()
     stop: StopRules = StopRules()

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -97,15 +98,16 @@ class Replay:
     repeats a whole cycle. A constant stream is not a replay (that is the stuck check's, with evidence)."""
 
     def __init__(self, period: int):
-        self.history: deque[tuple] = deque(maxlen=period)
+        self.period = period
+        self.history: deque[tuple[float | int, ...]] = deque(maxlen=period)
         self.matches = 0
 
-    def frame(self, data: tuple) -> bool:
+    def frame(self, data: tuple[float | int, ...]) -> bool:
         """One trusted frame's data signals (without counter and CRC); True while replayed."""
-        full = len(self.history) == self.history.maxlen
+        full = len(self.history) == self.period
         self.matches = self.matches + 1 if full and data == self.history[0] else 0
         self.history.append(data)
-        return self.matches >= self.history.maxlen and len(set(self.history)) > 1
+        return self.matches >= self.period and len(set(self.history)) > 1
 
 
 class EncoderCheck(Check):
@@ -213,7 +215,9 @@ class TrendCheck(Check):
     def __init__(self, plane: str, rules: SensorRules, period: float):
         super().__init__(f"{plane} speed trend vs accelerometer")
         self.rules = rules
-        self.history: deque[tuple[float, float]] = deque(maxlen=max(round(rules.trend_window / period), 2))
+        self.window = max(round(rules.trend_window / period), 2)
+        """Samples the trend is judged over (the history's length)."""
+        self.history: deque[tuple[float, float]] = deque(maxlen=self.window)
         self.integral = 0.0
         self.previous_accel: float | None = None
 
@@ -224,7 +228,7 @@ class TrendCheck(Check):
             self.integral += 0.5 * (accel + self.previous_accel) * dt
         self.previous_accel = accel
         self.history.append((velocity, self.integral))
-        if len(self.history) < self.history.maxlen:
+        if len(self.history) < self.window:
             return None
         v0, i0 = self.history[0]
         changed, integrated = velocity - v0, self.integral - i0
@@ -286,7 +290,14 @@ class SeatCheck(Check):
         self.peaks = {"weight": 0.0, "cop": 0.0, "consistency": 0.0, "force rate": 0.0, "moment rate": 0.0}
 
     def sample(
-        self, force, moment, cop, vertical_accel: float, moved: float, cells=None, g: float = 9.80665
+        self,
+        force: Sequence[float],
+        moment: Sequence[float],
+        cop: Sequence[float],
+        vertical_accel: float,
+        moved: float,
+        cells: Sequence[float] | None = None,
+        g: float = 9.80665,
     ) -> Finding | None:
         """One payload; `vertical_accel`: the IMU's vertical specific force (m/s², ~g at rest); `moved`:
         how much other evidence (the IMU) changed since the previous sample (for the frozen checks);
@@ -369,7 +380,7 @@ def motor_jacobian(robot: RobotGeometry) -> np.ndarray:
     return np.array(rows)
 
 
-def world_acceleration(accel, roll: float, pitch: float) -> tuple[float, float, float]:
+def world_acceleration(accel: Sequence[float], roll: float, pitch: float) -> tuple[float, float, float]:
     """The body specific force in the heading frame: world = Ry(pitch) Rx(roll) body."""
     bx, by, bz = accel
     sr, cr, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)

@@ -36,6 +36,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum
+from typing import Literal
 
 from safety.config import SupervisorConfig
 
@@ -246,7 +247,8 @@ class Observation:
 class Forward:
     """The SC command the supervisor lets through (pure/sc/command)."""
 
-    mode: str
+    mode: Literal["idle", "limit"]
+    """Never 'free': what it lets through is always capped (0: idle)."""
     cap: float
     source: str
     reason: str
@@ -331,14 +333,17 @@ class Supervisor:
 
     # ----------------------------------------------------------------------------------------- decide
     def update(self, obs: Observation) -> Decision:
-        if self.started is None:
-            self.started = self.since = self.permitted_since = obs.t
+        started = self.started
+        if started is None:
+            started = self.started = self.since = self.permitted_since = obs.t
+        armed = obs.t - started >= self.config.watchdogs.startup_grace
+        """The stream watchdogs judge a stream never heard from only after the start-up grace."""
         if obs.ages.get("sc", math.inf) != math.inf:
             self._sc_seen = True
         if obs.operator in ("estop", "cut_power"):
             self.estop_by = obs.operator_source or "?"
-        immediate = self._immediate(obs)
-        controlled = self._controlled(obs)
+        immediate = self._immediate(obs, armed)
+        controlled = self._controlled(obs, armed)
         if self.state is State.ESTOP:
             if obs.operator == "reset":
                 self._try_reset(obs)
@@ -356,10 +361,9 @@ class Supervisor:
             self._limit(obs)
         return self._decision(obs)
 
-    def _immediate(self, obs: Observation) -> tuple[Cause, str] | None:
+    def _immediate(self, obs: Observation, armed: bool) -> tuple[Cause, str] | None:
         """The first immediate cause that holds, from source to consequence, and what it saw."""
         c, w = self.config, self.config.watchdogs
-        armed = obs.t - self.started >= w.startup_grace
         ages = obs.ages
 
         def silent(stream: str, timeout: float) -> bool:
@@ -396,7 +400,7 @@ class Supervisor:
             self._saturated_since = None
         return None
 
-    def _controlled(self, obs: Observation) -> tuple[Cause, str] | None:
+    def _controlled(self, obs: Observation, armed: bool) -> tuple[Cause, str] | None:
         """The first controlled cause that holds, from source to consequence, and what it saw."""
         c, w = self.config, self.config.watchdogs
         if obs.operator == "estop":
@@ -406,7 +410,6 @@ class Supervisor:
         if obs.e2e_errors >= c.integrity.e2e_max_errors:
             return Cause.E2E_ERRORS, f"{obs.e2e_errors} in {c.integrity.e2e_window:g} s"
         wrench_age = obs.ages.get("wrench", math.inf)
-        armed = obs.t - self.started >= w.startup_grace
         if w.require_wrench and wrench_age > w.wrench and (armed or wrench_age != math.inf):
             return Cause.WRENCH_SILENT, ""
         if obs.findings:

@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import Counter, deque
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
@@ -41,18 +42,19 @@ from safety.diagnostics import (
 from safety.machine import STREAMS, Cause, DriveReport, Finding, Observation, Request
 from safety.recovery import ENCODERS, IsolatedEstimator, leave_one_out
 
-MOTOR = {
+# Keyed by message name as a frame carries it (Received.name, a str; MessageName members are str).
+MOTOR: dict[str, int] = {
     name: motor for names in (DRIVE_FEEDBACK, DRIVE_COMMAND, DRIVE_TORQUE) for motor, name in enumerate(names)
 }
 """Which motor (0, 1, 2) a drive's message is about."""
-IMU_CHANNELS = {
+IMU_CHANNELS: dict[str, tuple[str, str, str]] = {
     MessageName.IMU_ATTITUDE: ("Roll", "Pitch", "Yaw"),
     MessageName.IMU_RATE: ("RateX", "RateY", "RateZ"),
     MessageName.IMU_ACCEL: ("AccX", "AccY", "AccZ"),
 }
 REPLAY_CHECKED = (*DRIVE_FEEDBACK, *DRIVE_TORQUE, *IMU_CHANNELS)
 """Sensor streams checked for a replay from one counter period back."""
-CHANNEL_INPUT = {
+CHANNEL_INPUT: dict[str, tuple[str, ...]] = {
     **{name: (f"Encoder{motor + 1}",) for name, motor in zip(DRIVE_FEEDBACK, range(3), strict=True)},
     **{name: () for name in DRIVE_TORQUE},  # an actuator's read-back, not an input of balance
     MessageName.IMU_ATTITUDE: ("Roll", "Pitch", ""),
@@ -67,6 +69,8 @@ ATTITUDE_LSB = 1e-4
 """rad: IMU_ATTITUDE's resolution (the DBC); "it moved" means several of these."""
 MOVED = 3 * ATTITUDE_LSB
 G0 = 9.80665
+Signals = Mapping[str, float | int]
+"""A trusted frame's decoded signals (Received.signals)."""
 
 
 class Drive:
@@ -95,7 +99,7 @@ class Drive:
         self.enable_since: float | None = None
         self.findings: dict[str, Finding | None] = {}
 
-    def feedback(self, s, t: float, lost: int) -> None:
+    def feedback(self, s: Signals, t: float, lost: int) -> None:
         counts = int(s["Position"])
         if t - self.seen > 8 * self.period + 1e-9:
             self.encoder.reset()  # a gap the window must not span
@@ -115,7 +119,7 @@ class Drive:
             else None
         )
 
-    def commanded(self, s, t: float) -> None:
+    def commanded(self, s: Signals, t: float) -> None:
         enable = bool(s["Enable"])
         self.command = (float(s["Torque"]), enable)
         if not enable:
@@ -160,15 +164,15 @@ class Monitors:
         self.seat = SeatCheck(
             config.seat, config.motion.rider_min_load, robot.body.seat_height, period, MOVED
         )
-        self.imu = {name: [0.0, 0.0, 0.0] for name in IMU_CHANNELS}
-        self._imu_seen = dict.fromkeys(IMU_CHANNELS, -math.inf)
-        self._imu_stuck = {
+        self.imu: dict[str, list[float]] = {name: [0.0, 0.0, 0.0] for name in IMU_CHANNELS}
+        self._imu_seen: dict[str, float] = dict.fromkeys(IMU_CHANNELS, -math.inf)
+        self._imu_stuck: dict[str, list[Stuck]] = {
             name: [Stuck(sensors.stuck_samples, MOVED) for _ in names] for name, names in IMU_CHANNELS.items()
         }
         self._attitude_at_rate = (0.0, 0.0)
         self._imu_motion = 0.0
         """rad the chassis turned (|rates| × dt) since the last seat sample: evidence for the seat's."""
-        self._replay = {name: Replay(COUNTER_MODULO) for name in REPLAY_CHECKED}
+        self._replay: dict[str, Replay] = {name: Replay(COUNTER_MODULO) for name in REPLAY_CHECKED}
         self._found: dict[tuple[str, str], Finding | None] = {}
         """What the frame-driven checks found at their last frame, by (message, check) (None: nothing)."""
         self._checks_at: float | None = None
@@ -197,7 +201,7 @@ class Monitors:
         self.rejected_identity: Counter[str] = Counter()
         """SC requests and resets ignored because their source is not a configured operator."""
         self.sc = ScArbiter(config.sc)
-        self._readers = {
+        self._readers: dict[str, Callable[[str, Signals, float, int], None]] = {
             **dict.fromkeys(DRIVE_FEEDBACK, self._feedback),
             **dict.fromkeys(DRIVE_COMMAND, self._commanded),
             **dict.fromkeys(DRIVE_TORQUE, self._measured),
@@ -231,11 +235,11 @@ class Monitors:
         if read is not None:
             read(name, s, t, 0 if e2e is None else e2e.lost)
 
-    def _feedback(self, name: str, s, t: float, lost: int) -> None:
+    def _feedback(self, name: str, s: Signals, t: float, lost: int) -> None:
         self.drives[MOTOR[name]].feedback(s, t, lost)
         self.last["drives"] = min(d.seen for d in self.drives)
 
-    def _commanded(self, name: str, s, t: float, lost: int) -> None:
+    def _commanded(self, name: str, s: Signals, t: float, lost: int) -> None:
         self.torque_peak = max(self.torque_peak, abs(float(s["Torque"])))
         if not self.recovering:
             self.drives[MOTOR[name]].commanded(s, t)
@@ -247,17 +251,17 @@ class Monitors:
         for drive, torque in zip(self.drives, torques, strict=True):
             drive.command = (torque, True)
 
-    def _measured(self, name: str, s, t: float, lost: int) -> None:
+    def _measured(self, name: str, s: Signals, t: float, lost: int) -> None:
         self.drives[MOTOR[name]].measured(float(s["Torque"]))
 
-    def _heartbeat(self, name: str, s, t: float, lost: int) -> None:
+    def _heartbeat(self, name: str, s: Signals, t: float, lost: int) -> None:
         self.controller_state = int(s["State"])
         self.last["heartbeat"] = t
 
-    def _button(self, name: str, s, t: float, lost: int) -> None:
+    def _button(self, name: str, s: Signals, t: float, lost: int) -> None:
         self.button = bool(s["Request"])
 
-    def _imu_frame(self, name: str, s, t: float, lost: int) -> None:
+    def _imu_frame(self, name: str, s: Signals, t: float, lost: int) -> None:
         if not s["Valid"]:
             return
         values, signals = self.imu[name], IMU_CHANNELS[name]
@@ -433,9 +437,9 @@ class Monitors:
         ax, ay, _ = world_acceleration(self.imu[MessageName.IMU_ACCEL], roll, pitch)
         found.append(self.trend[0].update(forward + h * math.cos(pitch) * rate[1], ax, dt))
         found.append(self.trend[1].update(left - h * math.cos(roll) * rate[0], ay, dt))
-        for check, finding in zip(("yaw", "roll", "pitch", "pitch trend", "roll trend"), found, strict=True):
+        for failed, finding in zip(("yaw", "roll", "pitch", "pitch trend", "roll trend"), found, strict=True):
             if finding is not None:
-                self._failed.add(check)
+                self._failed.add(failed)
         return [f for f in found if f is not None]
 
     def findings(self, t: float) -> tuple[Finding, ...]:

@@ -19,13 +19,24 @@ import math
 import threading
 import time
 from collections.abc import Callable
+from typing import cast
 
 from drivers.can_bus import CanNode, Received
 from drivers.can_codec import MessageName
-from drivers.schemas import EstopCommand, SafetyAlert, SafetyState, ScCommand, ScRequest, TesWrench, encode
+from drivers.schemas import (
+    EstopCommand,
+    Payload,
+    SafetyAlert,
+    SafetyState,
+    SafetyStateName,
+    ScCommand,
+    ScRequest,
+    TesWrench,
+    encode,
+)
 from drivers.zenoh_link import Fence, ZenohLink
 from safety.config import RobotGeometry, SupervisorConfig
-from safety.machine import PARTS, Decision, Event, Forward, Observation, State, Supervisor
+from safety.machine import PARTS, Cause, Decision, Event, Forward, Observation, State, Supervisor
 from safety.monitors import Monitors
 from safety.recovery import RecoveryLaw
 
@@ -164,7 +175,7 @@ class SupervisorNode:
                 SafetyState(
                     seq=self._state_seq,
                     stamp=stamp,
-                    state=d.state.name,  # type: ignore[arg-type]
+                    state=cast(SafetyStateName, d.state.name),  # State's names are SafetyStateName
                     reason=d.cause.name + (f" (reset refused: {refused})" if refused else ""),
                     cap=d.cap,
                     since=max(d.since, 0.0),
@@ -200,7 +211,7 @@ class SupervisorNode:
             },
         )
 
-    def _send_frame(self, state: State, cause, contactor_closed: bool, takeover: bool = False) -> None:
+    def _send_frame(self, state: State, cause: Cause, contactor_closed: bool, takeover: bool = False) -> None:
         self.can.send(
             MessageName.SUPERVISOR_ESTOP,
             {
@@ -216,7 +227,7 @@ class SupervisorNode:
         """Stamps are in the controller's time base: the SYNC tick count over the tick rate."""
         return t if self.tick is None else self.tick / self.tick_hz
 
-    def _put(self, key: str, payload) -> None:
+    def _put(self, key: str, payload: Payload) -> None:
         data = encode(payload)
         self.link.put_bytes(key, data)
         if self.on_put is not None:

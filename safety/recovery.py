@@ -19,8 +19,9 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 from scipy.linalg import solve_continuous_are
@@ -45,18 +46,31 @@ ODD_ONE_OUT_TICKS = 40
 (25 ms) and the fault's onset before it."""
 
 
-def leave_one_out(jacobian: np.ndarray):
+Solver = Callable[[Sequence[float], float], tuple[float, float]]
+"""(the two other drives' velocities, the yaw rate) -> the ball-to-body rates (x, y)."""
+
+
+def leave_one_out(jacobian: np.ndarray) -> list[tuple[Solver, list[int]]]:
     """For each drive, a solver for the ball-to-body rates (x, y) from the other two drives' velocities and
     the yaw rate: what the rates are if that drive's encoder is the wrong one. Scalar arithmetic: numpy's
     per-call overhead dominates a 2 x 2 solve, and the supervisor runs four of them every tick."""
-    solvers = []
+    solvers: list[tuple[Solver, list[int]]] = []
     for i in range(3):
         others = [j for j in range(3) if j != i]
         inverse = np.linalg.inv(jacobian[np.ix_(others, [0, 1])])
         (a, b), (c, d) = ((float(x) for x in row) for row in inverse)
         c0, c1 = (float(x) for x in jacobian[others, 2])
 
-        def solve(known, yaw_rate, a=a, b=b, c=c, d=d, c0=c0, c1=c1):
+        def solve(
+            known: Sequence[float],
+            yaw_rate: float,
+            a: float = a,
+            b: float = b,
+            c: float = c,
+            d: float = d,
+            c0: float = c0,
+            c1: float = c1,
+        ) -> tuple[float, float]:
             # yaw_rate is the body's ψ̇ (the gyro's RateZ) and r2 = −ψ̇: each remaining motor's rate minus
             # its yaw part, through the 2×2 inverse.
             m0, m1 = known[0] + c0 * yaw_rate, known[1] + c1 * yaw_rate
@@ -81,7 +95,9 @@ class Plane:
     derivative: float = 0.0
     """The attitude's derivative, low-passed."""
     last_attitude: float | None = None
-    history: deque = field(default_factory=lambda: deque(maxlen=ATTITUDE_WINDOW + 1))
+    history: deque[tuple[float, float, float, float]] = field(
+        default_factory=lambda: deque(maxlen=ATTITUDE_WINDOW + 1)
+    )
     """Per tick: the IMU point's velocity if the rate is right, if the attitude is right; the specific
     force (forward, up) in the plane."""
     force_sum: list[float] = field(default_factory=lambda: [0.0, 0.0])
@@ -109,7 +125,7 @@ class IsolatedEstimator:
         self._candidates: list[tuple[float, float]] | None = None
         """The ball rates (x, y) under each single-fault hypothesis: the gyro wrong (three encoders), or
         encoder 1, 2 or 3 wrong (the other two and the gyro)."""
-        self._roughness = [deque(maxlen=ODD_ONE_OUT_TICKS) for _ in range(4)]
+        self._roughness: list[deque[float]] = [deque(maxlen=ODD_ONE_OUT_TICKS) for _ in range(4)]
         self._odd: str | None = None
         self.ready = False
         """The inputs needed to balance are there: attitude or rate per plane, and the ball rates from three
@@ -171,22 +187,30 @@ class IsolatedEstimator:
             plane.ball_rate = rel + plane.tilt_rate
             plane.ball_angle += plane.ball_rate * dt
 
-    def _track_hypotheses(self, velocities, rate) -> None:
+    def _track_hypotheses(self, velocities: Sequence[float | None], rate: Sequence[float] | None) -> None:
         """How much each hypothesis' ball rates jumped tick to tick over the last ticks: a sensor that
         steps, flips or drifts makes every estimate that uses it jump; the one without it stays smooth."""
-        if rate is None or any(v is None for v in velocities):
+        m0, m1, m2 = velocities
+        if rate is None or m0 is None or m1 is None or m2 is None:
             return
         (r00, r01, r02), (r10, r11, r12) = self._rows[:2]
-        m0, m1, m2 = velocities
+        known = (m0, m1, m2)
         candidates = [(r00 * m0 + r01 * m1 + r02 * m2, r10 * m0 + r11 * m1 + r12 * m2)]
         for solve, others in self._leave_one_out:
-            candidates.append(solve([velocities[j] for j in others], rate[2]))
+            candidates.append(solve([known[j] for j in others], rate[2]))
         if self._candidates is not None:
             for rough, now, before in zip(self._roughness, candidates, self._candidates, strict=True):
                 rough.append(abs(now[0] - before[0]) + abs(now[1] - before[1]))
         self._candidates = candidates
 
-    def _vote_attitude(self, attitude, rate, accel, relative, dt: float) -> None:
+    def _vote_attitude(
+        self,
+        attitude: Sequence[float],
+        rate: Sequence[float],
+        accel: Sequence[float],
+        relative: tuple[float, float, float],
+        dt: float,
+    ) -> None:
         """Per plane, the accelerometer's tilt under each hypothesis, against the tilt that hypothesis keeps.
 
         The specific force in the plane (body forward, up) rotated by the true tilt θ is the IMU point's
@@ -219,7 +243,7 @@ class IsolatedEstimator:
                 continue  # free fall or a dead accelerometer: no tilt to be had
             offset = math.atan2(f_fwd, f_up)
 
-            def tilt(a: float, norm=norm, offset=offset) -> float:
+            def tilt(a: float, norm: float = norm, offset: float = offset) -> float:
                 return math.asin(min(max(a / norm, -1.0), 1.0)) - offset
 
             tilt_if_rate_wrong = tilt((v_attitude - first[1]) / span)
@@ -272,7 +296,9 @@ class IsolatedEstimator:
         for plane in self.planes:
             plane.blamed = None
 
-    def _relative(self, velocities, rate, suspects) -> tuple[float, float, float] | None:
+    def _relative(
+        self, velocities: Sequence[float | None], rate: Sequence[float] | None, suspects: frozenset[str]
+    ) -> tuple[float, float, float] | None:
         """Ball-to-body rates (x, y, z) from the trusted encoders (and the gyro's yaw rate if one is not)."""
         bad = [
             i
@@ -281,11 +307,17 @@ class IsolatedEstimator:
         ]
         if not bad:
             m0, m1, m2 = velocities
-            return tuple(r0 * m0 + r1 * m1 + r2 * m2 for r0, r1, r2 in self._rows)  # type: ignore[return-value]
+            if m0 is not None and m1 is not None and m2 is not None:  # none is bad: always
+                (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = self._rows
+                return (
+                    r00 * m0 + r01 * m1 + r02 * m2,
+                    r10 * m0 + r11 * m1 + r12 * m2,
+                    r20 * m0 + r21 * m1 + r22 * m2,
+                )
         if len(bad) > 1 or rate is None or "RateZ" in suspects:
             return None
         solve, others = self._leave_one_out[bad[0]]
-        x, y = solve([velocities[j] for j in others], rate[2])
+        x, y = solve(cast("list[float]", [velocities[j] for j in others]), rate[2])  # others: not the bad one
         return x, y, -rate[2]
 
     def engage(self) -> None:
@@ -327,7 +359,8 @@ def plane_gain(robot: RobotGeometry, rules: RecoveryRules, rider_mass: float, in
     q = np.diag([rules.q_tilt, rules.q_position, rules.q_tilt_rate, rules.q_ball_rate])
     rr = np.array([[rules.r]])
     p = solve_continuous_are(a, b, q, rr)
-    return (np.linalg.solve(rr, b.T @ p))[0]
+    gain: np.ndarray = np.linalg.solve(rr, b.T @ p)[0]
+    return gain
 
 
 class RecoveryLaw:
@@ -388,4 +421,5 @@ class RecoveryLaw:
             motor = np.zeros(3)
             motor[others] = inverse @ np.asarray(ball)
         limit = self.limit
-        return tuple(min(max(float(m), -limit), limit) for m in motor)  # type: ignore[return-value]
+        m0, m1, m2 = (float(m) for m in motor)
+        return min(max(m0, -limit), limit), min(max(m1, -limit), limit), min(max(m2, -limit), limit)

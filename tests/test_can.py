@@ -19,7 +19,7 @@ from drivers.can_bus import (
     private_channel,
 )
 from drivers.can_codec import Catalog
-from drivers.e2e import E2EStatus, crc8, is_protected
+from drivers.e2e import E2EChecker, E2EProtector, E2EStatus, counter_of, crc8, is_protected, with_counter
 
 CATALOG = Catalog()
 DB = CATALOG.database
@@ -80,6 +80,20 @@ def test_every_safety_frame_is_protected():
     assert unprotected == {"SYNC"}
     ids = sorted(c.frame_id for c in CATALOG)
     assert ids[:2] == [CATALOG["SUPERVISOR_ESTOP"].frame_id, CATALOG["OPERATOR_ESTOP"].frame_id]
+
+
+def test_e2e_on_an_unprotected_message_is_refused_by_name():
+    """Sealing, checking or re-countering a message without Counter and Crc is a caller's error, named as
+    such (it was an AttributeError on None)."""
+    sync = CATALOG["SYNC"]
+    for call in (
+        lambda: E2EProtector().seal(sync, 0),
+        lambda: E2EChecker().check(sync, bytes(sync.length)),
+        lambda: with_counter(sync, bytes(sync.length), 1),
+        lambda: counter_of(sync, bytes(sync.length)),
+    ):
+        with pytest.raises(ValueError, match="SYNC is not E2E-protected"):
+            call()
 
 
 # ------------------------------------------------------------------------------------------ buses

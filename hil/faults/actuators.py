@@ -24,7 +24,7 @@ class DriveFault(PlantFault, frozen=True, kw_only=True):
     detect_within: ClassVar[float] = 0.05
 
 
-class DriveTorque(DriveFault, tag="plant.drive_torque"):
+class DriveTorque(DriveFault, frozen=True, tag="plant.drive_torque"):
     """Drive `motor` produces `scale` times the torque it is commanded (0: torque lost, the drive still
     reports itself enabled)."""
 
@@ -37,7 +37,7 @@ class DriveTorque(DriveFault, tag="plant.drive_torque"):
         rig.plant.drives.motors[self.motor - 1].gain = 1.0
 
 
-class DriveStuckEnabled(DriveFault, tag="plant.drive_stuck_enabled"):
+class DriveStuckEnabled(DriveFault, frozen=True, tag="plant.drive_stuck_enabled"):
     """Drive `motor`'s power stage cannot be switched off: it ignores disable, its watchdog and the
     supervisor's e-stop, and holds its last setpoint (latent until the drives are told to turn off)."""
 
@@ -50,7 +50,7 @@ class DriveStuckEnabled(DriveFault, tag="plant.drive_stuck_enabled"):
         rig.plant.drives.motors[self.motor - 1].stuck_enabled = False
 
 
-class Push(PlantFault, tag="plant.push"):
+class Push(PlantFault, frozen=True, tag="plant.push"):
     """A push on the robot for the fault's duration: `force` (N; forward, left) applied `height` metres
     above the chassis top P (0: on the chassis; about 0.4: the rider's chest), and a `twist` about the
     vertical (Nm). The rider is taken as rigid with the chassis for the push: its wrench acts at P."""
@@ -74,7 +74,7 @@ class Push(PlantFault, tag="plant.push"):
         rig.plant.external_yaw = 0.0
 
 
-class MassShift(PlantFault, tag="plant.mass_shift"):
+class MassShift(PlantFault, frozen=True, tag="plant.mass_shift"):
     """The rider's weight shifts suddenly by a torso lean of `pitch_deg` (forward) and `roll_deg`, on top of
     whatever the rider does (a slip on the seat, a reach for something; in 30 ms, as fast as a body's mass
     moves); lasts the fault's duration."""
@@ -96,4 +96,4 @@ class MassShift(PlantFault, tag="plant.mass_shift"):
             torso.shift = 0.0
 
 
-FAULTS = (DriveTorque, DriveStuckEnabled, Push, MassShift)
+FAULTS: tuple[type[FaultSpec], ...] = (DriveTorque, DriveStuckEnabled, Push, MassShift)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Protocol
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Protocol, cast
 
 import msgspec
 import numpy as np
@@ -108,7 +108,7 @@ class FaultSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only
 
     @property
     def kind(self) -> str:
-        return type(self).__struct_config__.tag  # type: ignore[return-value]
+        return kind_of(type(self))
 
     def ticks(self, tick_hz: float, now: int = 0) -> tuple[int, int | None]:
         """The ticks it is active in, [first, end) (end None: to the run's end), `at` counted from tick
@@ -136,6 +136,11 @@ class FaultSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only
         """The fault ends (its duration ran out, or it was cleared)."""
 
 
+def kind_of(cls: type[FaultSpec]) -> str:
+    """A fault class's `kind`: the tag each one declares, a str (msgspec's own type allows int or None)."""
+    return cast(str, cls.__struct_config__.tag)
+
+
 def _default(cls: type, name: str) -> Any:
     for f in msgspec.structs.fields(cls):
         if f.name == name:
@@ -159,6 +164,9 @@ class FaultState:
     memory: dict[str, Any] = field(default_factory=dict)
 
 
+FaultAction = Literal["inject", "start", "end", "clear"]
+
+
 class FaultEvent(msgspec.Struct, frozen=True):
     """A line of the fault log: `action` is inject (live request taken), start, end or clear."""
 
@@ -166,5 +174,5 @@ class FaultEvent(msgspec.Struct, frozen=True):
     fault: int
     """The fault's number in the run (scenario order, then live injections)."""
     kind: str
-    action: Literal["inject", "start", "end", "clear"]
+    action: FaultAction
     detail: str = ""

@@ -64,7 +64,7 @@ class CanFault(FaultSpec, frozen=True, kw_only=True):
         """Send what the fault held back and is due by `t` (delay, reorder)."""
 
 
-class Drop(CanFault, tag="can.drop"):
+class Drop(CanFault, frozen=True, tag="can.drop"):
     """Frames are lost with probability `rate` (1: all; with `count`: a burst of that many)."""
 
     rate: Probability = 1.0
@@ -73,7 +73,7 @@ class Drop(CanFault, tag="can.drop"):
         return None if self.rate >= 1.0 or state.rng.random() < self.rate else msg
 
 
-class Delay(CanFault, tag="can.delay"):
+class Delay(CanFault, frozen=True, tag="can.delay"):
     """Every frame arrives `delay` seconds late (a gateway or a queue in the way)."""
 
     delay: Positive
@@ -92,7 +92,7 @@ class Delay(CanFault, tag="can.delay"):
         self.flush(rig, state, float("inf"))
 
 
-class Repeat(CanFault, tag="can.repeat"):
+class Repeat(CanFault, frozen=True, tag="can.repeat"):
     """Every frame is sent `times` more times (a retransmission bug: the receiver sees REPEATED)."""
 
     times: Count = 1
@@ -102,7 +102,7 @@ class Repeat(CanFault, tag="can.repeat"):
         return [msg] * (1 + self.times)
 
 
-class Reorder(CanFault, tag="can.reorder"):
+class Reorder(CanFault, frozen=True, tag="can.reorder"):
     """Consecutive frames swap places: each is held and sent after the next one (OUT_OF_ORDER)."""
 
     both_ways: ClassVar[bool] = False
@@ -120,7 +120,7 @@ class Reorder(CanFault, tag="can.reorder"):
             rig.can.transmit(self.message, held)
 
 
-class Corrupt(CanFault, tag="can.corrupt"):
+class Corrupt(CanFault, frozen=True, tag="can.corrupt"):
     """One payload bit flips on the wire (`bit`, counted from the payload's least significant bit; none: a
     random bit per frame), so the CRC no longer matches."""
 
@@ -134,7 +134,7 @@ class Corrupt(CanFault, tag="can.corrupt"):
         return _copy(msg, data)
 
 
-class WrongCounter(CanFault, tag="can.wrong_counter"):
+class WrongCounter(CanFault, frozen=True, tag="can.wrong_counter"):
     """The sender's alive counter misbehaves with a valid CRC: `frozen` (every frame repeats the counter
     it had when the fault started: REPEATED) or `skip` (it advances by 2: LOST every frame)."""
 
@@ -156,7 +156,7 @@ class WrongCounter(CanFault, tag="can.wrong_counter"):
         return _copy(msg, with_counter(codec, msg.data, counter))
 
 
-class WrongDlc(CanFault, tag="can.wrong_dlc"):
+class WrongDlc(CanFault, frozen=True, tag="can.wrong_dlc"):
     """Frames carry `length` bytes instead of the DBC's (truncated, or padded with zeros)."""
 
     length: Annotated[int, msgspec.Meta(ge=0, le=8)]
@@ -166,7 +166,7 @@ class WrongDlc(CanFault, tag="can.wrong_dlc"):
         return _copy(msg, data)
 
 
-class Masquerade(CanFault, tag="can.masquerade"):
+class Masquerade(CanFault, frozen=True, tag="can.masquerade"):
     """A node sends this message's valid payload under `as_message`'s id as well (a node impersonating
     another): the E2E data id in the CRC makes receivers of `as_message` see CRC errors."""
 
@@ -186,7 +186,7 @@ class Masquerade(CanFault, tag="can.masquerade"):
         return [msg, _copy(msg, arbitration_id=rig.can.catalog[self.as_message].frame_id)]
 
 
-class Replay(CanFault, tag="can.replay"):
+class Replay(CanFault, frozen=True, tag="can.replay"):
     """A node records `frames` of this message's frames, then replays the recording in a loop instead of
     fresh ones, each frame as it was (counter and CRC intact). At 16 frames the 4-bit alive counter comes
     round exactly: E2E sees a healthy stream of stale data (a replay attack, or a stuck buffer)."""
@@ -195,7 +195,7 @@ class Replay(CanFault, tag="can.replay"):
     both_ways: ClassVar[bool] = False
 
     def tx(self, msg, rig, state):
-        recorded: list = state.memory.setdefault("recorded", [])
+        recorded: list[can.Message] = state.memory.setdefault("recorded", [])
         if len(recorded) < self.frames:
             recorded.append(msg)
             return [msg]
@@ -235,4 +235,16 @@ class BusOff(FaultSpec, frozen=True, kw_only=True, tag="can.bus_off"):
             raise ValueError("can.bus_off needs a duration (the recovery time)")
 
 
-FAULTS = (Drop, Delay, Repeat, Reorder, Corrupt, WrongCounter, WrongDlc, Masquerade, Replay, Babble, BusOff)
+FAULTS: tuple[type[FaultSpec], ...] = (
+    Drop,
+    Delay,
+    Repeat,
+    Reorder,
+    Corrupt,
+    WrongCounter,
+    WrongDlc,
+    Masquerade,
+    Replay,
+    Babble,
+    BusOff,
+)

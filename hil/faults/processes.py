@@ -23,7 +23,7 @@ class ProcessFault(FaultSpec, frozen=True, kw_only=True):
         return 0
 
 
-class Kill(ProcessFault, tag="process.kill"):
+class Kill(ProcessFault, frozen=True, tag="process.kill"):
     """`target` stops dead, without a word (no further frames or puts)."""
 
     target: Literal["controller", "supervisor"] = "controller"
@@ -41,7 +41,7 @@ class Kill(ProcessFault, tag="process.kill"):
             rig.supervisor = None
 
 
-class Hang(ProcessFault, tag="process.hang"):
+class Hang(ProcessFault, frozen=True, tag="process.hang"):
     """The controller stops answering for the fault's duration but stays alive; afterwards it works
     through what queued up meanwhile (its late commands are counted and never applied)."""
 
@@ -58,7 +58,7 @@ class Hang(ProcessFault, tag="process.hang"):
         rig.dut.resume()
 
 
-class LoopDelay(ProcessFault, tag="process.loop_delay"):
+class LoopDelay(ProcessFault, frozen=True, tag="process.loop_delay"):
     """The control loop runs `delay` seconds late: every command reaches the drives that much later."""
 
     delay: Positive
@@ -67,7 +67,7 @@ class LoopDelay(ProcessFault, tag="process.loop_delay"):
         return math.ceil(self.delay / rig.plant.dt - 1e-9)
 
 
-class Jitter(ProcessFault, tag="process.jitter"):
+class Jitter(ProcessFault, frozen=True, tag="process.jitter"):
     """The control loop's latency varies uniformly in [0, `jitter`] seconds per tick (a command never
     overtakes an earlier one: the drives keep the newest that has arrived)."""
 
@@ -77,4 +77,4 @@ class Jitter(ProcessFault, tag="process.jitter"):
         return math.floor(state.rng.uniform(0.0, self.jitter) / rig.plant.dt + 0.5)
 
 
-FAULTS = (Kill, Hang, LoopDelay, Jitter)
+FAULTS: tuple[type[ProcessFault], ...] = (Kill, Hang, LoopDelay, Jitter)

@@ -11,20 +11,27 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from typing import NamedTuple, cast
 
 import can
 import msgspec
 import numpy as np
 
 from drivers.schemas import TesWrench
-from hil.faults.base import FaultError, FaultEvent, FaultSpec, FaultState, FaultTarget
+from hil.faults.base import FaultAction, FaultError, FaultEvent, FaultSpec, FaultState, FaultTarget
 from hil.faults.frames import RX_MESSAGES, Babble, BusOff, CanFault
 from hil.faults.processes import ProcessFault
 from hil.faults.sensors import Readings, SensorFault
 from hil.faults.topics import TopicFault
 
 log = logging.getLogger(__name__)
+
+
+class _Clear(NamedTuple):
+    """A live request to end fault number `fault` (None: all of them)."""
+
+    fault: int | None
 
 
 class FaultSet:
@@ -36,12 +43,24 @@ class FaultSet:
         self.states: list[FaultState] = []
         self.events: list[FaultEvent] = []
         self._cleared: set[int] = set()
-        self._requests: list[tuple[str, FaultSpec | int | None]] = []
+        self._requests: list[FaultSpec | _Clear] = []
+        """Live requests (a fault to inject, or one to clear), queued by other threads until the next tick."""
         self._lock = threading.Lock()
         self.rig: FaultTarget | None = None
+        """The rig the faults act on, from attach(). Before it the hooks are handed None for the rig: only
+        faults that touch no rig can run so (unit tests of the timing do)."""
         self.on_event = None
         """Called with every FaultEvent as it happens (the service marks the live view)."""
         self._active: list[int] = []
+        # The active faults by family, with their states (_index): what the rig's hooks run each tick.
+        self._sensors: list[tuple[SensorFault, FaultState]] = []
+        self._topics: list[tuple[TopicFault, FaultState]] = []
+        self._processes: list[tuple[ProcessFault, FaultState]] = []
+        self._frames: list[tuple[CanFault, FaultState]] = []
+        self._babblers: list[Babble] = []
+        self._bus_off = False
+        self._starve_above: int | None = None
+        """Frames with a higher id lose every arbitration to a babbler that fills the bus."""
         for spec in faults:
             self._add(spec)
         self._index()
@@ -79,22 +98,23 @@ class FaultSet:
         if self.rig is not None:
             spec.validate(self.rig)
         with self._lock:
-            self._requests.append(("inject", spec))
+            self._requests.append(spec)
 
     def clear(self, fault: int | None = None) -> None:
         """From any thread: end fault number `fault` (None: every fault active or still to come)."""
         with self._lock:
-            self._requests.append(("clear", fault))
+            self._requests.append(_Clear(fault))
 
     def _take_requests(self, k: int, t: float) -> None:
         with self._lock:
             requests, self._requests = self._requests, []
-        for action, arg in requests:
-            if action == "inject":
+        rig = cast(FaultTarget, self.rig)  # None before attach(): see `rig`
+        for request in requests:
+            if isinstance(request, FaultSpec):
                 # Recorded with its absolute start; scheduled from tick 0, so `at` counts once from this tick.
-                spec = msgspec.structs.replace(arg, at=t + arg.at)  # type: ignore[type-var]
+                spec = msgspec.structs.replace(request, at=t + request.at)
                 try:
-                    spec.validate(self.rig)
+                    spec.validate(rig)
                 except ValueError as exc:  # queued before the rig was there to check it
                     log.error("live fault %s refused: %s", spec.describe(), exc)
                     continue
@@ -102,7 +122,7 @@ class FaultSet:
                 self._schedule(n)
                 self._log(t, n, "inject", spec.describe())
             else:
-                targets = range(len(self.specs)) if arg is None else [arg]
+                targets = range(len(self.specs)) if request.fault is None else [request.fault]
                 for n in targets:
                     if 0 <= n < len(self.specs) and n not in self._cleared:
                         self._cleared.add(n)
@@ -113,7 +133,7 @@ class FaultSet:
         """Start and end faults for tick k (at time t)."""
         if self._requests:
             self._take_requests(k, t)
-        rig = self.rig
+        rig = cast(FaultTarget, self.rig)  # None before attach(): see `rig`
         active = []
         changed = False
         for n, (spec, state) in enumerate(zip(self.specs, self.states, strict=True)):
@@ -136,29 +156,28 @@ class FaultSet:
         if changed:
             self._active = active
             self._index()
-        for n in self._babblers:
-            self.specs[n].babble(rig)  # type: ignore[attr-defined]
+        for babbler in self._babblers:
+            babbler.babble(rig)
 
     def _index(self) -> None:
-        specs, active = self.specs, self._active
-        self._sensors = [n for n in active if isinstance(specs[n], SensorFault)]
-        self._topics = [n for n in active if isinstance(specs[n], TopicFault)]
-        self._processes = [n for n in active if isinstance(specs[n], ProcessFault)]
-        self._frames = [n for n in active if isinstance(specs[n], CanFault)]
-        self._babblers = [n for n in active if isinstance(specs[n], Babble)]
-        self._bus_off = any(isinstance(specs[n], BusOff) for n in active)
+        active = [(self.specs[n], self.states[n]) for n in self._active]
+        self._sensors = [(spec, state) for spec, state in active if isinstance(spec, SensorFault)]
+        self._topics = [(spec, state) for spec, state in active if isinstance(spec, TopicFault)]
+        self._processes = [(spec, state) for spec, state in active if isinstance(spec, ProcessFault)]
+        self._frames = [(spec, state) for spec, state in active if isinstance(spec, CanFault)]
+        self._babblers = [spec for spec, _ in active if isinstance(spec, Babble)]
+        self._bus_off = any(isinstance(spec, BusOff) for spec, _ in active)
         rig = self.rig
-        saturating = [specs[n].can_id for n in self._babblers if specs[n].saturates(rig)]  # type: ignore[attr-defined]
+        saturating = [b.can_id for b in self._babblers if b.saturates(cast(FaultTarget, rig))]
         self._starve_above = min(saturating) if saturating else None
-        """Frames with a higher id lose every arbitration to a babbler that fills the bus."""
         if rig is not None:
             hooked = bool(self._frames or self._babblers or self._bus_off)
             rig.can.tx_hook = self.tx if hooked else None
             rig.can.rx_hook = self.rx if hooked else None
 
-    def _log(self, t: float, n: int, action: str, detail: str) -> None:
+    def _log(self, t: float, n: int, action: FaultAction, detail: str) -> None:
         spec = self.specs[n]
-        self.events.append(FaultEvent(round(t, 9), n, spec.kind, action, detail))  # type: ignore[arg-type]
+        self.events.append(FaultEvent(round(t, 9), n, spec.kind, action, detail))
         if self.on_event is not None:
             self.on_event(self.events[-1])
         log.warning("fault %d %s at t=%.3f: %s", n, action, t, detail or spec.kind)
@@ -168,10 +187,11 @@ class FaultSet:
         active ends (held frames are sent, processes resume)."""
         if self._requests:
             self._take_requests(k, t)
+        rig = cast(FaultTarget, self.rig)  # None before attach(): see `rig`
         for n in self._active:
             state = self.states[n]
             state.active, state.ended = False, t
-            self.specs[n].stop(self.rig, state)
+            self.specs[n].stop(rig, state)
             self._log(t, n, "end", "run over")
         self._active = []
         self._index()
@@ -180,8 +200,8 @@ class FaultSet:
     def sensors(self, plant, feedback, imu, tes):
         """The tick's samples as the faulty sensors report them, and the frames that stay silent."""
         readings = Readings.of(plant, feedback, imu, tes)
-        for n in self._sensors:
-            self.specs[n].apply(readings, plant.t, self.states[n])  # type: ignore[attr-defined]
+        for spec, state in self._sensors:
+            spec.apply(readings, plant.t, state)
         return (
             readings.feedback(plant.robot.encoder),
             readings.imu(),
@@ -198,10 +218,9 @@ class FaultSet:
         return bool(self._topics)
 
     # ------------------------------------------------------------------------------------- frames
-    def _frame_faults(self, name: str):
-        for n in self._frames:
-            spec, state = self.specs[n], self.states[n]
-            if spec.message == name and state.remaining != 0:  # type: ignore[attr-defined]
+    def _frame_faults(self, name: str) -> Iterator[tuple[CanFault, FaultState]]:
+        for spec, state in self._frames:
+            if spec.message == name and state.remaining != 0:
                 if state.remaining is not None:
                     state.remaining -= 1
                 yield spec, state
@@ -212,43 +231,48 @@ class FaultSet:
     def tx(self, name: str, msg: can.Message) -> list[can.Message]:
         if self._starved(msg):
             return []
+        rig = cast(FaultTarget, self.rig)  # installed on the rig's node by _index: attached
         out = [msg]
         for spec, state in self._frame_faults(name):
-            out = [m for frame in out for m in spec.tx(frame, self.rig, state)]  # type: ignore[attr-defined]
+            out = [m for frame in out for m in spec.tx(frame, rig, state)]
         return out
 
     def rx(self, msg: can.Message) -> can.Message | None:
         if self._starved(msg):
             return None
-        codec = self.rig.can.catalog.by_id(msg.arbitration_id)
+        rig = cast(FaultTarget, self.rig)  # installed on the rig's node by _index: attached
+        codec = rig.can.catalog.by_id(msg.arbitration_id)
         if codec is None or codec.name not in RX_MESSAGES:
             return msg
         for spec, state in self._frame_faults(codec.name):
-            msg = spec.rx(msg, self.rig, state)  # type: ignore[attr-defined]
-            if msg is None:
+            out = spec.rx(msg, rig, state)
+            if out is None:
                 return None
+            msg = out
         return msg
 
     def flush(self, t: float) -> None:
         """Frames held back (delay) that are due by t go out now."""
-        for n in self._frames:
-            self.specs[n].flush(self.rig, self.states[n], t)  # type: ignore[attr-defined]
+        rig = cast(FaultTarget, self.rig)  # None before attach(): see `rig`
+        for spec, state in self._frames:
+            spec.flush(rig, state, t)
 
     # ------------------------------------------------------------------------------------- topics
     def wrench(self, payload: TesWrench, data: bytes) -> list[bytes]:
         out = [data]
-        for n in self._topics:
-            out = [d for x in out for d in self.specs[n].wrench(payload, x, self.states[n])]  # type: ignore[attr-defined]
+        for spec, state in self._topics:
+            out = [d for x in out for d in spec.wrench(payload, x, state)]
         return out
 
     def extra_puts(self) -> list[tuple[str, bytes]]:
-        return [p for n in self._topics for p in self.specs[n].extra(self.rig, self.states[n])]  # type: ignore[attr-defined]
+        rig = cast(FaultTarget, self.rig)  # None before attach(): see `rig`
+        return [p for spec, state in self._topics for p in spec.extra(rig, state)]
 
     # ---------------------------------------------------------------------------------- processes
     def command_delay(self) -> int:
         """Ticks the commands of this tick wait before the drives get them."""
         return max(
-            (self.specs[n].delay_ticks(self.rig, self.states[n]) for n in self._processes),  # type: ignore[attr-defined]
+            (spec.delay_ticks(cast(FaultTarget, self.rig), state) for spec, state in self._processes),
             default=0,
         )
 

@@ -48,7 +48,10 @@ CHANNELS: dict[str, tuple[str, str]] = {
     **{f"tes.cell{i}": ("tes", "N") for i in range(1, 7)},
 }
 """channel -> (the frame that carries it, or 'tes'; unit)."""
-Channel = Literal[tuple(CHANNELS)]  # type: ignore[valid-type]
+if TYPE_CHECKING:
+    Channel = str  # a checker cannot evaluate the Literal below; msgspec validates against it
+else:
+    Channel = Literal[tuple(CHANNELS)]
 _ORDER = tuple(CHANNELS)
 _INDEX = {name: i for i, name in enumerate(_ORDER)}
 OFF = None
@@ -81,7 +84,7 @@ class Readings:
 
     def imu(self) -> ImuSample:
         v = self.values
-        return ImuSample(tuple(v[9:12]), tuple(v[12:15]), tuple(v[15:18]))  # type: ignore[arg-type]
+        return ImuSample((v[9], v[10], v[11]), (v[12], v[13], v[14]), (v[15], v[16], v[17]))
 
     def tes(self, plant: Plant, original: TesSample) -> TesSample:
         """The seat's output from the (possibly faulty) cells, through the seat's own calibration."""
@@ -111,14 +114,14 @@ class SensorFault(FaultSpec, frozen=True, kw_only=True):
         raise NotImplementedError
 
 
-class Off(SensorFault, tag="sensor.off"):
+class Off(SensorFault, frozen=True, tag="sensor.off"):
     """The channel is dead: its frame is not sent (a TES cell reads 0 N)."""
 
     def faulty(self, x, t, state):
         return OFF
 
 
-class Stuck(SensorFault, tag="sensor.stuck"):
+class Stuck(SensorFault, frozen=True, tag="sensor.stuck"):
     """The channel holds one value: `value`, or the one it had when the fault started."""
 
     value: float | None = None
@@ -129,7 +132,7 @@ class Stuck(SensorFault, tag="sensor.stuck"):
         return state.memory["held"]
 
 
-class Bias(SensorFault, tag="sensor.bias"):
+class Bias(SensorFault, frozen=True, tag="sensor.bias"):
     """A constant offset of `offset` (in the channel's unit) added to every sample."""
 
     offset: float
@@ -138,7 +141,7 @@ class Bias(SensorFault, tag="sensor.bias"):
         return x + self.offset
 
 
-class Scale(SensorFault, tag="sensor.scale"):
+class Scale(SensorFault, frozen=True, tag="sensor.scale"):
     """A gain error: the channel reads `factor` times the truth."""
 
     factor: float
@@ -147,7 +150,7 @@ class Scale(SensorFault, tag="sensor.scale"):
         return x * self.factor
 
 
-class Drift(SensorFault, tag="sensor.drift"):
+class Drift(SensorFault, frozen=True, tag="sensor.drift"):
     """An offset that grows at `rate` (channel unit per second) from the fault's start."""
 
     rate: float
@@ -156,7 +159,7 @@ class Drift(SensorFault, tag="sensor.drift"):
         return x + self.rate * (t - self.at)
 
 
-class Noise(SensorFault, tag="sensor.noise"):
+class Noise(SensorFault, frozen=True, tag="sensor.noise"):
     """Added white Gaussian noise of standard deviation `sigma` (channel unit)."""
 
     sigma: Positive
@@ -165,7 +168,7 @@ class Noise(SensorFault, tag="sensor.noise"):
         return x + self.sigma * state.rng.standard_normal()
 
 
-class Spikes(SensorFault, tag="sensor.spikes"):
+class Spikes(SensorFault, frozen=True, tag="sensor.spikes"):
     """With probability `rate` per sample, a spike of ±`amplitude` (channel unit)."""
 
     amplitude: float
@@ -177,20 +180,20 @@ class Spikes(SensorFault, tag="sensor.spikes"):
         return x + (self.amplitude if state.rng.random() < 0.5 else -self.amplitude)
 
 
-class Delayed(SensorFault, tag="sensor.delayed"):
+class Delayed(SensorFault, frozen=True, tag="sensor.delayed"):
     """The channel reports what it measured `delay` seconds ago (held at its first value until then)."""
 
     delay: Positive
 
     def faulty(self, x, t, state):
-        history: deque = state.memory.setdefault("history", deque())
+        history: deque[tuple[float, float]] = state.memory.setdefault("history", deque())
         history.append((t, x))
         while len(history) > 1 and history[1][0] <= t - self.delay + 1e-9:
             history.popleft()
         return history[0][1]
 
 
-class Slow(SensorFault, tag="sensor.slow"):
+class Slow(SensorFault, frozen=True, tag="sensor.slow"):
     """The channel updates only every `period` seconds (a lower rate; the frame still goes every tick)."""
 
     period: Positive
@@ -201,7 +204,7 @@ class Slow(SensorFault, tag="sensor.slow"):
         return state.memory["held"]
 
 
-class Intermittent(SensorFault, tag="sensor.intermittent"):
+class Intermittent(SensorFault, frozen=True, tag="sensor.intermittent"):
     """With probability `rate` per sample the channel is off (a loose connector)."""
 
     rate: Probability = 0.2
@@ -210,11 +213,23 @@ class Intermittent(SensorFault, tag="sensor.intermittent"):
         return OFF if state.rng.random() < self.rate else x
 
 
-class SignFlip(SensorFault, tag="sensor.sign_flip"):
+class SignFlip(SensorFault, frozen=True, tag="sensor.sign_flip"):
     """The channel's sign is inverted (a sensor mounted the wrong way round)."""
 
     def faulty(self, x, t, state):
         return -x
 
 
-FAULTS = (Off, Stuck, Bias, Scale, Drift, Noise, Spikes, Delayed, Slow, Intermittent, SignFlip)
+FAULTS: tuple[type[SensorFault], ...] = (
+    Off,
+    Stuck,
+    Bias,
+    Scale,
+    Drift,
+    Noise,
+    Spikes,
+    Delayed,
+    Slow,
+    Intermittent,
+    SignFlip,
+)

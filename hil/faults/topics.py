@@ -27,21 +27,21 @@ class TopicFault(FaultSpec, frozen=True, kw_only=True):
         return []
 
 
-class WrenchDropout(TopicFault, tag="zenoh.wrench_dropout"):
+class WrenchDropout(TopicFault, frozen=True, tag="zenoh.wrench_dropout"):
     """The seat stops publishing (a crashed TES node or a cut link)."""
 
     def wrench(self, payload, data, state):
         return []
 
 
-class WrenchStale(TopicFault, tag="zenoh.wrench_stale"):
+class WrenchStale(TopicFault, frozen=True, tag="zenoh.wrench_stale"):
     """The seat keeps re-publishing its last sample from before the fault: same seq, same stamp."""
 
     def wrench(self, payload, data, state):
         return [state.memory.setdefault("last", data)]
 
 
-class WrenchFrozen(TopicFault, tag="zenoh.wrench_frozen"):
+class WrenchFrozen(TopicFault, frozen=True, tag="zenoh.wrench_frozen"):
     """The seat's values freeze at the fault's start while seq and stamp go on (a hung ADC behind a live
     publisher): only a plausibility check can tell."""
 
@@ -50,7 +50,7 @@ class WrenchFrozen(TopicFault, tag="zenoh.wrench_frozen"):
         return [encode(msgspec.structs.replace(frozen, seq=payload.seq, stamp=payload.stamp))]
 
 
-class Malformed(TopicFault, tag="zenoh.malformed"):
+class Malformed(TopicFault, frozen=True, tag="zenoh.malformed"):
     """Undecodable bytes on `key` (`payload`, hex) every tick; on the seat wrench they replace the sample."""
 
     key: Literal["tes/wrench", "sc/request", "safety/estop", "controller/command"] = "tes/wrench"
@@ -72,7 +72,7 @@ class Malformed(TopicFault, tag="zenoh.malformed"):
         return [(f"{rig.keys.prefix}/{self.key}", bytes.fromhex(self.payload))]
 
 
-class ScFlood(TopicFault, tag="zenoh.sc_flood"):
+class ScFlood(TopicFault, frozen=True, tag="zenoh.sc_flood"):
     """An SC agent floods `per_tick` requests per tick (valid ones: `mode`, `cap`)."""
 
     per_tick: Annotated[int, msgspec.Meta(gt=0)] = 20
@@ -91,7 +91,7 @@ class ScFlood(TopicFault, tag="zenoh.sc_flood"):
         return puts
 
 
-class ScConflict(TopicFault, tag="zenoh.sc_conflict"):
+class ScConflict(TopicFault, frozen=True, tag="zenoh.sc_conflict"):
     """A second SC agent (`source`) asks for something else (`mode`, `cap`) every `period` seconds,
     interleaved with the scenario's own requests."""
 
@@ -110,4 +110,11 @@ class ScConflict(TopicFault, tag="zenoh.sc_conflict"):
         return [(rig.keys.sc_request, encode(request))]
 
 
-FAULTS = (WrenchDropout, WrenchStale, WrenchFrozen, Malformed, ScFlood, ScConflict)
+FAULTS: tuple[type[TopicFault], ...] = (
+    WrenchDropout,
+    WrenchStale,
+    WrenchFrozen,
+    Malformed,
+    ScFlood,
+    ScConflict,
+)
