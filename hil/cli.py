@@ -207,6 +207,7 @@ def _campaign(args: argparse.Namespace) -> int:
     """A campaign's cases in parallel processes: progress, a report (worst first; Markdown, JSON, HTML) and
     JUnit XML."""
     from hil.bench.parts import check
+    from hil.history import History, NoHistory
     from hil.suites.campaign import (
         distributable,
         expand,
@@ -259,23 +260,38 @@ def _campaign(args: argparse.Namespace) -> int:
             f"pure-hil campaign: on bench {bench.name} cases run one at a time (a shared bus)",
             file=sys.stderr,
         )
+    # The bench's history (the console lists it) holds a campaign in the bench's folder beside the
+    # service's runs; one put elsewhere with --out was meant to stay apart.
+    outputs = Path(bench.outputs.folder).resolve()
+    history = History(outputs) if out.resolve().is_relative_to(outputs) else NoHistory()
+    controller = f"{bench.controller.where} {bench.controller.plugin}"
+    entry = history.begin(out, f"campaign {campaign.name}", bench.name, controller, "lockstep")
     try:
-        results = run_campaign(cases, args.workers, out, progress, bench, args.scheduler)
-    except OSError as exc:  # the scheduler cannot be reached (distributed raises OSError after its timeout)
-        print(f"pure-hil campaign: scheduler {args.scheduler}: {exc}", file=sys.stderr)
-        return 2
+        try:
+            results = run_campaign(cases, args.workers, out, progress, bench, args.scheduler)
+        except OSError as exc:  # the scheduler cannot be reached (distributed: OSError after its timeout)
+            print(f"pure-hil campaign: scheduler {args.scheduler}: {exc}", file=sys.stderr)
+            history.end(entry, "ERROR", error=f"scheduler {args.scheduler}: {exc}")
+            return 2
+        finally:
+            if bar is not None:
+                bar.close()
+        text = report(campaign.name, results)
+        (out / "report.md").write_text(text)
+        (out / "report.json").write_bytes(report_json(campaign.name, results))
+        (out / "junit.xml").write_bytes(junit_xml(campaign.name, results))
+        (out / "report.html").write_text(html_report(campaign.name, results, out))
+        print(text)
+        reports = "  ".join(str(out / name) for name in ("report.md", "report.json", "report.html"))
+        print(f"report: {reports}  junit: {out / 'junit.xml'}")
+        passed = all(r.passed for r in results)
+        history.end(entry, "PASSED" if passed else "FAILED")
+        return 0 if passed else 1
+    except BaseException as exc:  # Ctrl-C or a crash: the history says how it ended, then it goes on up
+        history.end(entry, "STOPPED" if isinstance(exc, KeyboardInterrupt) else "ERROR", error=str(exc))
+        raise
     finally:
-        if bar is not None:
-            bar.close()
-    text = report(campaign.name, results)
-    (out / "report.md").write_text(text)
-    (out / "report.json").write_bytes(report_json(campaign.name, results))
-    (out / "junit.xml").write_bytes(junit_xml(campaign.name, results))
-    (out / "report.html").write_text(html_report(campaign.name, results, out))
-    print(text)
-    reports = "  ".join(str(out / name) for name in ("report.md", "report.json", "report.html"))
-    print(f"report: {reports}  junit: {out / 'junit.xml'}")
-    return 0 if all(r.passed for r in results) else 1
+        history.close()
 
 
 def _compare(args: argparse.Namespace) -> int:

@@ -55,6 +55,21 @@ def _alive(pid: int) -> bool:
     return True
 
 
+class NoHistory:
+    """Where nothing is kept (a campaign written outside the bench's folder): the same calls, no file."""
+
+    def begin(self, folder: Path, scenario: str, bench: str, controller: str, clock: str) -> int:
+        return 0
+
+    def end(
+        self, run_id: int, verdict: str, first_cause: str | None = None, error: str | None = None
+    ) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
 class History:
     def __init__(self, folder: Path | str):
         """The history of the runs under `folder` (the service's output folder), made if missing."""

@@ -378,3 +378,33 @@ def test_coverage_classes_what_followed_a_detection_and_a_fall_after_it_fails_th
     assert "FELL 2 (1 of the falls unrecoverable, named in the campaign)" in table
     suite = ET.parse(out / "junit.xml").getroot()
     assert (suite.get("tests"), suite.get("failures")) == ("5", "1")
+
+
+def test_a_campaign_in_the_benchs_folder_is_in_its_history_beside_the_services_runs(tmp_path):
+    from hil.cli import main
+    from hil.history import History
+
+    smoke = ROOT / "configs/campaigns/smoke.toml"
+    bench = tmp_path / "lab.toml"
+    bench.write_text(f'name = "lab"\n[outputs]\nfolder = "{tmp_path / "runs"}"\n')
+    assert main(["campaign", str(smoke), "--bench", str(bench), "--select", "bench_smoke-none"]) == 0
+    (row,) = History(tmp_path / "runs").runs()
+    assert row["scenario"] == "campaign smoke" and row["verdict"] == "PASSED" and row["bench"] == "lab"
+    assert {"report.html", "report.md", "report.json", "junit.xml"} <= set(row["files"])
+    # Positive control: one written elsewhere with --out stays out of the bench's history.
+    assert (
+        main(
+            [
+                "campaign",
+                str(smoke),
+                "--bench",
+                str(bench),
+                "--select",
+                "bench_smoke-none",
+                "--out",
+                str(tmp_path / "apart"),
+            ]
+        )
+        == 0
+    )
+    assert History(tmp_path / "runs").count() == 1
