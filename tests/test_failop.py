@@ -176,9 +176,11 @@ def test_a_controller_killed_at_speed_ends_at_rest_and_upright_under_the_recover
             announced = bool(signals["Takeover"])
         elif name == MessageName.SUPERVISOR_RECOVERY:
             assert announced, "SUPERVISOR_RECOVERY without the takeover announced"
-    # Positive control: the supervisor without its recovery law cuts power at speed, and the robot falls.
-    tr = run(BRAKING, fault, tmp_path / "control", safety={"recovery": {"enabled": False}})
-    assert tr.fallen is not None
+    # Positive control (once: the hang's takeover is the same): without its recovery law the supervisor
+    # cuts power at speed, and the robot falls.
+    if fault is KILL_AT_SPEED:
+        tr = run(BRAKING, fault, tmp_path / "control", safety={"recovery": {"enabled": False}})
+        assert tr.fallen is not None
 
 
 def test_a_sign_flipped_wheel_in_motion_is_named_and_ridden_to_rest_without_it(tmp_path):
