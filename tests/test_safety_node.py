@@ -225,3 +225,24 @@ def test_estop_confirms_its_own_latch_when_a_stop_is_already_under_way(bench, ca
     node.operator.drain = lambda: []
     assert main(["estop", "--hub", endpoint, "--source", "erin", "--timeout", "1"]) == 1
     assert "nothing confirmed its estop latched" in capsys.readouterr().err
+
+
+def test_a_rigs_announcement_starts_no_python_thread():
+    """A lockstep tick yields the GIL whenever a second Python thread exists (hil/run/clock.py): the hello
+    queryable must answer on zenoh's own thread, not on a Python thread zenoh would start for it."""
+    endpoint = hub_endpoint()
+    hub = open_session(role="hub", hub_endpoint=endpoint)
+    client = open_session(role="member", hub_endpoint=endpoint)
+    try:
+        before = threading.active_count()
+        with announce(hub, "pure", "embedded", endpoint, "run balance"):
+            assert threading.active_count() == before
+            replies = [r for r in client.get("pure/rig/hello", timeout=5.0) if r.ok is not None]
+            assert replies and '"bench": "embedded"' in replies[0].ok.payload.to_string()
+        # Positive control: zenoh's default callback does start one.
+        queryable = hub.declare_queryable("pure/rig/other", lambda query: None)
+        assert threading.active_count() == before + 1
+        queryable.undeclare()
+    finally:
+        client.close()
+        hub.close()

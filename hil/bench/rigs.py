@@ -84,8 +84,11 @@ def announce(session: zenoh.Session, prefix: str, bench: str, endpoint: str, run
     """While inside, the rig at `endpoint` answers rig/hello and is listed in the machine's rig folder."""
     card = RigCard(bench, endpoint, os.getpid(), runs, time.time())
     body = json.dumps({"ok": True, **asdict(card)})
+    # Answered on zenoh's own thread (indirect=False): zenoh's default runs a callback on a Python thread
+    # of its own, and a second Python thread makes a lockstep tick yield the GIL (~100 us a tick here).
     queryable = session.declare_queryable(
-        Keys(prefix).rig(HELLO), lambda query: query.reply(query.key_expr, body)
+        Keys(prefix).rig(HELLO),
+        zenoh.handlers.Callback(lambda query: query.reply(query.key_expr, body), indirect=False),
     )
     path = folder() / f"{card.pid}-{id(card):x}.json"
     try:
