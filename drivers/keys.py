@@ -4,7 +4,33 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from drivers.schemas import (
+    ControllerCommand,
+    ControllerTelemetry,
+    EstopCommand,
+    Payload,
+    RigTick,
+    SafetyAlert,
+    SafetyState,
+    ScCommand,
+    ScRequest,
+    TesWrench,
+)
+
 DEFAULT_PREFIX = "pure"
+
+PAYLOADS: dict[str, type[Payload]] = {
+    "tes_wrench": TesWrench,
+    "sc_request": ScRequest,
+    "sc_command": ScCommand,
+    "safety_state": SafetyState,
+    "safety_alert": SafetyAlert,
+    "safety_estop": EstopCommand,
+    "controller_command": ControllerCommand,
+    "controller_telemetry": ControllerTelemetry,
+    "rig_tick": RigTick,
+}
+"""Each key (a `Keys` property) that carries a payload -> its payload type (drivers/schemas.py)."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -17,31 +17,11 @@ import msgspec
 
 from drivers.can_codec import Catalog, MessageName
 from drivers.config import load_toml
-from drivers.schemas import (
-    ControllerCommand,
-    ControllerTelemetry,
-    EstopCommand,
-    RigTick,
-    SafetyAlert,
-    SafetyState,
-    ScCommand,
-    ScRequest,
-    TesWrench,
-)
+from drivers.keys import PAYLOADS as KEY_PAYLOADS
 
 ROOT = Path(__file__).resolve().parents[1]
 
-PAYLOADS = (
-    TesWrench,
-    ScRequest,
-    ScCommand,
-    SafetyState,
-    SafetyAlert,
-    EstopCommand,
-    ControllerCommand,
-    ControllerTelemetry,
-    RigTick,
-)
+PAYLOADS = tuple(KEY_PAYLOADS.values())
 """Every zenoh payload type (drivers/schemas.py)."""
 
 BEGIN, END = "<!-- generated: {name} (python -m hil.contract docs) -->", "<!-- /generated: {name} -->"

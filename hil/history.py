@@ -16,6 +16,8 @@ import threading
 import time
 from pathlib import Path
 
+from hil.bench.rigs import alive
+
 FILE_NAME = "history.sqlite"
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS runs (
@@ -43,16 +45,6 @@ MAX_LIMIT = 500
 
 class NotServed(LookupError):
     """The file asked for is not one the history serves: why, in one line."""
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 class NoHistory:
@@ -85,7 +77,7 @@ class History:
             self._db.execute(SCHEMA)
             running = self._db.execute("SELECT id, pid FROM runs WHERE verdict = 'RUNNING'").fetchall()
             for run_id, pid in running:
-                if pid == os.getpid() or not _alive(pid):
+                if pid == os.getpid() or not alive(pid):
                     self._db.execute(
                         "UPDATE runs SET verdict = 'INTERRUPTED', error = ? WHERE id = ?",
                         ("the service ended during the run", run_id),

@@ -56,7 +56,8 @@ def folder() -> Path:
     )
 
 
-def _alive(pid: int) -> bool:
+def alive(pid: int) -> bool:
+    """The process `pid` still runs (a record it left behind is still its own)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -74,7 +75,7 @@ def running() -> list[RigCard]:
             card = RigCard(**json.loads(path.read_text()))
         except (OSError, ValueError, TypeError):
             continue  # half-written, or removed meanwhile
-        if _alive(card.pid):
+        if alive(card.pid):
             cards.append(card)
     return cards
 

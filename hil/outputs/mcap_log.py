@@ -30,18 +30,9 @@ import msgspec
 from mcap.reader import make_reader
 
 from drivers.can_codec import Catalog, MessageCodec
-from drivers.keys import Keys
+from drivers.keys import PAYLOADS, Keys
 from drivers.schemas import (
-    ControllerCommand,
-    ControllerTelemetry,
-    EstopCommand,
     PayloadError,
-    RigTick,
-    SafetyAlert,
-    SafetyState,
-    ScCommand,
-    ScRequest,
-    TesWrench,
     decode,
 )
 from hil.outputs.mcap_file import McapFile
@@ -56,18 +47,6 @@ REJECTED = "/zenoh/rejected"
 TRACE = "/trace"
 FAILED = "failed"
 """The metadata record that says why the file's messages stop early."""
-PAYLOADS = {
-    "tes_wrench": TesWrench,
-    "sc_request": ScRequest,
-    "sc_command": ScCommand,
-    "safety_state": SafetyState,
-    "safety_alert": SafetyAlert,
-    "safety_estop": EstopCommand,
-    "controller_command": ControllerCommand,
-    "controller_telemetry": ControllerTelemetry,
-    "rig_tick": RigTick,
-}
-"""drivers/keys.py property -> the payload on that key (drivers/schemas.py)."""
 ROW = COLUMNS[:TELEMETRY]
 """A tick's row as the tick ends; the controller's telemetry lands in trace.npy later, not here."""
 
