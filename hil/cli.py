@@ -606,8 +606,8 @@ def _estop(args: argparse.Namespace) -> int:
     import socket
 
     from drivers.keys import Keys
-    from drivers.schemas import EstopCommand, SafetyState
     from drivers.zenoh_link import ZenohLink
+    from hil.bench.operator import command
 
     action = "reset" if args.reset else "cut_power" if args.cut_power else "estop"
     source = args.source or f"{getpass.getuser()}@{socket.gethostname()}"
@@ -615,40 +615,30 @@ def _estop(args: argparse.Namespace) -> int:
     rig = f"rig {card.describe()}" if card else f"bench {bench.name}"
     link = ZenohLink(session, Keys(bench.zenoh.prefix))
     try:
-        states = link.subscribe(link.keys.safety_state, SafetyState)
-        deadline = time.monotonic() + args.timeout
-        if not link.wait_for_subscriber(link.keys.safety_estop, args.timeout):
-            print(f"pure-hil estop: no supervisor listens on {link.keys.safety_estop}", file=sys.stderr)
-            return 1
-        link.put(link.keys.safety_estop, EstopCommand(seq=1, stamp=time.time(), action=action, source=source))
-        last = None
-        while time.monotonic() < deadline:
-            states.wait(max(deadline - time.monotonic(), 0.0))
-            for state in states.drain():
-                last = state
-                if action != "reset" and state.estop_by == source:
-                    print(
-                        f"pure-hil estop: {action} by {source} latched on {rig}: supervisor {state.state} "
-                        f"({state.reason}); it ends in ESTOP and waits for a reset"
-                    )
-                    return 0
-                if action == "reset" and (state.state == "NORMAL" or "reset refused" in state.reason):
-                    print(
-                        f"pure-hil estop: reset by {source} on {rig}: "
-                        f"supervisor {state.state} ({state.reason})"
-                    )
-                    return 0 if state.state == "NORMAL" else 1
-        seen = f"supervisor {last.state} ({last.reason})" if last else "no supervisor state"
-        what = "it reset" if action == "reset" else f"its {action} latched"
-        print(
-            f"pure-hil estop: {action} sent to {rig}, but nothing confirmed {what} "
-            f"within {args.timeout:g} s; {seen}",
-            file=sys.stderr,
-        )
-        return 1
+        answer = command(link, action, source, args.timeout)
     finally:
         link.close()
         session.close()
+    if not answer.heard:
+        print(f"pure-hil estop: no supervisor listens on {link.keys.safety_estop}", file=sys.stderr)
+        return 1
+    if answer.confirmed and action != "reset":
+        print(
+            f"pure-hil estop: {action} by {source} latched on {rig}: {answer.seen()}; "
+            "it ends in ESTOP and waits for a reset"
+        )
+        return 0
+    refused = answer.state is not None and "reset refused" in answer.state.reason
+    if action == "reset" and (answer.confirmed or refused):
+        print(f"pure-hil estop: reset by {source} on {rig}: {answer.seen()}")
+        return 0 if answer.confirmed else 1
+    what = "it reset" if action == "reset" else f"its {action} latched"
+    print(
+        f"pure-hil estop: {action} sent to {rig}, but nothing confirmed {what} within {args.timeout:g} s; "
+        f"{answer.seen()}",
+        file=sys.stderr,
+    )
+    return 1
 
 
 def _rig(args: argparse.Namespace) -> int:

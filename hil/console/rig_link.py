@@ -19,8 +19,9 @@ import msgspec
 import zenoh
 
 from drivers.keys import Keys
-from drivers.schemas import EstopCommand, PayloadError, SafetyState, decode
+from drivers.schemas import PayloadError, SafetyState, decode
 from drivers.zenoh_link import ZenohLink
+from hil.bench.operator import command
 from hil.console.events import Broadcast
 from hil.faults import parse_fault
 
@@ -157,42 +158,29 @@ class RigLink:
         return self.ask("fault/clear", "" if number is None else str(number))
 
     def estop(self, action: str) -> dict:
-        """`pure-hil estop` from the page: put the operator's EstopCommand (estop, cut_power or reset) and
-        wait for the supervisor's word, its `estop_by` naming this console (a reset: NORMAL, or refused)."""
+        """`pure-hil estop` from the page (hil/bench/operator.py): the operator's EstopCommand (estop,
+        cut_power or reset), and the supervisor's word: its `estop_by` naming this console, or NORMAL."""
         link = ZenohLink(self.session, self.keys)
         try:
-            states = link.subscribe(self.keys.safety_state, SafetyState)
-            if not link.wait_for_subscriber(self.keys.safety_estop, CONFIRM_TIMEOUT):
-                raise Refused(409, f"no supervisor listens on {self.keys.safety_estop} (is a run going?)")
-            stamp = time.time()
-            link.put(
-                self.keys.safety_estop, EstopCommand(seq=1, stamp=stamp, action=action, source=self.source)
-            )
-            deadline = time.monotonic() + CONFIRM_TIMEOUT
-            last = None
-            while time.monotonic() < deadline:
-                states.wait(max(deadline - time.monotonic(), 0.0))
-                for state in states.drain():
-                    last = state
-                    latched = action != "reset" and state.estop_by == self.source
-                    reset = action == "reset" and (state.state == "NORMAL" or "reset refused" in state.reason)
-                    if latched or reset:
-                        return {
-                            "ok": state.state == "NORMAL" if reset else True,
-                            "action": action,
-                            "confirmed": True,
-                            "state": msgspec.to_builtins(state),
-                        }
-            seen = f"supervisor {last.state} ({last.reason})" if last else "no supervisor state"
-            return {
-                "ok": False,
-                "action": action,
-                "confirmed": False,
-                "error": f"{action} sent, but the supervisor did not confirm it within "
-                f"{CONFIRM_TIMEOUT:g} s; {seen}",
-            }
+            answer = command(link, action, self.source, CONFIRM_TIMEOUT)
         finally:
             link.close()
+        if not answer.heard:
+            raise Refused(409, f"no supervisor listens on {self.keys.safety_estop} (is a run going?)")
+        if answer.confirmed or (answer.state is not None and "reset refused" in answer.state.reason):
+            return {
+                "ok": answer.confirmed,
+                "action": action,
+                "confirmed": True,
+                "state": msgspec.to_builtins(answer.state),
+            }
+        return {
+            "ok": False,
+            "action": action,
+            "confirmed": False,
+            "error": f"{action} sent, but the supervisor did not confirm it within {CONFIRM_TIMEOUT:g} s; "
+            f"{answer.seen()}",
+        }
 
     def close(self) -> None:
         self._closed.set()

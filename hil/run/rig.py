@@ -126,9 +126,9 @@ class Rig:
         self.supervisor = supervisor
         """In-process supervisor, updated every tick; None: a supervisor elsewhere on the bus."""
         self.dut = None
+        """The in-process controller's handle (process faults stop or pause it); None: external."""
         self.controller_contract: int | None = None
         """CONTROLLER_HEARTBEAT.Contract of the controller's boot-up (docs/contract.md, Versions)."""
-        """The in-process controller's handle (process faults stop or pause it); None: external."""
         self.recorder: BusRecorder | None = None
         """The CAN log, written at the end of every tick (polled: no thread woken for every frame)."""
         self.poll_dut: Callable[[], None] | None = None
