@@ -124,7 +124,11 @@ def choose_hub(bench: str, hub: str | None, bench_endpoint: str | None) -> str |
 def greet(session: zenoh.Session, prefix: str, bench: str | None, timeout: float = 5.0) -> RigCard:
     """The card of the rig this session joined; WrongRig if none answers, or if it runs another bench
     than `bench` (None: any, the hub was named)."""
-    replies = list(session.get(Keys(prefix).rig(HELLO), timeout=timeout))
+    # Asked again until `timeout`: a session just opened may not yet know the hub's queryables.
+    deadline = time.monotonic() + timeout
+    replies: list = []
+    while not replies and time.monotonic() < deadline:
+        replies = [r for r in session.get(Keys(prefix).rig(HELLO), timeout=0.5) if r.ok is not None]
     for reply in replies:
         if reply.ok is None:
             continue
