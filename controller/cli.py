@@ -17,11 +17,14 @@ import signal
 import sys
 import threading
 
+import msgspec
+
 from controller.config import ControllerConfig
 from controller.embedded import build_controller
 from controller.node import ControllerNode
-from drivers.can_bus import BusConfigError, CanNode, open_bus, parse_can_spec
+from drivers.can_bus import BusConfigError, open_bus, parse_can_spec
 from drivers.config import ConfigError, load_toml
+from drivers.devices import Devices, host_node
 from drivers.dut import DutSpec
 from drivers.keys import Keys
 from drivers.resources import find
@@ -51,7 +54,23 @@ def build_parser() -> argparse.ArgumentParser:
         help="override the config's law (--mode: its old name)",
     )
     p.add_argument("--lockstep", action="store_true", help="wait for each tick's seat sample (lockstep rigs)")
+    p.add_argument(
+        "--devices",
+        default=None,
+        help="the drives' and IMU's device profile as JSON, e.g. '{\"drives\": \"odrive\"}' "
+        "(a bench's [devices], docs/devices.md; default: the contract's own frames)",
+    )
     return p
+
+
+def parse_devices(text: str | None) -> Devices:
+    """--devices JSON -> Devices; ConfigError names the flag, the field and what was expected."""
+    if text is None:
+        return Devices()
+    try:
+        return msgspec.json.decode(text, type=Devices)
+    except msgspec.MsgspecError as exc:
+        raise ConfigError("--devices", str(exc)) from exc
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -67,6 +86,7 @@ def main(argv: list[str] | None = None) -> int:
             robot=str(find(args.robot, "robot")),
             rider=str(find(args.rider, "riders")),
             controller_config=str(config_path),
+            devices=parse_devices(args.devices),
             lockstep=args.lockstep,
             tick_hz=config.timing.tick_hz,
         )
@@ -82,7 +102,8 @@ def main(argv: list[str] | None = None) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     link = ZenohLink(session, Keys(args.prefix))
-    node = ControllerNode(controller, CanNode(bus, name="controller"), link, lockstep=args.lockstep)
+    can = host_node(bus, spec.devices, controller.robot.encoder.counts_per_rev, "controller")
+    node = ControllerNode(controller, can, link, lockstep=args.lockstep)
     logging.info("pure-controller (%s) on %s, zenoh %s: running", mode, args.can, args.zenoh)
     try:
         node.run(stop)

@@ -9,8 +9,9 @@ import msgspec
 from controller.config import ControllerConfig, RiderInfo, RobotModel
 from controller.core import Controller
 from controller.node import ControllerNode, ControllerThread
-from drivers.can_bus import CanNode, open_bus
+from drivers.can_bus import open_bus
 from drivers.config import load_toml
+from drivers.devices import host_node
 from drivers.dut import DutSpec
 from drivers.keys import Keys
 from drivers.zenoh_link import ZenohLink
@@ -33,9 +34,9 @@ class EmbeddedController:
         self.bus = open_bus(spec.can)
         self.session = spec.zenoh.open("controller")
         self.link = ZenohLink(self.session, Keys(spec.zenoh.prefix))
-        self.node = ControllerNode(
-            build_controller(spec), CanNode(self.bus, name="controller"), self.link, lockstep=spec.lockstep
-        )
+        controller = build_controller(spec)
+        can = host_node(self.bus, spec.devices, controller.robot.encoder.counts_per_rev, "controller")
+        self.node = ControllerNode(controller, can, self.link, lockstep=spec.lockstep)
         self.thread = None if spec.driven else ControllerThread(self.node).start()
         self.paused = self.thread.paused if self.thread is not None else threading.Event()
         self._stopped = False

@@ -14,6 +14,7 @@ from typing import Literal, Protocol
 import msgspec
 
 from drivers.can_bus import BusConfig
+from drivers.devices import Devices
 from drivers.zenoh_link import ZenohAccess
 
 GROUP = "pure_hil.controllers"
@@ -27,6 +28,8 @@ class DutSpec(msgspec.Struct, frozen=True, kw_only=True):
     robot: str
     """Robot TOML the controller builds its model from (may differ from the plant's: model mismatch)."""
     rider: str
+    devices: Devices = Devices()
+    """How the drives and the IMU speak on the bus (the bench's device profile, docs/devices.md)."""
     controller_config: str | None = None
     lockstep: bool = True
     tick_hz: float = 400.0

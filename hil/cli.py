@@ -496,7 +496,8 @@ def _supervisor(args: argparse.Namespace) -> int:
     """The supervisor as its own process, on its own timer (what runs beside a real robot)."""
     from contextlib import ExitStack
 
-    from drivers.can_bus import CanNode, open_bus
+    from drivers.can_bus import open_bus
+    from drivers.devices import host_node
     from drivers.zenoh_link import ZenohLink
     from hil.bench.rigs import announce
     from safety.config import RobotGeometry, SupervisorConfig
@@ -525,7 +526,8 @@ def _supervisor(args: argparse.Namespace) -> int:
         bus.shutdown()
         raise
     link = ZenohLink(session)
-    node = SupervisorNode(CanNode(bus, name="supervisor"), link, config, robot, tick_hz=args.tick_hz)
+    can = host_node(bus, bench.devices, robot.encoder.counts_per_rev, "supervisor")
+    node = SupervisorNode(can, link, config, robot, tick_hz=args.tick_hz)
     thread = SupervisorThread(node, sync=args.clock == "lockstep").start()
     with ExitStack() as hub:
         where = f"zenoh {bench.zenoh.mode}"
@@ -564,6 +566,8 @@ def controller_command(bench, rider: str, robot: str, law: str, lockstep: bool) 
         command += ["--allow-network"] if zenoh.network else []
     command += ["--rider", str(find(rider, "riders")), "--robot", str(find(robot, "robot"))]
     command += ["--config", str(find(bench.controller.config, "controller")), "--law", law]
+    if not bench.devices.pure:
+        command += ["--devices", msgspec.json.encode(bench.devices).decode()]
     return command + (["--lockstep"] if lockstep else [])
 
 

@@ -12,6 +12,8 @@ from __future__ import annotations
 from contextlib import ExitStack
 from pathlib import Path
 
+import msgspec
+
 from drivers.config import load_toml
 from drivers.resources import find
 from hil.bench.bench import Bench, load_bench
@@ -79,6 +81,7 @@ def describe(bench: Bench) -> dict:
         "controller": bench.controller.where,
         "supervisor": bench.supervisor.where,
         "zenoh": bench.zenoh.mode,
+        "devices": msgspec.to_builtins(bench.devices),
         "rider_on_board": bench.rider_on_board,
     }
 

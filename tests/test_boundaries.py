@@ -130,7 +130,7 @@ d = "SYNCHRONISED"
 
 # ------------------------------------------------------------------------------------- hil's rooms
 FLOORS = (
-    {"faults", "outputs"},  # the fault catalog, what streams during a run
+    {"faults", "outputs", "devices"},  # the fault catalog, what streams during a run, the emulated devices
     {"bench"},  # the bench file, the machine's rigs
     {"run"},  # one run: build, tick loop, judge
     {"report", "contract"},  # the run folder's summary and plots; the contract's generated tables

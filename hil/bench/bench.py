@@ -19,6 +19,7 @@ import msgspec
 
 from drivers.can_bus import BusConfig
 from drivers.config import ConfigError, load_toml
+from drivers.devices import Devices
 from drivers.resources import find
 from drivers.zenoh_link import ZenohAccess
 
@@ -90,6 +91,10 @@ class Bench(_Part):
     run, so two rigs on one machine never share a bus)."""
     controller: ControllerPart = ControllerPart()
     supervisor: SupervisorPart = SupervisorPart()
+    devices: Devices = Devices()
+    """How the drives and the IMU speak on the bus: the contract's own frames (`pure`), ODrive's CAN Simple
+    (`odrive`), ... (docs/devices.md). The rig emulates them; the reference controller and the supervisor
+    speak them."""
     zenoh: ZenohAccess = ZenohAccess()
     outputs: OutputsPart = OutputsPart()
     sim: str = "sim/default.toml"

@@ -21,10 +21,11 @@ from pathlib import Path
 import msgspec
 import zenoh
 
-from drivers.can_bus import BusConfig, BusRecorder, CanNode, open_bus, private_channel
+from drivers.can_bus import BusConfig, BusRecorder, open_bus, private_channel
 from drivers.can_codec import MessageName
 from drivers.config import load_toml
 from drivers.contract import CONTRACT_VERSION, mismatch
+from drivers.devices import host_node
 from drivers.dut import DutSpec, start_dut
 from drivers.keys import Keys
 from drivers.resources import find
@@ -32,6 +33,7 @@ from drivers.schemas import SafetyState
 from drivers.zenoh_link import ZenohAccess, ZenohLink, lend
 from hil.bench.bench import Bench, RealtimePart
 from hil.bench.rigs import announce
+from hil.devices import rig_node
 from hil.faults import FaultError, FaultSet
 from hil.outputs.inputs_log import InputsLog
 from hil.outputs.mcap_log import McapLog
@@ -182,16 +184,17 @@ def build(
             stack.callback(supervisor_session.close)
             supervisor_link = ZenohLink(supervisor_session, keys, lossless=lockstep, puts=puts)
             stack.callback(supervisor_link.close)
+        geometry = load_toml(robot_path, RobotGeometry)
         supervisor = SupervisorNode(
-            CanNode(supervisor_bus, name="supervisor"),
+            host_node(supervisor_bus, bench.devices, geometry.encoder.counts_per_rev, "supervisor"),
             supervisor_link,
             safety,
-            load_toml(robot_path, RobotGeometry),
+            geometry,
             tick_hz=sim.tick_hz,
         )
     rig = Rig(
         plant,
-        CanNode(bus, name="rig"),
+        rig_node(bus, bench.devices, plant.robot.encoder.counts_per_rev, sim.tick_hz),
         link,
         tuple(ScStep(scenario.tick_of(e.at), e.mode, e.cap) for e in scenario.sc),
         supervisor=supervisor,
@@ -199,6 +202,7 @@ def build(
         faults=faults,
         bitrate=bus_config.bitrate,
         agent_link=agent_link,
+        recovery_in_commands=not bench.devices.pure,
     )
     if supervisor is None:  # a supervisor in another process: its transitions as it announces them
         rig.safety_states = link.subscribe(keys.safety_state, SafetyState, capacity=1 << 14)
@@ -221,6 +225,7 @@ def build(
                 mode=law,  # type: ignore[arg-type]
                 robot=str(find(controller.robot or robot_path, "robot")),
                 rider=str(rider_path),
+                devices=bench.devices,
                 controller_config=str(find(controller.config, "controller")),
                 lockstep=lockstep,
                 tick_hz=sim.tick_hz,

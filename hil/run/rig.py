@@ -113,9 +113,12 @@ class Rig:
         faults: FaultSet | None = None,
         bitrate: int = 1_000_000,
         agent_link=None,
+        recovery_in_commands: bool = False,
     ):
         """agent_link: where the scenario's SC requests and operator actions go out (`sc_agent`, `operator`
-        links under those roles' certificates on a secured bench); None: the rig's own link."""
+        links under those roles' certificates on a secured bench); None: the rig's own link.
+        recovery_in_commands: the supervisor's takeover reaches the drives in their own command frames (a
+        device profile: docs/devices.md) rather than in SUPERVISOR_RECOVERY."""
         self.plant, self.can, self.link = plant, can, link
         self.sc_link = link if agent_link is None else agent_link.sc_agent
         self.operator_link = link if agent_link is None else agent_link.operator
@@ -136,6 +139,7 @@ class Rig:
         answers from this thread."""
         self.faults = faults if faults is not None else FaultSet()
         self.bitrate = bitrate
+        self.recovery_in_commands = recovery_in_commands
         self._held: deque[tuple[int, int, float, bool]] = deque()
         """Commands a loop-delay fault holds back: (due tick, drive, torque, enable)."""
         self.stats = TickStats()
@@ -408,6 +412,8 @@ class Rig:
             self.safety_state = int(rx.signals["State"])
         elif rx.name == MessageName.SUPERVISOR_RECOVERY and rx.ok and self.takeover:
             self._recover(rx.signals)
+        elif rx.name in COMMANDS and self.recovery_in_commands and self.takeover:
+            self._recover_drive(COMMANDS[rx.name], rx.signals)
         elif rx.name == MessageName.SUPERVISOR_DIAGNOSIS and rx.ok:
             # What a seat, a handle or an operator's screen tells the rider.
             self.plant.alert(int(rx.signals["Alert"]))
@@ -425,6 +431,13 @@ class Rig:
         now = self.plant.t
         for drive, name in zip(self.plant.drives.motors, ("Torque1", "Torque2", "Torque3"), strict=True):
             drive.set_command(signals[name], True, now)
+
+    def _recover_drive(self, index: int, signals) -> None:
+        """One drive's recovery command, as a device profile carries it (the controller is silent under
+        the takeover: every command frame is the supervisor's)."""
+        self._recovery_tick = int(signals["Tick"])
+        self.stats.recovery_commands += index == 0
+        self.plant.drives.motors[index].set_command(signals["Torque"], bool(signals["Enable"]), self.plant.t)
 
     def apply_permission(self) -> None:
         """The drives run only while the last trusted SUPERVISOR_ESTOP does not assert e-stop, and turn off
@@ -477,8 +490,11 @@ class Rig:
                 self._other_frame(rx)
                 if rx.name == MessageName.CONTROLLER_HEARTBEAT:
                     spoke = True
-                    if heard and lockstep:
+                    if (heard or self.takeover) and lockstep:  # under a takeover it commands nothing
                         break
+                continue
+            if self.takeover and self.recovery_in_commands:
+                self._other_frame(rx)  # the supervisor's, in the drives' own frames
                 continue
             spoke = True
             if not rx.ok:

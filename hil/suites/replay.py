@@ -20,14 +20,13 @@ import can
 import msgspec
 
 from drivers.can_bus import BusConfig, open_bus, private_channel
-from drivers.can_codec import DRIVE_COMMAND, Catalog, MessageName
+from drivers.can_codec import Catalog, MessageName
 from drivers.config import ConfigError
+from drivers.devices import Devices, controller_frame_ids
 from drivers.dut import DutSpec, start_dut
 from drivers.resources import find
 from drivers.zenoh_link import ZenohAccess, ZenohLink
 from hil.bench.bench import Bench, load_bench
-
-CONTROLLER_FRAMES = {*DRIVE_COMMAND, MessageName.CONTROLLER_HEARTBEAT}
 
 
 @dataclass(slots=True)
@@ -47,16 +46,18 @@ class _Tick:
     expected: list[tuple[int, bytes]] = field(default_factory=list)
 
 
-def _ticks(log: Path, catalog: Catalog) -> list[_Tick]:
-    """Split the log at each SYNC: the rig's frames up to and including SYNC, then the controller's answer.
-    The controller's frames before the first SYNC are its boot-up (the start-up handshake), not answers."""
+def _ticks(log: Path, catalog: Catalog, controller_ids: frozenset[int]) -> list[_Tick]:
+    """Split the log at each SYNC: the rig's frames up to and including SYNC, then the controller's answer
+    (its heartbeat and the frames of `controller_ids`). The controller's frames before the first SYNC are
+    its boot-up (the start-up handshake), not answers."""
     ticks: list[_Tick] = []
     current = _Tick()
     answering = synced = False
+    controller_ids = controller_ids | {catalog[MessageName.CONTROLLER_HEARTBEAT].frame_id}
     for msg in can.MessageSync(can.LogReader(str(log)), timestamps=False):
         codec = catalog.by_id(msg.arbitration_id)
         name = codec.name if codec else ""
-        if name in CONTROLLER_FRAMES:
+        if msg.arbitration_id in controller_ids and not msg.is_remote_frame:
             if synced:
                 current.expected.append((msg.arbitration_id, bytes(msg.data)))
             continue
@@ -81,7 +82,11 @@ def replay(run_dir: Path, bench: Bench | None = None, limit: int | None = None) 
         raise ConfigError(run_dir / "summary.json", "no `as_run.law` (written by an older pure-hil?)")
     scenario = summary["scenario"]
     catalog = Catalog()
-    ticks = _ticks(run_dir / "can.log", catalog)[:limit]
+    try:  # the devices the run spoke (a summary of an older pure-hil has none: the contract's own)
+        devices = msgspec.convert(summary.get("bench", {}).get("devices", {}), Devices)
+    except msgspec.ValidationError as exc:
+        raise ConfigError(run_dir / "summary.json", f"bench.devices: {exc}") from exc
+    ticks = _ticks(run_dir / "can.log", catalog, controller_frame_ids(devices))[:limit]
     inputs: dict[int, list[tuple[str, bytes]]] = defaultdict(list)
     for tick, key, data in msgspec.msgpack.decode((run_dir / "zenoh_inputs.msgpack").read_bytes()):
         inputs[tick].append((key, data))
@@ -102,6 +107,7 @@ def replay(run_dir: Path, bench: Bench | None = None, limit: int | None = None) 
                 mode=summary["as_run"]["law"],
                 robot=str(find(bench.controller.robot or scenario["robot"], "robot")),
                 rider=str(find(scenario["rider"], "riders")),
+                devices=devices,
                 controller_config=str(find(bench.controller.config, "controller")),
                 lockstep=True,
                 tick_hz=scenario["tick_hz"],

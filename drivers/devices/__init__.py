@@ -1,0 +1,201 @@
+"""Device profiles: how the drives and the IMU appear on the wire (docs/devices.md).
+
+The controller's and the supervisor's logic reads and writes the contract's logical messages
+(`DRIVEn_FEEDBACK`, `DRIVEn_TORQUE`, `DRIVEn_COMMAND`, `IMU_*`). A profile other than `pure` puts a
+`Translator` between that logic and the bus: a `ProfileNode` sends a logical message as the device's own
+frames and turns the device's frames back into logical ones, so only the node knows the wire format.
+The contract's own frames (SYNC, CONTROLLER_HEARTBEAT, SUPERVISOR_*) are the same on every profile.
+
+Translators come in two kinds per profile: the host's (what a controller or a supervisor speaks: this
+package) and the device's (the rig's emulated drives: hil/devices/). `pure` has neither: a plain
+`CanNode`, so the default profile costs nothing.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+from collections.abc import Callable, Iterable, Mapping
+from typing import Literal, Protocol
+
+import can
+import msgspec
+
+from drivers.can_bus import CanNode, Received
+from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, Catalog, MessageName
+
+Role = Literal["controller", "supervisor"]
+DRIVE_PROFILES = ("pure", "odrive")
+"""Drive profiles the host side speaks (docs/devices.md)."""
+IMU_PROFILES = ("pure",)
+
+
+class OdriveOptions(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Three ODrive axes on CAN Simple (firmware 0.6, ODrive's own DBC)."""
+
+    node_ids: tuple[int, int, int] = (1, 2, 3)
+    """Each motor's axis node id (motor 1 first); frame id = node_id << 5 | command id, so a node owns the
+    32 ids from node_id << 5 and must not own a contract frame that stays on the bus (node 0 holds the
+    supervisor's frames 0x010-0x013, node 4 SYNC 0x080)."""
+    encoder_ms: float = 2.5
+    """Get_Encoder_Estimates period (0: only on RTR). Rounded to whole ticks."""
+    heartbeat_ms: float = 10.0
+    """Heartbeat period (the firmware's default is 100 ms; a balancing robot sets it shorter)."""
+    torques: bool = True
+    """Get_Torques cyclic at 100 Hz (the measured torque the supervisor checks); False: only on RTR."""
+    control_mode: Literal["torque", "velocity", "position"] = "torque"
+    """The axes' control mode at power-up (as configured before the run; Set_Controller_Mode changes it)."""
+
+    def __post_init__(self) -> None:
+        if len(set(self.node_ids)) != 3 or not all(0 <= n <= 63 for n in self.node_ids):
+            raise ValueError("node_ids: three different node ids in 0..63")
+        if min(self.encoder_ms, self.heartbeat_ms) < 0:
+            raise ValueError("encoder_ms, heartbeat_ms: >= 0 (0: only on request)")
+
+
+class Devices(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Which device profile the drives and the IMU speak (a bench's `[devices]`)."""
+
+    drives: Literal["pure", "odrive"] = "pure"
+    imu: Literal["pure"] = "pure"
+    odrive: OdriveOptions = OdriveOptions()
+
+    def __post_init__(self) -> None:
+        if self.drives == "odrive":
+            kept = _contract_ids(drives=False, imu=self.imu == "pure")
+            for node in self.odrive.node_ids:
+                clash = sorted(name for name, i in kept.items() if i >> 5 == node)
+                if clash:
+                    raise ValueError(
+                        f"odrive.node_ids: node {node} owns ids 0x{node << 5:03X}-0x{(node << 5) + 31:03X}, "
+                        f"which holds the contract's {', '.join(clash)}: pick another node id"
+                    )
+
+    @property
+    def pure(self) -> bool:
+        """Every device speaks the contract's own frames: no translation anywhere."""
+        return self.drives == "pure" and self.imu == "pure"
+
+
+@functools.cache
+def _contract_ids(drives: bool, imu: bool) -> dict[str, int]:
+    """The contract frames on the bus whatever the profile, plus the drives' and the IMU's where those are
+    `pure`: message -> frame id."""
+    devices = {*DRIVE_COMMAND, *DRIVE_FEEDBACK, *DRIVE_TORQUE} if not drives else set()
+    if not imu:
+        devices |= {MessageName.IMU_ATTITUDE, MessageName.IMU_RATE, MessageName.IMU_ACCEL}
+    return {c.name: c.frame_id for c in Catalog() if c.name not in devices}
+
+
+class Translator(Protocol):
+    """Between logical messages and one device family's frames. A `ProfileNode` calls it."""
+
+    names: frozenset[str]
+    """Logical messages it sends in its own frames."""
+    frame_ids: frozenset[int]
+    """Standard frame ids it reads (remote frames included)."""
+    sends: frozenset[int]
+    """Standard frame ids it sends (a replay tells a controller's answer from the rig's frames by them)."""
+
+    def bind(self, node: ProfileNode) -> None:
+        """The node it works for (to send replies and contract frames with)."""
+
+    def outgoing(self, name: str, values: Mapping[str, float]) -> Iterable[can.Message]:
+        """The frames that carry logical message `name` now (maybe none)."""
+        ...
+
+    def incoming(self, msg: can.Message) -> Received | None:
+        """A frame of its family -> the logical message it carries, or None (state only, or a reply sent)."""
+        ...
+
+    def observe(self, rx: Received) -> None:
+        """Every contract frame the node read (SYNC, the supervisor's frames)."""
+
+    def on_sync(self, tick: int) -> None:
+        """The node sent SYNC(tick)."""
+
+
+class ProfileNode(CanNode):
+    """A CanNode whose drive and IMU messages go through translators (python-can's BusABC shape: the public
+    send/decode own the cross-cutting work, the translators are the small hooks)."""
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        translators: Iterable[Translator],
+        catalog: Catalog | None = None,
+        name: str = "node",
+    ):
+        super().__init__(bus, catalog, name)
+        self.translators = tuple(translators)
+        self._out = {n: t for t in self.translators for n in t.names}
+        self._in = {i: t for t in self.translators for i in t.frame_ids}
+        for t in self.translators:
+            t.bind(self)
+
+    def send(self, name: str, values: Mapping[str, float]) -> bool:
+        translator = self._out.get(name)
+        if name == MessageName.SYNC:
+            for t in self.translators:
+                t.on_sync(int(values["Tick"]))
+        if translator is None:
+            return super().send(name, values)
+        sent = True
+        for msg in translator.outgoing(name, values):
+            for m in [msg] if self.tx_hook is None else self.tx_hook(name, msg):
+                sent = self.transmit(name, m) and sent
+        return sent
+
+    def contract_frame(self, name: str, values: Mapping[str, float]) -> can.Message:
+        """A contract message as this node would send it (E2E sealed): for a translator that adds to it."""
+        return self.message(name, values)
+
+    def reply(self, name: str, msg: can.Message) -> None:
+        """A frame a translator answers with at once (an RTR reply), under logical `name`."""
+        for m in [msg] if self.tx_hook is None else self.tx_hook(name, msg):
+            self.transmit(name, m)
+
+    def decode(self, msg: can.Message) -> Received | None:
+        translator = None if msg.is_extended_id or msg.is_error_frame else self._in.get(msg.arbitration_id)
+        if translator is None:
+            rx = super().decode(msg)
+            if rx is not None:
+                for t in self.translators:
+                    t.observe(rx)
+            return rx
+        try:
+            rx = translator.incoming(msg)
+        except ValueError:  # a frame of the family that does not decode: counted and logged, never raised
+            self._reject("malformed_device_frame", msg)
+            return None
+        if rx is not None:
+            self.stats.received[rx.name] += 1
+        return rx
+
+
+HOSTS: dict[str, str] = {"odrive": "drivers.devices.odrive:host"}
+"""Host-side translators by drive profile, imported only when a bench names one."""
+
+
+def _load(ref: str) -> Callable[..., Translator]:
+    module, _, attr = ref.partition(":")
+    factory: Callable[..., Translator] = getattr(importlib.import_module(module), attr)
+    return factory
+
+
+def controller_frame_ids(devices: Devices, counts_per_rev: int = 8192) -> frozenset[int]:
+    """The ids a controller sends its drive commands in on these devices (the contract's heartbeat aside)."""
+    if devices.drives == "pure":
+        return frozenset(Catalog()[name].frame_id for name in DRIVE_COMMAND)
+    return _load(HOSTS[devices.drives])(devices, counts_per_rev, "controller").sends
+
+
+def host_node(
+    bus: can.BusABC, devices: Devices, counts_per_rev: int, role: Role, name: str | None = None
+) -> CanNode:
+    """The node a controller or a supervisor reads and writes the bus through on this bench's devices."""
+    name = name or role
+    if devices.pure:
+        return CanNode(bus, name=name)
+    translators = [_load(HOSTS[devices.drives])(devices, counts_per_rev, role)]
+    return ProfileNode(bus, translators, name=name)

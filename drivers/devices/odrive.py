@@ -1,0 +1,255 @@
+"""ODrive "CAN Simple" (firmware 0.6) through ODrive's own DBC, as the `odrive-can` package ships it, and the
+host's side of it: what a controller or a supervisor sends and reads (docs/devices.md).
+
+Frame id = node_id << 5 | command id; every axis has the same messages, so the codecs are the DBC's
+`Axis0_*` definitions with the node id put in. The host keeps each axis's last heartbeat (state, error) and
+turns Get_Encoder_Estimates into the contract's DRIVEn_FEEDBACK, Get_Torques into DRIVEn_TORQUE, and a
+DRIVEn_COMMAND into Set_Input_Torque with the axis-state requests an enable or a disable needs.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from enum import IntEnum, IntFlag
+from functools import cache
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import can
+import cantools
+
+from drivers.can_bus import Received
+from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MessageName
+
+if TYPE_CHECKING:
+    from drivers.devices import Devices, ProfileNode, Role
+
+DBC_NAME = "odrive-cansimple-0.6.10.dbc"
+REQUESTED = "Axis_Requested_State"
+
+
+class Cmd(IntEnum):
+    """CAN Simple command ids (the low 5 bits of a frame id)."""
+
+    GET_VERSION = 0x00
+    HEARTBEAT = 0x01
+    ESTOP = 0x02
+    GET_ERROR = 0x03
+    SET_AXIS_STATE = 0x07
+    GET_ENCODER_ESTIMATES = 0x09
+    SET_CONTROLLER_MODE = 0x0B
+    SET_INPUT_TORQUE = 0x0E
+    GET_BUS_VOLTAGE_CURRENT = 0x17
+    CLEAR_ERRORS = 0x18
+    GET_TORQUES = 0x1C
+
+
+class AxisState(IntEnum):
+    IDLE = 1
+    CLOSED_LOOP_CONTROL = 8
+
+
+class ControlMode(IntEnum):
+    VOLTAGE_CONTROL = 0
+    TORQUE_CONTROL = 1
+    VELOCITY_CONTROL = 2
+    POSITION_CONTROL = 3
+
+
+class AxisError(IntFlag):
+    """The firmware 0.6 error bits the emulation raises (ODrive.Error)."""
+
+    NONE = 0
+    DC_BUS_UNDER_VOLTAGE = 0x00000200
+    DRV_FAULT = 0x00000020
+    WATCHDOG_TIMER_EXPIRED = 0x01000000
+    ESTOP_REQUESTED = 0x02000000
+
+
+HOST_SENDS = (Cmd.ESTOP, Cmd.SET_AXIS_STATE, Cmd.SET_INPUT_TORQUE, Cmd.CLEAR_ERRORS)
+"""What a host of this module sends an axis."""
+
+
+def frame_id(node_id: int, cmd: int) -> int:
+    return node_id << 5 | cmd
+
+
+def split_id(arbitration_id: int) -> tuple[int, int]:
+    """(node id, command id)."""
+    return arbitration_id >> 5, arbitration_id & 0x1F
+
+
+def dbc_path() -> Path:
+    """ODrive's DBC as the odrive-can package ships it (found without importing the package, which sets up
+    logging and loads the whole DBC at import)."""
+    spec = importlib.util.find_spec("odrive_can")
+    if spec is None or not spec.submodule_search_locations:
+        raise ModuleNotFoundError("the odrive profile needs the odrive-can package (pip install odrive-can)")
+    return Path(next(iter(spec.submodule_search_locations))) / "dbc" / DBC_NAME
+
+
+@cache
+def _templates() -> dict[int, Any]:
+    """Command id -> the DBC's Axis0 message (cantools)."""
+    db = cantools.database.load_file(str(dbc_path()), strict=False)
+    if not isinstance(db, cantools.database.can.Database):
+        raise TypeError(f"{dbc_path()}: not a CAN database")
+    return {m.frame_id: m for m in db.messages if m.frame_id < 32}
+
+
+class OdriveWire:
+    """Encode and decode CAN Simple frames with ODrive's DBC."""
+
+    def __init__(self) -> None:
+        self._messages = _templates()
+
+    def frame(self, node_id: int, cmd: int, values: Mapping[str, float] | None = None) -> can.Message:
+        message = self._messages[cmd]
+        data = b"" if message.length == 0 else message.encode(dict(values or {}), scaling=True, strict=False)
+        return can.Message(arbitration_id=frame_id(node_id, cmd), data=data, is_extended_id=False)
+
+    def decode(self, msg: can.Message) -> dict[str, float]:
+        """Signals of a data frame, raw numbers (no choice names). ValueError on a bad length."""
+        message = self._messages.get(msg.arbitration_id & 0x1F)
+        if message is None:
+            raise ValueError(f"no CAN Simple command 0x{msg.arbitration_id & 0x1F:02X}")
+        if len(msg.data) < message.length:
+            raise ValueError(f"{message.name[6:]}: {len(msg.data)} bytes, expected {message.length}")
+        try:
+            decoded: dict[str, float] = message.decode(bytes(msg.data), decode_choices=False)
+        except Exception as exc:  # cantools raises its own DecodeError types
+            raise ValueError(f"{message.name[6:]}: {exc}") from exc
+        return decoded
+
+    def ids(self, node_ids: Iterable[int], cmds: Iterable[int]) -> frozenset[int]:
+        return frozenset(frame_id(n, c) for n in node_ids for c in cmds)
+
+
+@dataclass(slots=True)
+class HostAxis:
+    """What a host knows of one axis."""
+
+    node_id: int
+    state: int = 0
+    """Axis_State of the last heartbeat (0: none yet)."""
+    error: int = 0
+    want: bool = False
+    """This host has asked for closed loop (a controller: its last Enable; a supervisor: the controller's
+    last Set_Axis_State it saw)."""
+    rearm: bool = False
+    """A heartbeat showed the axis disarmed while this host wants it armed: clear and re-arm it once."""
+
+
+class OdriveHost:
+    """The host side of three ODrive axes for a controller or a supervisor (`drivers.devices.Translator`)."""
+
+    def __init__(self, devices: Devices, counts_per_rev: int, role: Role):
+        self.options, self.role, self.counts_per_rev = devices.odrive, role, counts_per_rev
+        self.wire = OdriveWire()
+        nodes = self.options.node_ids
+        self.axes = [HostAxis(n) for n in nodes]
+        self._axis_of = {n: i for i, n in enumerate(nodes)}
+        reads = [Cmd.HEARTBEAT, Cmd.GET_ENCODER_ESTIMATES, Cmd.GET_TORQUES]
+        if role == "supervisor":  # it checks the controller's commands against what the drives do
+            reads += [Cmd.SET_INPUT_TORQUE, Cmd.SET_AXIS_STATE, Cmd.ESTOP]
+            self.names = frozenset({MessageName.SUPERVISOR_ESTOP, MessageName.SUPERVISOR_RECOVERY})
+        else:
+            self.names = frozenset(DRIVE_COMMAND)
+        self.frame_ids = self.wire.ids(nodes, reads)
+        self.sends = self.wire.ids(nodes, HOST_SENDS)
+        self.tick = 0
+        self.takeover = False
+        """The supervisor's recovery law holds the drives: a controller sends them nothing."""
+        self._estop = False
+        self._node: ProfileNode | None = None
+
+    def bind(self, node: ProfileNode) -> None:
+        self._node = node
+
+    def on_sync(self, tick: int) -> None:
+        self.tick = tick
+
+    def observe(self, rx: Received) -> None:
+        if rx.name == MessageName.SYNC:
+            self.tick = int(rx.signals["Tick"])
+        elif rx.name == MessageName.SUPERVISOR_ESTOP and rx.ok:
+            self.takeover = bool(rx.signals["Takeover"])
+
+    # ------------------------------------------------------------------------------------------ out
+    def outgoing(self, name: str, values: Mapping[str, float]) -> list[can.Message]:
+        if name == MessageName.SUPERVISOR_ESTOP:
+            return self._estop_frames(values)
+        if name == MessageName.SUPERVISOR_RECOVERY:
+            torques = (values["Torque1"], values["Torque2"], values["Torque3"])
+            return [m for a, tq in zip(self.axes, torques, strict=True) for m in self._command(a, tq, True)]
+        if self.takeover:
+            return []  # one master at a time (docs/contract.md): the recovery law's torques hold the drives
+        axis = self.axes[DRIVE_COMMAND.index(name)]
+        return self._command(axis, float(values["Torque"]), bool(values["Enable"]))
+
+    def _command(self, axis: HostAxis, torque: float, enable: bool) -> list[can.Message]:
+        wire, node, frames = self.wire, axis.node_id, []
+        if enable and (not axis.want or axis.rearm):
+            if axis.error:
+                frames.append(wire.frame(node, Cmd.CLEAR_ERRORS, {"Identify": 0}))
+            frames.append(wire.frame(node, Cmd.SET_AXIS_STATE, {REQUESTED: AxisState.CLOSED_LOOP_CONTROL}))
+            axis.rearm = False
+        elif not enable and axis.want:
+            frames.append(wire.frame(node, Cmd.SET_AXIS_STATE, {REQUESTED: AxisState.IDLE}))
+        axis.want = enable
+        frames.append(wire.frame(node, Cmd.SET_INPUT_TORQUE, {"Input_Torque": torque if enable else 0.0}))
+        return frames
+
+    def _estop_frames(self, values: Mapping[str, float]) -> list[can.Message]:
+        """The contract's SUPERVISOR_ESTOP (the drives' permission line), and on an e-stop's rising edge
+        CAN Simple's Estop to every axis (it disarms them with ESTOP_REQUESTED)."""
+        assert self._node is not None
+        frames = [self._node.contract_frame(MessageName.SUPERVISOR_ESTOP, values)]
+        estop = bool(values["Estop"])
+        if estop and not self._estop:
+            frames += [self.wire.frame(a.node_id, Cmd.ESTOP) for a in self.axes]
+        self._estop = estop
+        return frames
+
+    # ------------------------------------------------------------------------------------------- in
+    def incoming(self, msg: can.Message) -> Received | None:
+        node, cmd = split_id(msg.arbitration_id)
+        if msg.is_remote_frame:
+            return None  # another host's request: its answer is what counts
+        i = self._axis_of[node]
+        axis = self.axes[i]
+        if cmd == Cmd.ESTOP:
+            axis.want = False
+            return None
+        s = self.wire.decode(msg)
+        if cmd == Cmd.HEARTBEAT:
+            axis.state, axis.error = int(s["Axis_State"]), int(s["Axis_Error"])
+            armed = axis.state == AxisState.CLOSED_LOOP_CONTROL
+            axis.rearm = axis.want and not armed
+            return None
+        if cmd == Cmd.GET_ENCODER_ESTIMATES:
+            error = axis.error
+            signals: dict[str, float | int] = {
+                "Position": round(s["Pos_Estimate"] * self.counts_per_rev),
+                "Velocity": s["Vel_Estimate"] * 2.0 * math.pi,
+                "Enabled": int(axis.state == AxisState.CLOSED_LOOP_CONTROL),
+                "WatchdogTripped": int(bool(error & AxisError.WATCHDOG_TIMER_EXPIRED)),
+                "Fault": int(bool(error & AxisError.DRV_FAULT)),
+                "BusPowered": int(not error & AxisError.DC_BUS_UNDER_VOLTAGE),
+            }
+            return Received(DRIVE_FEEDBACK[i], signals, msg.timestamp, None)
+        if cmd == Cmd.GET_TORQUES:
+            return Received(DRIVE_TORQUE[i], {"Torque": s["Torque_Estimate"]}, msg.timestamp, None)
+        if cmd == Cmd.SET_AXIS_STATE:
+            axis.want = int(s["Axis_Requested_State"]) == AxisState.CLOSED_LOOP_CONTROL
+            return None
+        # Set_Input_Torque, as the supervisor sees the controller's command.
+        signals = {"Torque": s["Input_Torque"], "Tick": self.tick, "Enable": int(axis.want)}
+        return Received(DRIVE_COMMAND[i], signals, msg.timestamp, None)
+
+
+def host(devices: Devices, counts_per_rev: int, role: Role) -> OdriveHost:
+    return OdriveHost(devices, counts_per_rev, role)
