@@ -31,7 +31,13 @@ LATCHED = AxisError.WATCHDOG_TIMER_EXPIRED | AxisError.ESTOP_REQUESTED | AxisErr
 """Errors that stay until Clear_Errors (the bus voltage error stays while the bus is down)."""
 BUS_VOLTS = 48.0
 """What Get_Bus_Voltage_Current reports with the bus live (the emulation has no electrical model)."""
-FIRMWARE = {"Fw_Version_Major": 0, "Fw_Version_Minor": 6, "Fw_Version_Revision": 10, "Protocol_Version": 2}
+FIRMWARE = {
+    "Fw_Version_Major": 0,
+    "Fw_Version_Minor": 6,
+    "Fw_Version_Revision": 10,
+    "Fw_Version_Unreleased": 0,
+    "Protocol_Version": 2,
+}
 
 
 @dataclass(slots=True)

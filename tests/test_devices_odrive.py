@@ -1,0 +1,294 @@
+"""The odrive device profile (docs/devices.md): three emulated ODrive axes on CAN Simple.
+
+The emulation is proven by ODrive's own client, odrive-can's `ODriveCAN` (asyncio, its own reader thread,
+ODrive's DBC), not by our controller: heartbeat, the axis-state walk, RTR requests, torque setpoints reaching
+the power stage, Estop and Clear_Errors, the watchdog. Then the whole rig: the reference controller and the
+supervisor speak CAN Simple to the emulated axes, deterministic in lockstep, replayed byte for byte.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import threading
+import time
+
+import pytest
+
+from drivers.can_bus import BusConfig, open_bus, private_channel
+from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MessageName
+from drivers.config import ConfigError
+from drivers.devices import Devices, ProfileNode
+from drivers.devices.odrive import AxisError, AxisState, OdriveWire
+from hil.devices.odrive import OdriveAxes
+from plant.drives import DriveArray, DriveState
+from plant.params import Drive
+from tests.zenoh_helpers import private_bench
+
+odrive_can = pytest.importorskip("odrive_can", reason="the odrive profile needs odrive-can (a dependency)")
+
+NODES = (1, 2, 3)
+TICK = 0.0025
+
+
+class AxesOnABench:
+    """The emulated axes in front of three plant drives, ticking on a thread at about 400 Hz (wall clock,
+    as a real drive would): feedback and SYNC out, the hosts' frames in and onto the power stages."""
+
+    def __init__(self, channel: str):
+        self.bus = open_bus(BusConfig(channel=channel))
+        self.axes = OdriveAxes(Devices(drives="odrive"), 8192, 1 / TICK)
+        self.node = ProfileNode(self.bus, [self.axes], name="rig")
+        self.drives = DriveArray(Drive())
+        self.t, self.k = 0.0, 0
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            self.k += 1
+            self.t += TICK
+            self.drives.advance(TICK, self.t)
+            for name, m in zip(DRIVE_FEEDBACK, self.drives.motors, strict=True):
+                self.node.send(
+                    name,
+                    {
+                        "Position": 1000 * self.k,
+                        "Velocity": 2.0,
+                        "Enabled": int(m.state is DriveState.ENABLED),
+                        "WatchdogTripped": int(m.state is DriveState.WATCHDOG),
+                        "BusPowered": int(m.bus_powered),
+                    },
+                )
+            if self.k % 4 == 0:
+                for name, m in zip(DRIVE_TORQUE, self.drives.motors, strict=True):
+                    self.node.send(name, {"Torque": m.torque})
+            self.node.send(MessageName.SYNC, {"Tick": self.k % 65536})
+            while (rx := self.node.recv(timeout=0.0)) is not None:
+                if rx.name in DRIVE_COMMAND:
+                    motor = self.drives.motors[DRIVE_COMMAND.index(rx.name)]
+                    motor.set_command(float(rx.signals["Torque"]), bool(rx.signals["Enable"]), self.t)
+            time.sleep(TICK)
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join()
+        self.bus.shutdown()
+
+
+@pytest.fixture
+def bench():
+    channel = private_channel("odrive")
+    axes = AxesOnABench(channel)
+    yield axes, channel
+    axes.close()
+
+
+class Feeder:
+    """Sends the axis's setpoint every 5 ms, as a host must with the watchdog on (the emulated axes run
+    the plant drive's 20 ms watchdog; ODrive's is configurable and off by default)."""
+
+    def __init__(self, client):
+        self.client, self.torque, self.running = client, 0.0, True
+        self.task = asyncio.get_running_loop().create_task(self._feed())
+
+    async def _feed(self) -> None:
+        while self.running:
+            self.client.set_input_torque(self.torque)
+            await asyncio.sleep(0.005)
+
+    async def stop(self) -> None:
+        self.running = False
+        await self.task
+
+
+async def _until(predicate, timeout: float = 2.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        assert time.monotonic() < deadline, "timed out"
+        await asyncio.sleep(0.01)
+
+
+def test_odrive_cans_own_client_arms_an_axis_commands_torque_and_reads_it_back(bench):
+    axes, channel = bench
+    motor = axes.drives.motors[1]
+
+    async def session() -> None:
+        client = odrive_can.ODriveCAN(axis_id=NODES[1], can_bus=open_bus(BusConfig(channel=channel)))
+        await client.start()
+        try:
+            assert client.axis_state == "IDLE"
+            client.check_errors()  # Axis_Error NONE
+            version = await client._request("Get_Version")
+            assert (version["Fw_Version_Major"], version["Fw_Version_Minor"]) == (0, 6)
+            feeder = Feeder(client)
+            feeder.torque = 0.8
+            await asyncio.sleep(0.05)
+            assert motor.state is not DriveState.ENABLED, "IDLE: a torque setpoint makes no torque"
+            await client.set_axis_state("CLOSED_LOOP_CONTROL")  # waits for the heartbeat to say so
+            await _until(lambda: motor.state is DriveState.ENABLED and motor.command == pytest.approx(0.8))
+            # The cyclic estimates through the client's own callback. (Its RTR helper shares one response
+            # slot with cyclic frames of the same id, as against a real ODrive: asked only for the rest.)
+            seen = []
+            client.feedback_callback = lambda msg, _: seen.append(msg.data)
+            await _until(lambda: len(seen) > 3)
+            assert seen[-1]["Vel_Estimate"] == pytest.approx(2.0 / (2 * 3.141592653589793), rel=1e-6)
+            assert seen[-1]["Pos_Estimate"] > seen[0]["Pos_Estimate"] > 0
+            bus = await client.get_bus_voltage_current()
+            assert bus["Bus_Voltage"] > 0
+            # Torque keeps flowing while the setpoints come faster than the watchdog (the positive control
+            # of the watchdog test below).
+            await asyncio.sleep(0.2)
+            assert motor.state is DriveState.ENABLED
+            client.check_errors()
+            await client.set_axis_state("IDLE")
+            await _until(lambda: motor.state is DriveState.DISABLED)
+            await feeder.stop()
+        finally:
+            client.stop()
+
+    asyncio.run(session())
+
+
+def test_estop_disarms_with_estop_requested_until_clear_errors(bench):
+    axes, channel = bench
+    motor = axes.drives.motors[0]
+
+    async def session() -> None:
+        client = odrive_can.ODriveCAN(axis_id=NODES[0], can_bus=open_bus(BusConfig(channel=channel)))
+        await client.start()
+        try:
+            feeder = Feeder(client)
+            feeder.torque = 0.5
+            await client.set_axis_state("CLOSED_LOOP_CONTROL")
+            await _until(lambda: motor.state is DriveState.ENABLED)
+            client._send_message("Estop")
+            await _until(lambda: client.axis_state == "IDLE")
+            with pytest.raises(odrive_can.odrive.DriveError, match="ESTOP_REQUESTED"):
+                client.check_errors()
+            assert motor.state is DriveState.DISABLED
+            error = await client._request("Get_Error")
+            assert error["Active_Errors"] == error["Disarm_Reason"] == "ESTOP_REQUESTED"  # ODrive's DBC names
+            client.set_axis_state_no_wait("CLOSED_LOOP_CONTROL")  # refused: an error is active
+            await asyncio.sleep(0.1)
+            assert client.axis_state == "IDLE"
+            client.clear_errors()
+            await client.set_axis_state("CLOSED_LOOP_CONTROL")
+            client.check_errors()
+            await feeder.stop()
+        finally:
+            client.stop()
+
+    asyncio.run(session())
+
+
+def test_the_watchdog_disarms_an_axis_whose_setpoints_stop(bench):
+    axes, channel = bench
+
+    async def session() -> None:
+        client = odrive_can.ODriveCAN(axis_id=NODES[2], can_bus=open_bus(BusConfig(channel=channel)))
+        await client.start()
+        try:
+            feeder = Feeder(client)
+            feeder.torque = 0.3
+            await client.set_axis_state("CLOSED_LOOP_CONTROL")
+            await _until(lambda: axes.drives.motors[2].state is DriveState.ENABLED)
+            await feeder.stop()
+            await asyncio.sleep(0.2)  # no setpoint for 10x the drive's watchdog
+            await _until(lambda: client.axis_state == "IDLE")
+            with pytest.raises(odrive_can.odrive.DriveError, match="WATCHDOG_TIMER_EXPIRED"):
+                client.check_errors()
+        finally:
+            client.stop()
+
+    asyncio.run(session())
+
+
+def test_a_frame_of_the_family_that_does_not_decode_is_counted_not_raised(bench):
+    axes, channel = bench
+    bus = open_bus(BusConfig(channel=channel))
+    try:
+        wire = OdriveWire()
+        bad = wire.frame(NODES[0], 0x0E, {"Input_Torque": 1.0})
+        bad.data = bad.data[:2]
+        bus.send(bad)
+        deadline = time.monotonic() + 2.0
+        while not axes.node.stats.malformed["malformed_device_frame"] and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert axes.node.stats.malformed["malformed_device_frame"] == 1
+        assert axes.thread.is_alive()
+    finally:
+        bus.shutdown()
+
+
+# ------------------------------------------------------------------------------------------- the rig
+def test_a_node_id_that_owns_a_contract_frame_is_refused_naming_the_field(tmp_path):
+    from hil.bench.bench import load_bench
+
+    path = tmp_path / "bench.toml"
+    path.write_text('name = "x"\n[devices]\ndrives = "odrive"\n[devices.odrive]\nnode_ids = [0, 1, 2]\n')
+    clash = r"odrive\.node_ids: node 0 .*SUPERVISOR_ESTOP.* - at `\$\.devices`"
+    with pytest.raises(ConfigError, match=clash):
+        load_bench(path)
+    path.write_text('name = "x"\n[devices]\ndrives = "odrive"\n[devices.odrive]\nnode_ids = [4, 1, 2]\n')
+    with pytest.raises(ConfigError, match=r"node 4 .*SYNC"):
+        load_bench(path)
+    # The contract's drive frames are not on an odrive bus: node 12 (0x180-0x19F) clashes only with the IMU.
+    path.write_text('name = "x"\n[devices]\ndrives = "odrive"\n[devices.odrive]\nnode_ids = [12, 1, 2]\n')
+    with pytest.raises(ConfigError, match=r"node 12 .*contract's IMU_ATTITUDE: pick"):
+        load_bench(path)
+
+
+def test_speed_limiting_on_odrive_passes_deterministically_and_replays_byte_for_byte(tmp_path):
+    from hil.pipeline import load_scenario, run
+    from hil.suites.replay import replay
+
+    scenario = load_scenario("speed_limiting")
+    first, second = tmp_path / "a", tmp_path / "b"
+    a = run(scenario, private_bench("odrive"), out=first)
+    assert a.passed, [v for v in a.verdicts if not v.passed]
+    run(scenario, private_bench("odrive"), out=second)
+    ids = {int(line.split()[2].split("#")[0], 16) for line in (first / "can.log").read_text().splitlines()}
+    assert {0x020 | 0x09, 0x020 | 0x01, 0x020 | 0x0E, 0x020 | 0x07} <= ids, "CAN Simple on the wire"
+    assert not ids & {0x181, 0x201, 0x281}, "no contract drive frame on an odrive bus"
+
+    def payloads(folder):
+        return [line.split()[2] for line in (folder / "can.log").read_text().splitlines()]
+
+    assert payloads(first) == payloads(second)
+    summary = json.loads((first / "summary.json").read_text())
+    assert summary["bench"]["devices"]["drives"] == "odrive"
+    assert summary["bus"]["malformed"] == {}
+    result = replay(first, private_bench())
+    assert result.identical and result.frames_compared > 4 * result.ticks, result.mismatches[:3]
+    # Test the test: the same frames read as another profile's (the contract's own) answer nothing alike.
+    summary["bench"]["devices"] = {"drives": "pure"}
+    (first / "summary.json").write_text(json.dumps(summary))
+    assert not replay(first, private_bench(), limit=50).identical
+
+
+def test_the_supervisors_estop_reaches_the_axes_as_can_simple_estop(tmp_path):
+    from hil.pipeline import load_scenario, run
+
+    result = run(load_scenario("estop_at_speed"), private_bench("odrive"), out=tmp_path)
+    assert result.passed, [v for v in result.verdicts if not v.passed]
+    wire = OdriveWire()
+    estops, heartbeats = set(), []
+    for line in (tmp_path / "can.log").read_text().splitlines():
+        frame = line.split()[2]
+        fid, data = int(frame.split("#")[0], 16), bytes.fromhex(frame.split("#")[1])
+        if fid & 0x1F == 0x02 and fid >> 5 in NODES:
+            estops.add(fid >> 5)
+        if fid == 0x020 | 0x01:
+            heartbeats.append(wire.decode(_msg(fid, data)))
+    assert estops == set(NODES)
+    after = heartbeats[-1]
+    assert after["Axis_State"] == AxisState.IDLE and after["Axis_Error"] & AxisError.ESTOP_REQUESTED
+    assert any(h["Axis_State"] == AxisState.CLOSED_LOOP_CONTROL for h in heartbeats), "armed before it"
+
+
+def _msg(fid: int, data: bytes):
+    import can
+
+    return can.Message(arbitration_id=fid, data=data, is_extended_id=False)
