@@ -6,6 +6,10 @@ benchmarks/mcap_cost.py), the per-stage cost of the rig's tick, and, measured in
 - the floor: bare python-can virtual send+recv of the tick's frames.
 
     python benchmarks/lockstep.py [SCENARIO (default speed_limiting)] [--duration S] [--json]
+                                  [--devices PROFILE ...]
+
+--devices odrive: the same scenario on each device profile's shipped bench too (configs/benches/PROFILE.toml),
+its tick loop and stages beside `pure`'s (the embedded bench), measured in the same run.
 """
 
 from __future__ import annotations
@@ -173,6 +177,7 @@ def main() -> None:
     parser.add_argument("scenario", nargs="?", default="speed_limiting")
     parser.add_argument("--duration", type=float, default=None)
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
+    parser.add_argument("--devices", nargs="*", default=[], help="device profiles to measure beside pure")
     args = parser.parse_args()
     scenario = load_scenario(args.scenario)
     if args.duration:
@@ -183,6 +188,22 @@ def main() -> None:
         totals: dict[str, float] = {}
         instrument(totals)
         result, wall = timed_run(scenario, load_bench(), out / "full")
+        profiles = {}
+        pure_stages = dict(totals)
+        for profile in args.devices:
+            totals.clear()
+            other, _ = timed_run(scenario, load_bench(profile), out / profile)
+            if other.trace.failure is not None:
+                raise SystemExit(f"run on {profile} failed: {other.trace.failure}")
+            n = other.trace.stats.ticks
+            profiles[profile] = {
+                "us_per_tick": other.trace.timing.wall_time / n * 1e6,
+                "speed_tick_loop": other.trace.timing.speed,
+                "passed": other.passed,
+                "stages_us_per_tick": {name: totals.get(name, 0.0) / n * 1e6 for name in STAGES},
+            }
+        totals.clear()
+        totals.update(pure_stages)
     trace = result.trace
     if trace.failure is not None:
         raise SystemExit(f"run failed: {trace.failure}")
@@ -205,6 +226,7 @@ def main() -> None:
         "stages_us_per_tick": {name: totals.get(name, 0.0) / ticks * 1e6 for name in STAGES},
         "missing_commands": trace.stats.missing_commands,
         "passed": result.passed,
+        "devices": profiles,
     }
     if args.json:
         print(json.dumps(figures))
@@ -237,6 +259,16 @@ def main() -> None:
         f"{figures['frame_work_us_per_tick']:.0f} us/tick = "
         f"{figures['frame_work_us_per_tick'] / figures['us_per_tick']:.0%} of the tick loop"
     )
+    if profiles:
+        print("  per device profile (same scenario, that profile's shipped bench), us/tick:")
+        print(f"    {'stage':<40} {'pure':>8} " + " ".join(f"{p:>8}" for p in profiles))
+        for name, label in STAGES.items():
+            row = " ".join(f"{v['stages_us_per_tick'][name]:8.0f}" for v in profiles.values())
+            print(f"    {label:<40} {figures['stages_us_per_tick'][name]:8.0f} {row}")
+        row = " ".join(f"{v['us_per_tick']:8.0f}" for v in profiles.values())
+        print(f"    {'tick loop':<40} {figures['us_per_tick']:8.0f} {row}")
+        for p, v in profiles.items():
+            print(f"    {p}: {v['speed_tick_loop']:.2f}x real time, passed: {v['passed']}")
     print(
         f"  ratios: tick loop / rig only {figures['us_per_tick'] / only_us:.2f}, "
         f"tick loop / floor {figures['us_per_tick'] / figures['floor_us_per_tick']:.1f}, "
