@@ -292,3 +292,35 @@ def _msg(fid: int, data: bytes):
     import can
 
     return can.Message(arbitration_id=fid, data=data, is_extended_id=False)
+
+
+def test_a_controller_on_odrive_cans_own_client_balances_the_robot(tmp_path):
+    """examples/odrive_controller.py: the example's law with its drives driven through odrive-can's client
+    (arming, setpoints, the cyclic estimates through its callback), as a lab with ODrive drives would write
+    it; an external controller to the rig, here on a thread of this process on the in-process bus."""
+    import asyncio
+    import importlib.util
+    from pathlib import Path
+
+    from drivers.can_bus import BusConfig
+    from hil.pipeline import load_scenario, run
+
+    path = Path(__file__).resolve().parents[1] / "examples" / "odrive_controller.py"
+    spec = importlib.util.spec_from_file_location("odrive_controller", path)
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    channel = private_channel("odrive-client")
+    stop = threading.Event()
+    thread = threading.Thread(
+        target=lambda: asyncio.run(example.run(channel, "pure_shared", list(NODES), stop)), daemon=True
+    )
+    thread.start()
+    try:
+        bench = private_bench("odrive", controller="external", can=BusConfig(channel=channel))
+        result = run(load_scenario("balance"), bench, out=tmp_path)
+    finally:
+        stop.set()
+        thread.join(timeout=10)
+    assert result.passed, [v for v in result.verdicts if not v.passed]
+    assert result.trace.stats.missing_commands == 0
+    assert not thread.is_alive()

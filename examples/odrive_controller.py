@@ -1,0 +1,113 @@
+#!/usr/bin/env python3
+"""The balance controller of balance_controller.py with its drives on ODrive's CAN Simple, driven through
+odrive-can's own client (`odrive_can.ODriveCAN`, one per axis), as a lab whose robot has ODrive drives would
+write it. It imports nothing from pure-hil.
+
+What changes against balance_controller.py: the motor velocities come from each axis's cyclic
+Get_Encoder_Estimates (the client's `feedback_callback`, rev/s at the motor); a drive is armed with
+`set_axis_state_no_wait("CLOSED_LOOP_CONTROL")` (after `clear_errors()` if its heartbeat shows an error) and
+commanded with `set_input_torque`; it is disarmed with IDLE. The contract's own frames (SYNC, the IMU, the
+supervisor's, CONTROLLER_HEARTBEAT) still go through the contract's DBC.
+
+    python examples/odrive_controller.py --can socketcan:vcan0 --nodes 1 2 3
+    pure-hil run balance --bench odrive --controller external --can socketcan:vcan0
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import math
+import signal
+import sys
+import threading
+from pathlib import Path
+
+import can
+from odrive_can import ODriveCAN
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from balance_controller import DBC, HEARTBEAT, BalanceController, Wire  # noqa: E402
+
+
+class OdriveDrives:
+    """Three axes through odrive-can's client: velocities in, arm/disarm and torques out."""
+
+    def __init__(self, axes: list[ODriveCAN], controller: BalanceController):
+        self.axes, self.controller = axes, controller
+        self.armed = [False, False, False]
+        for i, axis in enumerate(axes):
+            axis.feedback_callback = lambda msg, _, i=i: self._velocity(i, msg.data["Vel_Estimate"])
+
+    def _velocity(self, i: int, rev_per_s: float) -> None:
+        self.controller.velocity[i] = rev_per_s * 2.0 * math.pi
+
+    def command(self, torques: tuple[float, float, float], enable: bool) -> None:
+        for i, (axis, torque) in enumerate(zip(self.axes, torques, strict=True)):
+            heartbeat = axis._last_heartbeat  # the client keeps the last one; no RTR in the loop
+            state = heartbeat.data["Axis_State"] if heartbeat is not None else None
+            if enable and state != "CLOSED_LOOP_CONTROL" and (not self.armed[i] or heartbeat is not None):
+                if heartbeat is not None and heartbeat.data["Axis_Error"] != "NONE":
+                    axis.clear_errors()
+                if not self.armed[i] or state == "IDLE":
+                    axis.set_axis_state_no_wait("CLOSED_LOOP_CONTROL")
+            elif not enable and self.armed[i]:
+                axis.set_axis_state_no_wait("IDLE")
+            self.armed[i] = enable
+            axis.set_input_torque(torque if enable else 0.0)
+
+
+class OdriveBalanceController(BalanceController):
+    """balance_controller.py's estimator and law; the drive commands go to the ODrive axes."""
+
+    drives: OdriveDrives
+
+    def tick(self, k: int) -> None:
+        ready = self.attitude is not None and self.rate is not None and None not in self.velocity
+        if self.state == 0 and ready:  # INIT -> BALANCING
+            self.state = 3
+        if self.state == 3 and self.supervisor_lost(k):
+            self.state = 1
+        balancing = self.state == 3
+        torques = self.torques() if balancing else (0.0, 0.0, 0.0)
+        self.drives.command(torques, balancing and self.permitted)
+        self.wire.send("CONTROLLER_HEARTBEAT", {**HEARTBEAT, "State": self.state})
+
+
+async def run(channel: str, interface: str, nodes: list[int], stop: threading.Event) -> None:
+    buses = [can.Bus(interface=interface, channel=channel) for _ in nodes]  # one reader thread each
+    axes = [ODriveCAN(axis_id=node, can_bus=bus) for node, bus in zip(nodes, buses, strict=True)]
+    wire = Wire(can.Bus(interface=interface, channel=channel), DBC)
+    controller = OdriveBalanceController(wire)
+    controller.drives = OdriveDrives(axes, controller)
+    contract = threading.Thread(target=controller.run, args=(stop,), daemon=True)
+    contract.start()  # boot-up heartbeats at once: the rig waits for them before its first SYNC
+    for axis in axes:
+        await axis.start()  # its first heartbeat (the rig's emulated axes send them from the first tick)
+    while not stop.is_set():
+        await asyncio.sleep(0.05)
+    contract.join()
+    for axis in axes:
+        axis.stop()
+    wire.bus.shutdown()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--can", default="socketcan:vcan0", help="INTERFACE:CHANNEL for python-can")
+    parser.add_argument(
+        "--nodes", type=int, nargs=3, default=[1, 2, 3], help="the axes' node ids, motor 1 first"
+    )
+    args = parser.parse_args(argv)
+    interface, _, channel = args.can.partition(":")
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    try:
+        asyncio.run(run(channel, interface, args.nodes, stop))
+    except KeyboardInterrupt:
+        stop.set()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
