@@ -25,9 +25,10 @@ from pathlib import Path
 
 import can
 from odrive_can import ODriveCAN
+from odrive_can.odrive import DriveError, HeartbeatError
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from balance_controller import DBC, HEARTBEAT, BalanceController, Wire  # noqa: E402
+from balance_controller import DBC, HEARTBEAT, BalanceController, Wire
 
 
 class OdriveDrives:
@@ -44,17 +45,24 @@ class OdriveDrives:
 
     def command(self, torques: tuple[float, float, float], enable: bool) -> None:
         for i, (axis, torque) in enumerate(zip(self.axes, torques, strict=True)):
-            heartbeat = axis._last_heartbeat  # the client keeps the last one; no RTR in the loop
-            state = heartbeat.data["Axis_State"] if heartbeat is not None else None
-            if enable and state != "CLOSED_LOOP_CONTROL" and (not self.armed[i] or heartbeat is not None):
-                if heartbeat is not None and heartbeat.data["Axis_Error"] != "NONE":
-                    axis.clear_errors()
-                if not self.armed[i] or state == "IDLE":
-                    axis.set_axis_state_no_wait("CLOSED_LOOP_CONTROL")
+            if enable and (not self.armed[i] or self._disarmed(axis)):
+                try:
+                    axis.check_errors()
+                except (DriveError, HeartbeatError):
+                    axis.clear_errors()  # an error latched (the watchdog, an e-stop): clear, then arm
+                axis.set_axis_state_no_wait("CLOSED_LOOP_CONTROL")
             elif not enable and self.armed[i]:
                 axis.set_axis_state_no_wait("IDLE")
             self.armed[i] = enable
             axis.set_input_torque(torque if enable else 0.0)
+
+    @staticmethod
+    def _disarmed(axis: ODriveCAN) -> bool:
+        """Its last heartbeat says it is not in closed loop (it disarmed itself, or has not armed yet)."""
+        try:
+            return axis.axis_state != "CLOSED_LOOP_CONTROL"
+        except HeartbeatError:
+            return True
 
 
 class OdriveBalanceController(BalanceController):
