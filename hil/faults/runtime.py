@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from typing import NamedTuple, cast
 
 import can
@@ -49,7 +49,7 @@ class FaultSet:
         self.rig: FaultTarget | None = None
         """The rig the faults act on, from attach(). Before it the hooks are handed None for the rig: only
         faults that touch no rig can run so (unit tests of the timing do)."""
-        self.on_event = None
+        self.on_event: Callable[[FaultEvent], None] | None = None
         """Called with every FaultEvent as it happens (the service marks the live view)."""
         self._active: list[int] = []
         # The active faults by family, with their states (_index): what the rig's hooks run each tick.
