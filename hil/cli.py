@@ -611,9 +611,9 @@ def _estop(args: argparse.Namespace) -> int:
 
     from drivers.keys import Keys
     from drivers.zenoh_link import ZenohLink
-    from hil.bench.operator import command
+    from hil.bench.operator import Action, command
 
-    action = "reset" if args.reset else "cut_power" if args.cut_power else "estop"
+    action: Action = "reset" if args.reset else "cut_power" if args.cut_power else "estop"
     source = args.source or f"{getpass.getuser()}@{socket.gethostname()}"
     bench, session, card = _join_rig(args)
     rig = f"rig {card.describe()}" if card else f"bench {bench.name}"

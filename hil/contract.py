@@ -112,13 +112,17 @@ def sections() -> dict[str, str]:
 def render(text: str) -> str:
     """`text` (docs/contract.md) with every generated section replaced by its current content."""
     for name, body in sections().items():
-        begin, end = BEGIN.format(name=name), END.format(name=name)
-        pattern = re.compile(re.escape(begin) + ".*?" + re.escape(end), re.S)
-        if not pattern.search(text):
-            raise ValueError(f"docs/contract.md has no generated section {name!r} ({begin} ... {end})")
-        replacement = f"{begin}\n{body}\n{end}"
-        text = pattern.sub(lambda _, r=replacement: r, text)
+        text = _replace_section(text, name, body)
     return text
+
+
+def _replace_section(text: str, name: str, body: str) -> str:
+    begin, end = BEGIN.format(name=name), END.format(name=name)
+    pattern = re.compile(re.escape(begin) + ".*?" + re.escape(end), re.S)
+    if not pattern.search(text):
+        raise ValueError(f"docs/contract.md has no generated section {name!r} ({begin} ... {end})")
+    replacement = f"{begin}\n{body}\n{end}"
+    return pattern.sub(lambda _: replacement, text)  # a function: the body's backslashes stay as written
 
 
 def write(docs: Path) -> None:

@@ -36,8 +36,20 @@ CREATE TABLE IF NOT EXISTS runs (
     pid INTEGER NOT NULL            -- the service process that made it
 )
 """
-COLUMNS = ("id", "folder", "scenario", "bench", "controller", "clock", "verdict", "first_cause", "error")
-COLUMNS += ("started", "ended", "files")
+COLUMNS = (
+    "id",
+    "folder",
+    "scenario",
+    "bench",
+    "controller",
+    "clock",
+    "verdict",
+    "first_cause",
+    "error",
+    "started",
+    "ended",
+    "files",
+)
 PLAIN_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]{0,127}")
 """A file name a console may ask for: no separator, no leading dot (so neither '..' nor hidden files)."""
 MAX_LIMIT = 500
@@ -91,7 +103,9 @@ class History:
                 "VALUES (?, ?, ?, ?, ?, 'RUNNING', ?, ?)",
                 (self._relative(folder), scenario, bench, controller, clock, time.time(), os.getpid()),
             )
-            return int(cursor.lastrowid)
+            run_id = cursor.lastrowid
+            assert run_id is not None  # None only before any INSERT on the cursor
+            return run_id
 
     def end(
         self, run_id: int, verdict: str, first_cause: str | None = None, error: str | None = None

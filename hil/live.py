@@ -25,6 +25,7 @@ from drivers.can_codec import MessageName
 from drivers.keys import Keys
 from drivers.schemas import ControllerTelemetry, PayloadError, SafetyState, decode
 from hil.faults import FaultSet
+from hil.run.build import RunStatus
 from safety.machine import State
 
 PERIOD = 0.05
@@ -68,7 +69,7 @@ class LiveStream:
         self._events_seen = 0
         self._command = math.nan
         self._safety_state: SafetyState | None = None
-        self.status = None
+        self.status: RunStatus | None = None
         """The run's latest RunStatus (the loop's progress report, every 0.5 s): overruns, speed factor."""
 
     def due(self) -> bool:

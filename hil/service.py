@@ -25,6 +25,7 @@ import threading
 import time
 from contextlib import ExitStack
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import msgspec
 import zenoh
@@ -41,6 +42,9 @@ from hil.pipeline import describe, load_scenario, run
 from hil.run.build import RunOptions, RunStatus, clock_of, law_of
 from hil.run.scenario import Intent, Scenario
 from plant.ballbot import Plant, RiderIntent
+
+if TYPE_CHECKING:  # imported where used: rerun loads only for a service with a live view
+    from hil.outputs.recording import LiveView
 
 NO_FAULTS = "bench {bench} says a person is on the robot (rider_on_board): fault injection is refused"
 CHUNK = 1 << 19
@@ -61,8 +65,8 @@ class RigService:
         self.session, self.bench = session, bench or load_bench()
         self.keys = Keys(self.bench.zenoh.prefix)
         self.view_sink = view
-        self._view = None
-        self._views: dict[str, object] = {}
+        self._view: LiveView | None = None
+        self._views: dict[str, LiveView] = {}
         """One live recording per scenario name, kept for the service's life: rerun never drops a stream
         created from Python (rerun-io/rerun#2116), so a stream per run would leak its threads."""
         self.out_root = out_root
@@ -110,6 +114,10 @@ class RigService:
     def _status(self, query: zenoh.Query) -> None:
         self._reply(query, {"ok": True, **self.status()})
 
+    def _running(self) -> Scenario | None:
+        """The scenario of the run in progress (None: idle)."""
+        return self.scenario if self.state == "running" else None
+
     def status(self) -> dict:
         return {
             "state": self.state,
@@ -142,8 +150,9 @@ class RigService:
             self._reply(query, {"ok": False, "error": NO_FAULTS.format(bench=self.bench.name)})
             return
         with self._lock:
-            if self.state == "running":
-                self._reply(query, {"ok": False, "error": f"already running {self.scenario.name}"})
+            running = self._running()
+            if running is not None:
+                self._reply(query, {"ok": False, "error": f"already running {running.name}"})
                 return
             self.state, self.scenario, self.sim_time = "running", scenario, 0.0
             self._stop.clear()
@@ -160,7 +169,7 @@ class RigService:
             )
             self._live.begin(scenario.name, self._faults, self.run_id)
             self._worker = threading.Thread(
-                target=self._run, args=(scenario, out), name="rig-run", daemon=True
+                target=self._run, args=(scenario, out, self.run_id), name="rig-run", daemon=True
             )
             self._worker.start()
         self._reply(query, {"ok": True, "scenario": scenario.name, "out": str(out), "run": self.run_id})
@@ -202,9 +211,8 @@ class RigService:
             self._reply(query, {"ok": False, "error": f"pure/rig/intent payload: {exc}"})
             return
         self._pending_intent = RiderIntent(list(intent.pitch), list(intent.roll), list(intent.twist))
-        self._reply(
-            query, {"ok": True, "applies_to": self.scenario.name if self.state == "running" else None}
-        )
+        running = self._running()
+        self._reply(query, {"ok": True, "applies_to": running.name if running is not None else None})
 
     def _fault_inject(self, query: zenoh.Query) -> None:
         text = query.payload.to_string() if query.payload is not None else ""
@@ -217,8 +225,8 @@ class RigService:
         if self.bench.rider_on_board:
             self._reply(query, {"ok": False, "error": NO_FAULTS.format(bench=self.bench.name)})
             return
-        faults = self._faults
-        if self.state != "running" or faults is None:
+        faults, running = self._faults, self._running()
+        if running is None or faults is None:
             self._reply(query, {"ok": False, "error": "no run in progress: start one first"})
             return
         try:
@@ -226,7 +234,7 @@ class RigService:
         except ValueError as exc:
             self._reply(query, {"ok": False, "error": str(exc)})
             return
-        self._reply(query, {"ok": True, "fault": spec.describe(), "scenario": self.scenario.name})
+        self._reply(query, {"ok": True, "fault": spec.describe(), "scenario": running.name})
 
     def _fault_clear(self, query: zenoh.Query) -> None:
         text = (query.payload.to_string() if query.payload is not None else "").strip()
@@ -292,7 +300,7 @@ class RigService:
         if intent is not None:
             plant.set_intent(intent)
 
-    def _run(self, scenario: Scenario, out: Path) -> None:
+    def _run(self, scenario: Scenario, out: Path, run_id: int) -> None:
         if self.view_sink is not None:
             from hil.outputs.recording import LiveView
 
@@ -330,14 +338,14 @@ class RigService:
             transitions = [e for e in result.trace.safety_events if e.kind == "transition"]
             failure = result.trace.failure
             self.history.end(
-                self.run_id,
+                run_id,
                 result.verdict,
                 transitions[0].cause if transitions else None,
                 None if failure is None else f"{failure.stage}: {failure.error}",
             )
         except Exception as exc:  # a failed run is reported on status, never kills the service
             self.last = {"scenario": scenario.name, "passed": False, "error": f"{type(exc).__name__}: {exc}"}
-            self.history.end(self.run_id, "ERROR", error=self.last["error"])
+            self.history.end(run_id, "ERROR", error=self.last["error"])
         finally:
             if self._view is not None:
                 self._view.mark(self.sim_time, f"run {scenario.name} ended: {self.last}")

@@ -84,3 +84,10 @@ def test_every_profile_stays_within_the_riders_body():
 def test_an_objective_the_scenario_cannot_state_is_refused():
     with pytest.raises(ValueError, match="no speed cap"):
         search(load_scenario("balance"), "overspeed", 1, bench=private_bench())
+
+
+def test_the_tilt_objectives_bound_is_the_supervisors_tilt_limit():
+    # configs/safety/default.toml's [motion] tilt_limit_deg, the embedded bench's supervisor rules.
+    req = requirement("tilt", load_scenario("balance"), private_bench())
+    assert (req.bound, req.unit) == (20.0, "deg")
+    assert req.formula == "always (|tilt| <= 20 deg)"

@@ -27,6 +27,7 @@ import time
 import urllib.error
 import urllib.request
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -402,6 +403,35 @@ def test_pages_that_go_away_leave_no_thread_behind(rig):
         reply.close()
         page.close()
     assert wait_for(lambda: threading.active_count() <= baseline, 15), (threading.active_count(), baseline)
+
+
+class _StatusChangingLink(RigLink):
+    """A RigLink without zenoh whose status reads as the given values in turn: the poller thread's write
+    landing between two reads."""
+
+    def __init__(self, *statuses):
+        self._statuses = iter(statuses)
+        self.keys = KEYS
+
+    @property
+    def status(self):
+        return next(self._statuses)
+
+
+def test_a_fault_is_refused_on_a_rider_bench_also_when_the_status_goes_meanwhile():
+    link = _StatusChangingLink({"bench": {"name": "lab", "rider_on_board": True}}, None)
+    with pytest.raises(rig_link.Refused, match="bench lab says a person is on the robot") as refused:
+        link.inject({"kind": "zenoh.wrench_dropout"})
+    assert refused.value.status == 409
+
+
+def test_a_file_answer_without_its_size_is_a_bad_gateway():
+    link = _StatusChangingLink()
+    answer = SimpleNamespace(ok=SimpleNamespace(attachment=None, payload=None), err=None)
+    link.session = SimpleNamespace(get=lambda *args, **kwargs: [answer])
+    with pytest.raises(rig_link.Refused, match="does not say the file's size") as refused:
+        link.file(1, "summary.json")
+    assert refused.value.status == 502
 
 
 def test_listen_and_tls_options(tmp_path):

@@ -85,24 +85,28 @@ def announce(session: zenoh.Session, prefix: str, bench: str, endpoint: str, run
     """While inside, the rig at `endpoint` answers rig/hello and is listed in the machine's rig folder."""
     card = RigCard(bench, endpoint, os.getpid(), runs, time.time())
     body = json.dumps({"ok": True, **asdict(card)})
+
+    def answer(query: zenoh.Query) -> None:
+        query.reply(query.key_expr, body)
+
     # Answered on zenoh's own thread (indirect=False): zenoh's default runs a callback on a Python thread
     # of its own, and a second Python thread makes a lockstep tick yield the GIL (~100 us a tick here).
     queryable = session.declare_queryable(
-        Keys(prefix).rig(HELLO),
-        zenoh.handlers.Callback(lambda query: query.reply(query.key_expr, body), indirect=False),
+        Keys(prefix).rig(HELLO), zenoh.handlers.Callback(answer, indirect=False)
     )
     path = folder() / f"{card.pid}-{id(card):x}.json"
+    written: Path | None = path
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(asdict(card)))
     except OSError:
-        path = None  # an unwritable folder costs the finding by folder, not the run
+        written = None  # an unwritable folder costs the finding by folder, not the run
     try:
         yield card
     finally:
         queryable.undeclare()
-        if path is not None:
-            path.unlink(missing_ok=True)
+        if written is not None:
+            written.unlink(missing_ok=True)
 
 
 def choose_hub(bench: str, hub: str | None, bench_endpoint: str | None) -> str | None:

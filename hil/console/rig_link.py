@@ -19,9 +19,9 @@ import msgspec
 import zenoh
 
 from drivers.keys import Keys
-from drivers.schemas import PayloadError, SafetyState, decode
+from drivers.schemas import PayloadError, SafetyState, SafetyStateName, decode
 from drivers.zenoh_link import ZenohLink
-from hil.bench.operator import command
+from hil.bench.operator import Action, command
 from hil.console.events import Broadcast
 from hil.faults import parse_fault
 
@@ -52,7 +52,8 @@ class RigLink:
         self.events = events
         self.status: dict | None = None
         """The service's last status reply (None: it has not answered yet)."""
-        self._safety_sent = (None, 0.0)
+        self._safety_sent: tuple[tuple[SafetyStateName, str, float, str] | None, float] = (None, 0.0)
+        """The supervisor's state the pages were last sent (state, reason, cap, estop_by), and when."""
         self._closed = threading.Event()
         self._subscribers = [
             session.declare_subscriber(keys.rig_live, self._on_live),
@@ -127,6 +128,8 @@ class RigLink:
         asked = json.dumps({"run": run, "name": name, "offset": offset})
         for reply in self.session.get(self.keys.rig_file, payload=asked, timeout=ASK_TIMEOUT):
             if reply.ok is not None:
+                if reply.ok.attachment is None:  # the service always attaches it: another program answered
+                    raise Refused(502, f"the answer on {self.keys.rig_file} does not say the file's size")
                 told = json.loads(reply.ok.attachment.to_string())
                 return int(told["size"]), reply.ok.payload.to_bytes()
             if reply.err is not None:
@@ -145,9 +148,11 @@ class RigLink:
         return self.ask("stop")
 
     def inject(self, fault: dict) -> dict:
-        if ((self.status or {}).get("bench") or {}).get("rider_on_board"):
-            bench = self.status["bench"]["name"]
-            raise Refused(409, f"bench {bench} says a person is on the robot: fault injection is refused")
+        # One read of the status: the poller may set it to None (the service stopped answering) meanwhile.
+        bench = (self.status or {}).get("bench") or {}
+        if bench.get("rider_on_board"):
+            name = bench["name"]
+            raise Refused(409, f"bench {name} says a person is on the robot: fault injection is refused")
         try:
             parse_fault(fault, "fault")  # the check the service makes, before anything is sent
         except ValueError as exc:
@@ -157,7 +162,7 @@ class RigLink:
     def clear(self, number: int | None) -> dict:
         return self.ask("fault/clear", "" if number is None else str(number))
 
-    def estop(self, action: str) -> dict:
+    def estop(self, action: Action) -> dict:
         """`pure-hil estop` from the page (hil/bench/operator.py): the operator's EstopCommand (estop,
         cut_power or reset), and the supervisor's word: its `estop_by` naming this console, or NORMAL."""
         link = ZenohLink(self.session, self.keys)

@@ -43,10 +43,10 @@ class DriveStuckEnabled(DriveFault, frozen=True, tag="plant.drive_stuck_enabled"
 
     latent: ClassVar[bool] = True
 
-    def start(self, rig, state):
+    def start(self, rig: FaultTarget, state: FaultState) -> None:
         rig.plant.drives.motors[self.motor - 1].stuck_enabled = True
 
-    def stop(self, rig, state):
+    def stop(self, rig: FaultTarget, state: FaultState) -> None:
         rig.plant.drives.motors[self.motor - 1].stuck_enabled = False
 
 
@@ -60,7 +60,7 @@ class Push(PlantFault, frozen=True, tag="plant.push"):
     twist: float = 0.0
     disturbance: ClassVar[bool] = True
 
-    def start(self, rig, state):
+    def start(self, rig: FaultTarget, state: FaultState) -> None:
         forward, left = self.force
         # The roll plane's forward is −y; a force above P also turns the plane about P (r × F).
         rig.plant.external = [
@@ -69,7 +69,7 @@ class Push(PlantFault, frozen=True, tag="plant.push"):
         ]
         rig.plant.external_yaw = self.twist
 
-    def stop(self, rig, state):
+    def stop(self, rig: FaultTarget, state: FaultState) -> None:
         rig.plant.external = [None, None]
         rig.plant.external_yaw = 0.0
 
@@ -83,16 +83,20 @@ class MassShift(PlantFault, frozen=True, tag="plant.mass_shift"):
     roll_deg: float = 0.0
     disturbance: ClassVar[bool] = True
 
-    def validate(self, rig):
+    def validate(self, rig: FaultTarget) -> None:
         if rig.plant.torso is None:
             raise ValueError("plant.mass_shift needs a rider")
 
-    def start(self, rig, state):
-        for torso, deg in zip(rig.plant.torso, (self.pitch_deg, self.roll_deg), strict=True):
+    def start(self, rig: FaultTarget, state: FaultState) -> None:
+        torsos = rig.plant.torso
+        assert torsos is not None  # validate() refused a plant without a rider
+        for torso, deg in zip(torsos, (self.pitch_deg, self.roll_deg), strict=True):
             torso.shift = math.radians(deg)
 
-    def stop(self, rig, state):
-        for torso in rig.plant.torso:
+    def stop(self, rig: FaultTarget, state: FaultState) -> None:
+        torsos = rig.plant.torso
+        assert torsos is not None  # validate() refused a plant without a rider
+        for torso in torsos:
             torso.shift = 0.0
 
 

@@ -25,7 +25,9 @@ RX_MESSAGES = frozenset([*DRIVE_COMMAND, MessageName.SUPERVISOR_ESTOP, MessageNa
 """Messages the rig receives (as the drives); the rest of the catalog the rig sends (or nobody does)."""
 
 
-def _copy(msg: can.Message, data: bytes | bytearray | None = None, arbitration_id: int | None = None):
+def _copy(
+    msg: can.Message, data: bytes | bytearray | None = None, arbitration_id: int | None = None
+) -> can.Message:
     return can.Message(
         arbitration_id=msg.arbitration_id if arbitration_id is None else arbitration_id,
         is_extended_id=False,
@@ -69,7 +71,7 @@ class Drop(CanFault, frozen=True, tag="can.drop"):
 
     rate: Probability = 1.0
 
-    def rx(self, msg, rig, state):
+    def rx(self, msg: can.Message, rig: FaultTarget, state: FaultState) -> can.Message | None:
         return None if self.rate >= 1.0 or state.rng.random() < self.rate else msg
 
 
@@ -79,16 +81,16 @@ class Delay(CanFault, frozen=True, tag="can.delay"):
     delay: Positive
     both_ways: ClassVar[bool] = False
 
-    def tx(self, msg, rig, state):
+    def tx(self, msg: can.Message, rig: FaultTarget, state: FaultState) -> list[can.Message]:
         state.memory.setdefault("queue", []).append((rig.plant.t + self.delay, msg))
         return []
 
-    def flush(self, rig, state, t):
+    def flush(self, rig: FaultTarget, state: FaultState, t: float) -> None:
         queue = state.memory.get("queue", [])
         while queue and queue[0][0] <= t + 1e-9:
             rig.can.transmit(self.message, queue.pop(0)[1])
 
-    def stop(self, rig, state):
+    def stop(self, rig: FaultTarget, state: FaultState) -> None:
         self.flush(rig, state, float("inf"))
 
 
@@ -98,7 +100,7 @@ class Repeat(CanFault, frozen=True, tag="can.repeat"):
     times: Count = 1
     both_ways: ClassVar[bool] = False
 
-    def tx(self, msg, rig, state):
+    def tx(self, msg: can.Message, rig: FaultTarget, state: FaultState) -> list[can.Message]:
         return [msg] * (1 + self.times)
 
 
@@ -107,14 +109,14 @@ class Reorder(CanFault, frozen=True, tag="can.reorder"):
 
     both_ways: ClassVar[bool] = False
 
-    def tx(self, msg, rig, state):
+    def tx(self, msg: can.Message, rig: FaultTarget, state: FaultState) -> list[can.Message]:
         held = state.memory.pop("held", None)
         if held is None:
             state.memory["held"] = msg
             return []
         return [msg, held]
 
-    def stop(self, rig, state):
+    def stop(self, rig: FaultTarget, state: FaultState) -> None:
         held = state.memory.pop("held", None)
         if held is not None:
             rig.can.transmit(self.message, held)
@@ -126,7 +128,7 @@ class Corrupt(CanFault, frozen=True, tag="can.corrupt"):
 
     bit: Annotated[int, msgspec.Meta(ge=0, le=63)] | None = None
 
-    def rx(self, msg, rig, state):
+    def rx(self, msg: can.Message, rig: FaultTarget, state: FaultState) -> can.Message | None:
         nbits = 8 * len(msg.data)
         bit = (self.bit if self.bit is not None else int(state.rng.integers(nbits))) % nbits
         data = bytearray(msg.data)
@@ -140,12 +142,12 @@ class WrongCounter(CanFault, frozen=True, tag="can.wrong_counter"):
 
     mode: Literal["frozen", "skip"] = "frozen"
 
-    def validate(self, rig):
+    def validate(self, rig: FaultTarget) -> None:
         super().validate(rig)
         if not is_protected(rig.can.catalog[self.message]):
             raise ValueError(f"{self.kind}: {self.message} carries no alive counter")
 
-    def rx(self, msg, rig, state):
+    def rx(self, msg: can.Message, rig: FaultTarget, state: FaultState) -> can.Message | None:
         codec = rig.can.catalog[self.message]
         counter = state.memory.get("counter")
         if counter is None:
@@ -161,7 +163,7 @@ class WrongDlc(CanFault, frozen=True, tag="can.wrong_dlc"):
 
     length: Annotated[int, msgspec.Meta(ge=0, le=8)]
 
-    def rx(self, msg, rig, state):
+    def rx(self, msg: can.Message, rig: FaultTarget, state: FaultState) -> can.Message | None:
         data = bytes(msg.data[: self.length]).ljust(self.length, b"\0")
         return _copy(msg, data)
 
@@ -173,7 +175,7 @@ class Masquerade(CanFault, frozen=True, tag="can.masquerade"):
     as_message: str
     both_ways: ClassVar[bool] = False
 
-    def validate(self, rig):
+    def validate(self, rig: FaultTarget) -> None:
         super().validate(rig)
         try:
             target = rig.can.catalog[self.as_message]
@@ -182,7 +184,7 @@ class Masquerade(CanFault, frozen=True, tag="can.masquerade"):
         if target.length != rig.can.catalog[self.message].length:
             raise ValueError(f"{self.kind}: {self.message} and {self.as_message} differ in length")
 
-    def tx(self, msg, rig, state):
+    def tx(self, msg: can.Message, rig: FaultTarget, state: FaultState) -> list[can.Message]:
         return [msg, _copy(msg, arbitration_id=rig.can.catalog[self.as_message].frame_id)]
 
 
@@ -194,7 +196,7 @@ class Replay(CanFault, frozen=True, tag="can.replay"):
     frames: Annotated[int, msgspec.Meta(ge=2, le=1024)] = 16
     both_ways: ClassVar[bool] = False
 
-    def tx(self, msg, rig, state):
+    def tx(self, msg: can.Message, rig: FaultTarget, state: FaultState) -> list[can.Message]:
         recorded: list[can.Message] = state.memory.setdefault("recorded", [])
         if len(recorded) < self.frames:
             recorded.append(msg)
@@ -230,7 +232,7 @@ class BusOff(FaultSpec, frozen=True, kw_only=True, tag="can.bus_off"):
 
     family: ClassVar[str] = "frames"
 
-    def validate(self, rig):
+    def validate(self, rig: FaultTarget) -> None:
         if self.duration is None:
             raise ValueError("can.bus_off needs a duration (the recovery time)")
 

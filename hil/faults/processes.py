@@ -10,9 +10,16 @@ they mean the same in lockstep and in real time.
 from __future__ import annotations
 
 import math
-from typing import ClassVar, Literal
+from typing import ClassVar, Literal, Protocol, cast
 
 from hil.faults.base import FaultSpec, FaultState, FaultTarget, Positive
+
+
+class Pausable(Protocol):
+    """A controller handle that can hang and go on (the embedded controller's; not every DutHandle's)."""
+
+    def pause(self) -> None: ...
+    def resume(self) -> None: ...
 
 
 class ProcessFault(FaultSpec, frozen=True, kw_only=True):
@@ -28,14 +35,15 @@ class Kill(ProcessFault, frozen=True, tag="process.kill"):
 
     target: Literal["controller", "supervisor"] = "controller"
 
-    def validate(self, rig):
+    def validate(self, rig: FaultTarget) -> None:
         if self.target == "controller" and rig.dut is None:
             raise ValueError("process.kill: the controller is external (kill it from outside)")
         if self.target == "supervisor" and rig.supervisor is None:
             raise ValueError("process.kill: the supervisor is external (kill it from outside)")
 
-    def start(self, rig, state):
+    def start(self, rig: FaultTarget, state: FaultState) -> None:
         if self.target == "controller":
+            assert rig.dut is not None  # validate() refused a rig without one
             rig.dut.stop()
         else:
             rig.supervisor = None
@@ -47,15 +55,16 @@ class Hang(ProcessFault, frozen=True, tag="process.hang"):
 
     target: Literal["controller"] = "controller"
 
-    def validate(self, rig):
+    def validate(self, rig: FaultTarget) -> None:
         if rig.dut is None or not hasattr(rig.dut, "pause"):
             raise ValueError("process.hang: the controller's handle has no pause()/resume()")
 
-    def start(self, rig, state):
-        rig.dut.pause()
+    # validate() refused a handle without pause(): the cast takes the rest of Pausable on trust.
+    def start(self, rig: FaultTarget, state: FaultState) -> None:
+        cast(Pausable, rig.dut).pause()
 
-    def stop(self, rig, state):
-        rig.dut.resume()
+    def stop(self, rig: FaultTarget, state: FaultState) -> None:
+        cast(Pausable, rig.dut).resume()
 
 
 class LoopDelay(ProcessFault, frozen=True, tag="process.loop_delay"):
@@ -63,7 +72,7 @@ class LoopDelay(ProcessFault, frozen=True, tag="process.loop_delay"):
 
     delay: Positive
 
-    def delay_ticks(self, rig, state):
+    def delay_ticks(self, rig: FaultTarget, state: FaultState) -> int:
         return math.ceil(self.delay / rig.plant.dt - 1e-9)
 
 
@@ -73,7 +82,7 @@ class Jitter(ProcessFault, frozen=True, tag="process.jitter"):
 
     jitter: Positive
 
-    def delay_ticks(self, rig, state):
+    def delay_ticks(self, rig: FaultTarget, state: FaultState) -> int:
         return math.floor(state.rng.uniform(0.0, self.jitter) / rig.plant.dt + 0.5)
 
 

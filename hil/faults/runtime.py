@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Iterable, Iterator
-from typing import NamedTuple, cast
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from typing import TYPE_CHECKING, NamedTuple, cast
 
 import can
 import msgspec
@@ -24,6 +24,10 @@ from hil.faults.frames import RX_MESSAGES, Babble, BusOff, CanFault
 from hil.faults.processes import ProcessFault
 from hil.faults.sensors import Readings, SensorFault
 from hil.faults.topics import TopicFault
+from plant.sensors import DriveFeedback, ImuSample, TesSample
+
+if TYPE_CHECKING:
+    from plant.ballbot import Plant
 
 log = logging.getLogger(__name__)
 
@@ -49,7 +53,7 @@ class FaultSet:
         self.rig: FaultTarget | None = None
         """The rig the faults act on, from attach(). Before it the hooks are handed None for the rig: only
         faults that touch no rig can run so (unit tests of the timing do)."""
-        self.on_event = None
+        self.on_event: Callable[[FaultEvent], None] | None = None
         """Called with every FaultEvent as it happens (the service marks the live view)."""
         self._active: list[int] = []
         # The active faults by family, with their states (_index): what the rig's hooks run each tick.
@@ -197,7 +201,9 @@ class FaultSet:
         self._index()
 
     # ------------------------------------------------------------------------------------ sensors
-    def sensors(self, plant, feedback, imu, tes):
+    def sensors(
+        self, plant: Plant, feedback: Sequence[DriveFeedback], imu: ImuSample, tes: TesSample
+    ) -> tuple[tuple[DriveFeedback, ...], ImuSample, TesSample, set[str]]:
         """The tick's samples as the faulty sensors report them, and the frames that stay silent."""
         readings = Readings.of(plant, feedback, imu, tes)
         for spec, state in self._sensors:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar, Literal
 
@@ -65,7 +66,7 @@ class Readings:
     silent: set[str]
 
     @classmethod
-    def of(cls, plant: Plant, fb, imu: ImuSample, tes: TesSample) -> Readings:
+    def of(cls, plant: Plant, fb: Sequence[DriveFeedback], imu: ImuSample, tes: TesSample) -> Readings:
         per_rad = plant.robot.encoder.counts_per_rev / (2.0 * math.pi)
         values = [
             *(f.counts / per_rad for f in fb),
@@ -117,7 +118,7 @@ class SensorFault(FaultSpec, frozen=True, kw_only=True):
 class Off(SensorFault, frozen=True, tag="sensor.off"):
     """The channel is dead: its frame is not sent (a TES cell reads 0 N)."""
 
-    def faulty(self, x, t, state):
+    def faulty(self, x: float, t: float, state: FaultState) -> float | None:
         return OFF
 
 
@@ -126,10 +127,11 @@ class Stuck(SensorFault, frozen=True, tag="sensor.stuck"):
 
     value: float | None = None
 
-    def faulty(self, x, t, state):
+    def faulty(self, x: float, t: float, state: FaultState) -> float | None:
         if "held" not in state.memory:
             state.memory["held"] = x if self.value is None else self.value
-        return state.memory["held"]
+        held: float = state.memory["held"]
+        return held
 
 
 class Bias(SensorFault, frozen=True, tag="sensor.bias"):
@@ -137,7 +139,7 @@ class Bias(SensorFault, frozen=True, tag="sensor.bias"):
 
     offset: float
 
-    def faulty(self, x, t, state):
+    def faulty(self, x: float, t: float, state: FaultState) -> float | None:
         return x + self.offset
 
 
@@ -146,7 +148,7 @@ class Scale(SensorFault, frozen=True, tag="sensor.scale"):
 
     factor: float
 
-    def faulty(self, x, t, state):
+    def faulty(self, x: float, t: float, state: FaultState) -> float | None:
         return x * self.factor
 
 
@@ -155,7 +157,7 @@ class Drift(SensorFault, frozen=True, tag="sensor.drift"):
 
     rate: float
 
-    def faulty(self, x, t, state):
+    def faulty(self, x: float, t: float, state: FaultState) -> float | None:
         return x + self.rate * (t - self.at)
 
 
@@ -164,7 +166,7 @@ class Noise(SensorFault, frozen=True, tag="sensor.noise"):
 
     sigma: Positive
 
-    def faulty(self, x, t, state):
+    def faulty(self, x: float, t: float, state: FaultState) -> float | None:
         return x + self.sigma * state.rng.standard_normal()
 
 
@@ -174,7 +176,7 @@ class Spikes(SensorFault, frozen=True, tag="sensor.spikes"):
     amplitude: float
     rate: Probability = 0.05
 
-    def faulty(self, x, t, state):
+    def faulty(self, x: float, t: float, state: FaultState) -> float | None:
         if state.rng.random() >= self.rate:
             return x
         return x + (self.amplitude if state.rng.random() < 0.5 else -self.amplitude)
@@ -185,7 +187,7 @@ class Delayed(SensorFault, frozen=True, tag="sensor.delayed"):
 
     delay: Positive
 
-    def faulty(self, x, t, state):
+    def faulty(self, x: float, t: float, state: FaultState) -> float | None:
         history: deque[tuple[float, float]] = state.memory.setdefault("history", deque())
         history.append((t, x))
         while len(history) > 1 and history[1][0] <= t - self.delay + 1e-9:
@@ -198,10 +200,11 @@ class Slow(SensorFault, frozen=True, tag="sensor.slow"):
 
     period: Positive
 
-    def faulty(self, x, t, state):
+    def faulty(self, x: float, t: float, state: FaultState) -> float | None:
         if "held" not in state.memory or t - state.memory["since"] >= self.period - 1e-9:
             state.memory["held"], state.memory["since"] = x, t
-        return state.memory["held"]
+        held: float = state.memory["held"]
+        return held
 
 
 class Intermittent(SensorFault, frozen=True, tag="sensor.intermittent"):
@@ -209,14 +212,14 @@ class Intermittent(SensorFault, frozen=True, tag="sensor.intermittent"):
 
     rate: Probability = 0.2
 
-    def faulty(self, x, t, state):
+    def faulty(self, x: float, t: float, state: FaultState) -> float | None:
         return OFF if state.rng.random() < self.rate else x
 
 
 class SignFlip(SensorFault, frozen=True, tag="sensor.sign_flip"):
     """The channel's sign is inverted (a sensor mounted the wrong way round)."""
 
-    def faulty(self, x, t, state):
+    def faulty(self, x: float, t: float, state: FaultState) -> float | None:
         return -x
 
 

@@ -30,14 +30,14 @@ class TopicFault(FaultSpec, frozen=True, kw_only=True):
 class WrenchDropout(TopicFault, frozen=True, tag="zenoh.wrench_dropout"):
     """The seat stops publishing (a crashed TES node or a cut link)."""
 
-    def wrench(self, payload, data, state):
+    def wrench(self, payload: TesWrench, data: bytes, state: FaultState) -> list[bytes]:
         return []
 
 
 class WrenchStale(TopicFault, frozen=True, tag="zenoh.wrench_stale"):
     """The seat keeps re-publishing its last sample from before the fault: same seq, same stamp."""
 
-    def wrench(self, payload, data, state):
+    def wrench(self, payload: TesWrench, data: bytes, state: FaultState) -> list[bytes]:
         return [state.memory.setdefault("last", data)]
 
 
@@ -45,7 +45,7 @@ class WrenchFrozen(TopicFault, frozen=True, tag="zenoh.wrench_frozen"):
     """The seat's values freeze at the fault's start while seq and stamp go on (a hung ADC behind a live
     publisher): only a plausibility check can tell."""
 
-    def wrench(self, payload, data, state):
+    def wrench(self, payload: TesWrench, data: bytes, state: FaultState) -> list[bytes]:
         frozen = state.memory.setdefault("frozen", payload)
         return [encode(msgspec.structs.replace(frozen, seq=payload.seq, stamp=payload.stamp))]
 
@@ -63,10 +63,10 @@ class Malformed(TopicFault, frozen=True, tag="zenoh.malformed"):
         except ValueError:
             raise ValueError(f"zenoh.malformed: payload {self.payload!r} is not hex") from None
 
-    def wrench(self, payload, data, state):
+    def wrench(self, payload: TesWrench, data: bytes, state: FaultState) -> list[bytes]:
         return [bytes.fromhex(self.payload)] if self.key == "tes/wrench" else [data]
 
-    def extra(self, rig, state):
+    def extra(self, rig: FaultTarget, state: FaultState) -> list[tuple[str, bytes]]:
         if self.key == "tes/wrench":
             return []
         return [(f"{rig.keys.prefix}/{self.key}", bytes.fromhex(self.payload))]
@@ -80,7 +80,7 @@ class ScFlood(TopicFault, frozen=True, tag="zenoh.sc_flood"):
     cap: NonNegative = 0.0
     source: str = "flood"
 
-    def extra(self, rig, state):
+    def extra(self, rig: FaultTarget, state: FaultState) -> list[tuple[str, bytes]]:
         puts = []
         for _ in range(self.per_tick):
             n = state.memory["seq"] = state.memory.get("seq", 0) + 1
@@ -100,7 +100,7 @@ class ScConflict(TopicFault, frozen=True, tag="zenoh.sc_conflict"):
     period: Positive = 0.05
     source: str = "rogue-agent"
 
-    def extra(self, rig, state):
+    def extra(self, rig: FaultTarget, state: FaultState) -> list[tuple[str, bytes]]:
         t = rig.plant.t
         if t - state.memory.get("sent", -1e9) < self.period - 1e-9:
             return []

@@ -60,7 +60,7 @@ class McapFile:
         self.chunk_size = chunk_size
         self._file = open(path, "wb")  # noqa: SIM115 (closed by close())
         self._offset = 0
-        self._compress: Callable[[bytes], bytes] = zstandard.ZstdCompressor(level=1).compress
+        self._compress: Callable[[bytes | bytearray], bytes] = zstandard.ZstdCompressor(level=1).compress
         self._chunk = bytearray()
         self._index: dict[int, list[int]] = {}
         """channel -> its messages in the open chunk, flat (log time, offset in the chunk) pairs."""
@@ -71,7 +71,9 @@ class McapFile:
         self._chunk_count = 0
         self._metadata_indexes: list[bytes] = []
         self._counts: dict[int, int] = {}
-        self._start = self._end = None
+        self._start: int | None = None
+        self._end: int | None = None
+        """The first and last log time (ns) of the messages in closed chunks; None before the first."""
         self._write(MAGIC + _record(Header(profile="", library=library)))
 
     def schema(self, name: str, encoding: str, data: bytes) -> int:
@@ -218,6 +220,6 @@ class McapFile:
         self._chunk = bytearray()
         self._index = {}
 
-    def _write(self, data: bytes) -> None:
+    def _write(self, data: bytes | bytearray) -> None:
         self._file.write(data)
         self._offset += len(data)

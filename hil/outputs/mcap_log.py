@@ -56,7 +56,8 @@ class Frame(msgspec.Struct, omit_defaults=True):
 
     stamp: float
     id: int
-    data: bytes
+    data: bytes | bytearray
+    """python-can's Message.data is a bytearray, kept as is (msgspec writes either as base64)."""
     extended: bool = False
     remote: bool = False
     error: bool = False
@@ -131,7 +132,8 @@ def _rejected_schema() -> bytes:
 
 def _trace_layout() -> tuple[list[tuple[str, int]], dict[str, list[tuple[str, int]]]]:
     """ROW's columns as fields: "t" -> t, "velocity.forward" -> velocity.forward (a Foxglove message path)."""
-    scalars, groups = [], {}
+    scalars: list[tuple[str, int]] = []
+    groups: dict[str, list[tuple[str, int]]] = {}
     for i, column in enumerate(ROW):
         group, _, field = column.name.partition(".")
         if field:
@@ -233,7 +235,7 @@ class McapLog(can.Listener):
             if self._frames:
                 self._write_frames()
             values = [float(v) for v in row]  # as trace.npy keeps them (f8; NaN becomes JSON's null)
-            message = {name: values[i] for name, i in self._scalars}
+            message: dict[str, float | dict[str, float]] = {name: values[i] for name, i in self._scalars}
             for group, fields in self._groups.items():
                 message[group] = {field: values[i] for field, i in fields}
             channel = self._channels.get(TRACE) or self._channel(TRACE, "Trace", _trace_schema)

@@ -105,17 +105,19 @@ class TraceLog:
         return i >= 0 and not np.isnan(self._buffer[i, TELEMETRY])
 
     def _write(self, count: int) -> None:
-        self._file.write(memoryview(self._buffer[:count]))
+        # Only a streamed log writes: in memory the buffer holds every tick the run can have.
+        assert self._file is not None
+        self._file.write(self._buffer[:count].data)
         self._buffer[: len(self._buffer) - count] = self._buffer[count:]
         self._buffer[len(self._buffer) - count :] = np.nan
         self._first += count
 
     def close(self) -> np.ndarray:
         """Every row: (rows, len(COLUMNS)), the file's memory map when streamed."""
-        if self._file is None:
+        if self._file is None or self.path is None:  # in memory (streamed, both are set)
             return self._buffer[: self.rows]
         if not self._file.closed:
-            self._file.write(memoryview(self._buffer[: self.rows - self._first]))
+            self._file.write(self._buffer[: self.rows - self._first].data)
             self._file.seek(0)
             self._file.write(_header(self.rows))
             self._file.close()

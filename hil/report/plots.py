@@ -197,7 +197,9 @@ def _criteria(axes, result: RunResult) -> None:
     for c in result.scenario.criteria:
         if c.metric not in CRITERIA_AXES:
             continue
-        label = f"criterion {c.label}\n{c.describe()}" + (f" from {c.after:g} s" if c.after else "")
+        label: str | None = f"criterion {c.label}\n{c.describe()}" + (
+            f" from {c.after:g} s" if c.after else ""
+        )
         for bound, style in ((c.max, "-."), (c.min, (0, (1, 3)))):
             if bound is None:
                 continue

@@ -17,6 +17,7 @@ from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import msgspec
 import numpy as np
@@ -81,7 +82,10 @@ def _apply(tree: dict, values: dict[str, float], head: str) -> dict:
     return tree
 
 
-def with_values(record: msgspec.Struct, values: dict[str, float], head: str) -> msgspec.Struct:
+_Record = TypeVar("_Record", bound=msgspec.Struct)
+
+
+def with_values(record: _Record, values: dict[str, float], head: str) -> _Record:
     """`record` with the unknowns named `head.*` set, validated as its config file is."""
     return msgspec.convert(_apply(msgspec.to_builtins(record), values, head), type(record))
 

@@ -24,7 +24,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from multiprocessing import get_context
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, Literal, TypeVar
 
 import msgspec
 import numpy as np
@@ -38,6 +38,7 @@ from hil.run.scenario import OperatorEntry, Scenario
 from hil.suites.coverage import Bounds, Classification, Outcome, classify, false_trip, outcome
 
 Law = Literal["hacs", "ihacs"]
+Role = Literal["plain", "faulty", "twin", "fault_free"]
 
 
 class FaultSetEntry(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -113,7 +114,7 @@ class Case:
     scenario_text: bytes
     """The scenario to run, fully resolved (JSON): a worker process needs nothing else."""
     law: str | None = None
-    role: Literal["plain", "faulty", "twin", "fault_free"] = "plain"
+    role: Role = "plain"
     """Coverage campaigns: a faulty case, the fault-free twin of faulty cases, or a false-trip run."""
     bounds: Bounds | None = None
     twin_faults: str = "none"
@@ -142,6 +143,14 @@ def load_campaign(name: Path | str) -> Campaign:
     return load_toml(find(name, "campaigns"), Campaign)
 
 
+_Choice = TypeVar("_Choice")
+
+
+def _or_scenarios_own(choices: list[_Choice]) -> list[_Choice | None]:
+    """The campaign's choices (riders, laws), or [None]: each scenario's own."""
+    return list(choices) or [None]
+
+
 def expand(campaign: Campaign, select: list[str] | None = None) -> list[Case]:
     """Every case of the campaign, in a stable order (scenario, rider, law, fault set, seed); with
     `select`, those whose id contains one of its strings (and the twins they are judged against)."""
@@ -158,8 +167,8 @@ def expand(campaign: Campaign, select: list[str] | None = None) -> list[Case]:
     cases = []
     for scenario_path in campaign.scenarios:
         base = load_toml(find(scenario_path, "scenarios"), Scenario)
-        for rider in campaign.riders or [None]:
-            for law in campaign.laws or [None]:
+        for rider in _or_scenarios_own(campaign.riders):
+            for law in _or_scenarios_own(campaign.laws):
                 for fault_set in sets:
                     faulty = bool(fault_set.inject)
                     plain_baseline = not (faulty or fault_set.operator) and coverage is None
@@ -173,7 +182,7 @@ def expand(campaign: Campaign, select: list[str] | None = None) -> list[Case]:
                         operator=sorted([*base.operator, *fault_set.operator], key=lambda e: e.at),
                         criteria=base.criteria if keep else [],
                     )
-                    role = "plain" if coverage is None else "faulty" if faulty else "twin"
+                    role: Role = "plain" if coverage is None else "faulty" if faulty else "twin"
                     twin = f"{fault_set.name}~twin" if fault_set.operator and faulty else "none"
                     for seed in campaign.seeds:
                         text = msgspec.json.encode(msgspec.structs.replace(scenario, seed=seed))
@@ -195,8 +204,8 @@ def expand(campaign: Campaign, select: list[str] | None = None) -> list[Case]:
     for entry in campaign.fault_free:
         for scenario_path in entry.scenarios:
             base = load_toml(find(scenario_path, "scenarios"), Scenario)
-            for rider in entry.riders or [None]:
-                for law in entry.laws or [None]:
+            for rider in _or_scenarios_own(entry.riders):
+                for law in _or_scenarios_own(entry.laws):
                     for seed in campaign.seeds:
                         scenario = msgspec.structs.replace(
                             base,
@@ -314,11 +323,11 @@ def run_case(case: Case, out: Path | None = None, bench: Bench | None = None) ->
         twin=case.twin_id,
         outcome=outcome(result) if judged else None,
     )
-    if res.outcome is not None:
+    if res.outcome is not None:  # every role but plain (judged)
         res.outcome.unrecoverable = case.unrecoverable
-    if case.role in ("twin", "fault_free"):
-        res.false_trip = false_trip(res.outcome)
-        res.passed = res.passed and not res.false_trip
+        if case.role in ("twin", "fault_free"):
+            res.false_trip = false_trip(res.outcome)
+            res.passed = res.passed and not res.false_trip
     return res
 
 
@@ -326,6 +335,7 @@ def judge(result: CaseResult, twin: CaseResult | None, bounds: Bounds) -> None:
     """Class a faulty case against its twin (coverage campaigns); its verdict is its class's."""
     if result.role != "faulty" or result.error:
         return
+    assert result.outcome is not None  # run_case measures every case that ran but a plain one
     if twin is None or twin.outcome is None:
         result.coverage = Classification("MISSED", note=f"no twin to judge against ({result.twin})")
     else:

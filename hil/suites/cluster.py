@@ -22,8 +22,10 @@ from hil.bench.bench import Bench
 
 
 class Task(Protocol):
-    id: str
-    """Names the task on the cluster and its folder in `out`."""
+    @property
+    def id(self) -> str:
+        """Names the task on the cluster and its folder in `out` (read-only: a campaign's Case derives it)."""
+        ...
 
 
 T = TypeVar("T", bound=Task)
@@ -79,9 +81,10 @@ def run_on_cluster(
                     result, files = future.result()
                 except Exception as exc:  # the worker died too often, or the task could not run there
                     result, files = errored(case, f"{type(exc).__name__}: {exc}"), {}
-                for name, data in files.items():
-                    (out / case.id).mkdir(parents=True, exist_ok=True)
-                    (out / case.id / name).write_bytes(data)
+                if out is not None:  # (a worker returns files only then)
+                    for name, data in files.items():
+                        (out / case.id).mkdir(parents=True, exist_ok=True)
+                        (out / case.id / name).write_bytes(data)
                 done(case, result)
 
 

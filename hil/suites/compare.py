@@ -17,7 +17,7 @@ from hil.bench.bench import Bench, load_bench
 from hil.pipeline import run
 from hil.run.scenario import Scenario
 from hil.suites.campaign import distributable, run_pool
-from hil.suites.paper import LAWS, WITHIN, PaperTable, against, load_paper, mean_sd
+from hil.suites.paper import LAWS, WITHIN, Cell, Ordering, PaperTable, against, load_paper, mean_sd
 
 COLUMNS = (
     ("pitch.max_torso_deg", "max|torso| (deg)", "{:.1f}"),
@@ -50,7 +50,7 @@ class Comparison:
                 text += f" · paper {paper}, {c.distance:.1f} SD{mark}"
         return text
 
-    def checked(self):
+    def checked(self) -> tuple[list[Cell], list[Ordering]]:
         """(cells, orderings) against the paper, or nothing without it."""
         return against(self.runs, self.paper) if self.paper is not None else ([], [])
 
@@ -70,7 +70,7 @@ class Comparison:
             f"falls: {falls}"
         )
         cells, orderings = self.checked()
-        if cells:
+        if cells and self.paper is not None:  # (cells come only from the paper)
             within = sum(c.within for c in cells)
             holding = sum(o.holds for o in orderings)
             lines.append(

@@ -137,9 +137,10 @@ class Outcome:
         after = np.asarray(self.t) >= start - 1e-9
         if not after.any():
             return 0.0, 0.0, 0.0
-        return tuple(
+        speed, tilt, yaw_rate = (
             float(np.abs(np.asarray(x)[after]).max()) for x in (self.speed, self.tilt_deg, self.yaw_rate)
         )
+        return speed, tilt, yaw_rate
 
 
 def outcome(result: RunResult) -> Outcome:
@@ -306,14 +307,16 @@ def classify(o: Outcome, twin: Outcome, bounds: Bounds) -> Classification:
         departed = o.departs(twin, start, bounds)
         # Seen before the run departed from its twin is seen before any consequence, whenever that was;
         # after it, the bound counts from the later of the fault's start and the departure.
-        first = departed is None or departed > seen
-        late = not first and seen - max(start, departed) > o.detect_within + 1e-9
+        if departed is None or departed > seen:
+            late, onset = False, None
+        else:
+            late, onset = seen - max(start, departed) > o.detect_within + 1e-9, departed - start
         note = f"then {hazard}" if hazard else ""
         return Classification(
             "LATE" if late else "DETECTED",
             cause,
             seen - start,
-            None if first else departed - start,
+            onset,
             note,
             aftermath(o, start, seen),
         )

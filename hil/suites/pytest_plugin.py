@@ -14,9 +14,13 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import msgspec
 import pytest
+
+if TYPE_CHECKING:  # imported where used: pytest loads this plugin in every session, HIL or not
+    from hil.suites.campaign import CaseResult
 
 MARKER = "hil: a hardware-in-the-loop run on the rig (lockstep unless the scenario says otherwise)"
 
@@ -73,7 +77,7 @@ class CampaignFile(pytest.File):
             yield item
 
 
-_twins: dict[str, object] = {}
+_twins: dict[str, CaseResult] = {}
 """Fault-free twins already run in this process, by case id (a coverage campaign judges against them)."""
 
 

@@ -123,16 +123,16 @@ def replay(run_dir: Path, bench: Bench | None = None, limit: int | None = None) 
             link.put_fence(first_tick + i, 0.0)
             for msg in tick.rig_frames:
                 bus.send(can.Message(arbitration_id=msg.arbitration_id, is_extended_id=False, data=msg.data))
-            actual = []
+            actual: list[tuple[int, bytes]] = []
             answer_deadline = time.monotonic() + 2.0
             while len(actual) < len(tick.expected) and time.monotonic() < answer_deadline:
-                msg = bus.recv(max(answer_deadline - time.monotonic(), 0.0))
-                if msg is None:
+                answer = bus.recv(max(answer_deadline - time.monotonic(), 0.0))
+                if answer is None:
                     continue
-                if booting and msg.arbitration_id == heartbeat.frame_id:
+                if booting and answer.arbitration_id == heartbeat.frame_id:
                     continue  # a boot-up (before the first command)
                 booting = False
-                actual.append((msg.arbitration_id, bytes(msg.data)))
+                actual.append((answer.arbitration_id, bytes(answer.data)))
             result.ticks += 1
             result.frames_compared += len(tick.expected)
             if actual != tick.expected:
