@@ -13,6 +13,7 @@ import json
 import struct
 import threading
 import time
+from pathlib import Path
 
 import pytest
 
@@ -29,6 +30,7 @@ from tests.zenoh_helpers import private_bench
 canopen = pytest.importorskip("canopen", reason="the cia402 profile needs python-canopen (a dependency)")
 
 NODES = (1, 2, 3)
+BENCH = str(Path(__file__).resolve().parents[1] / "configs" / "benches" / "cia402.toml")
 TICK = 0.0025
 
 
@@ -247,9 +249,9 @@ def test_speed_limiting_on_cia402_passes_deterministically_and_replays_byte_for_
 
     scenario = load_scenario("speed_limiting")
     first, second = tmp_path / "a", tmp_path / "b"
-    a = run(scenario, private_bench("cia402"), out=first)
+    a = run(scenario, private_bench(BENCH), out=first)
     assert a.passed, [v for v in a.verdicts if not v.passed]
-    run(scenario, private_bench("cia402"), out=second)
+    run(scenario, private_bench(BENCH), out=second)
     frames = [line.split()[2] for line in (first / "can.log").read_text().splitlines()]
     ids = {int(f.split("#")[0], 16) for f in frames}
     assert {0x000, 0x701, 0x181, 0x281, 0x381, 0x201} <= ids, "NMT, heartbeat, TPDO1-3, RPDO1 on the wire"
@@ -275,14 +277,14 @@ def test_speed_limiting_on_cia402_passes_deterministically_and_replays_byte_for_
 def test_balance_on_cia402_passes(tmp_path):
     from hil.pipeline import load_scenario, run
 
-    result = run(load_scenario("balance"), private_bench("cia402"), out=tmp_path)
+    result = run(load_scenario("balance"), private_bench(BENCH), out=tmp_path)
     assert result.passed, [v for v in result.verdicts if not v.passed]
 
 
 def test_the_supervisors_estop_reaches_the_drives_as_quick_stop(tmp_path):
     from hil.pipeline import load_scenario, run
 
-    result = run(load_scenario("estop_at_speed"), private_bench("cia402"), out=tmp_path)
+    result = run(load_scenario("estop_at_speed"), private_bench(BENCH), out=tmp_path)
     assert result.passed, [v for v in result.verdicts if not v.passed]
     quick, states = set(), []
     for line in (tmp_path / "can.log").read_text().splitlines():
