@@ -1,10 +1,10 @@
 """The cia402 device profile (docs/devices.md): three emulated CiA 402 drives on CANopen.
 
 The emulation is proven by python-canopen's own master, `canopen.BaseNode402` on a client bus (its Notifier
-thread, its SDO client, its PDO codecs), not by our controller: the PDO configuration read over SDO, NMT start,
-the 402 walk to OPERATION ENABLED, CST, target torque reaching the power stage, the statusword in TPDOs, the
-watchdog's fault and EMCY, fault reset, NMT stop. Then the whole rig: the reference controller and the
-supervisor speak CANopen to the emulated drives, deterministic in lockstep, replayed byte for byte.
+thread, its SDO client, its PDO codecs), not by our controller: the PDO configuration read over SDO, NMT
+start, the 402 walk to OPERATION ENABLED, CST, target torque reaching the power stage, the statusword in
+TPDOs, the watchdog's fault and EMCY, fault reset, NMT stop. Then the whole rig: the reference controller
+and the supervisor speak CANopen to the emulated drives, deterministic in lockstep, replayed byte for byte.
 """
 
 from __future__ import annotations
@@ -186,7 +186,7 @@ def test_the_watchdog_faults_the_drive_with_emcy_until_fault_reset(master):
 
 
 def test_a_drive_kept_fed_never_faults_and_nmt_stop_silences_its_pdos(master):
-    bench, network, nodes = master
+    _bench, network, nodes = master
     node = nodes[1]
     emcys = []
     node.emcy.add_callback(emcys.append)
@@ -224,7 +224,10 @@ def test_state_of_reads_statuswords_as_basenode402_does():
                         (0x0233, State.SWITCHED_ON), (0x0237, State.OPERATION_ENABLED),
                         (0x0217, State.QUICK_STOP_ACTIVE), (0x0208, State.FAULT)):  # fmt: skip
         assert state_of(word) is state
-        assert State402.SW_MASK[state.name.replace("_", " ")][1] == word & State402.SW_MASK[state.name.replace("_", " ")][0]
+        assert (
+            State402.SW_MASK[state.name.replace("_", " ")][1]
+            == word & State402.SW_MASK[state.name.replace("_", " ")][0]
+        )
 
 
 # ------------------------------------------------------------------------------------------- the rig
@@ -233,7 +236,9 @@ def test_a_node_id_whose_cob_ids_hold_a_contract_frame_is_refused_naming_the_fie
 
     path = tmp_path / "bench.toml"
     path.write_text('name = "x"\n[devices]\ndrives = "cia402"\n[devices.cia402]\nnode_ids = [10, 1, 2]\n')
-    with pytest.raises(ConfigError, match=r"cia402\.node_ids: node 10's .*IMU_ATTITUDE \(0x18A\).* - at `\$\.devices`"):
+    with pytest.raises(
+        ConfigError, match=r"cia402\.node_ids: node 10's .*IMU_ATTITUDE \(0x18A\).* - at `\$\.devices`"
+    ):
         load_bench(path)
     path.write_text('name = "x"\n[devices]\ndrives = "cia402"\n[devices.cia402]\nnode_ids = [32, 1, 2]\n')
     with pytest.raises(ConfigError, match=r"node 32's .*CONTROLLER_HEARTBEAT \(0x720\)"):
@@ -256,7 +261,12 @@ def test_speed_limiting_on_cia402_passes_deterministically_and_replays_byte_for_
     ids = {int(f.split("#")[0], 16) for f in frames}
     assert {0x000, 0x701, 0x181, 0x281, 0x381, 0x201} <= ids, "NMT, heartbeat, TPDO1-3, RPDO1 on the wire"
     assert "000#0101" in frames and "701#00" in frames, "NMT start of node 1 after its boot-up"
-    enabled = [f for f in frames if f.startswith("181#") and state_of(int.from_bytes(bytes.fromhex(f[4:8]), "little")) is State.OPERATION_ENABLED]
+    enabled = [
+        f
+        for f in frames
+        if f.startswith("181#")
+        and state_of(int.from_bytes(bytes.fromhex(f[4:8]), "little")) is State.OPERATION_ENABLED
+    ]
     assert enabled, "the controller walked node 1 to OPERATION ENABLED"
 
     def payloads(folder):

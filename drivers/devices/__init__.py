@@ -96,7 +96,9 @@ class Devices(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=T
         if self.drives == "cia402":
             owner = {i: name for name, i in _contract_ids(drives=False, imu=self.imu == "pure").items()}
             for node in self.cia402.node_ids:
-                clash = sorted(f"{owner[f + node]} (0x{f + node:03X})" for f in CANOPEN_FUNCTIONS if f + node in owner)
+                clash = sorted(
+                    f"{owner[f + node]} (0x{f + node:03X})" for f in CANOPEN_FUNCTIONS if f + node in owner
+                )
                 if clash:
                     raise ValueError(
                         f"cia402.node_ids: node {node}'s CANopen COB-IDs include the contract's "

@@ -162,7 +162,7 @@ def nmt(command: int, node_id: int) -> can.Message:
     return can.Message(arbitration_id=NMT, data=bytes((command, node_id)), is_extended_id=False)
 
 
-def _unpack(fmt: struct.Struct, msg: can.Message, what: str) -> tuple:
+def _unpack(fmt: struct.Struct, msg: can.Message, what: str) -> tuple[int, ...]:
     if len(msg.data) < fmt.size:
         raise ValueError(f"{what}: {len(msg.data)} bytes, expected {fmt.size}")
     return fmt.unpack_from(bytes(msg.data))
@@ -190,7 +190,8 @@ class HostDrive:
 
 
 class Cia402Host:
-    """The host side of three CiA 402 drives for a controller or a supervisor (`drivers.devices.Translator`)."""
+    """The host side of three CiA 402 drives for a controller or a supervisor
+    (`drivers.devices.Translator`)."""
 
     def __init__(self, devices: Devices, counts_per_rev: int, role: Role):
         self.options, self.role, self.counts_per_rev = devices.cia402, role, counts_per_rev
@@ -315,7 +316,11 @@ class Cia402Host:
         else:
             return None  # shutdown, switch on, fault reset: steps of the walk
         drive.want = enable
-        signals = {"Torque": torque * RATED_MNM * 1e-6 if enable else 0.0, "Tick": self.tick, "Enable": int(enable)}
+        signals = {
+            "Torque": torque * RATED_MNM * 1e-6 if enable else 0.0,
+            "Tick": self.tick,
+            "Enable": int(enable),
+        }
         return Received(DRIVE_COMMAND[i], signals, msg.timestamp, None)
 
 

@@ -20,6 +20,7 @@ from collections.abc import Mapping
 
 import can
 import canopen
+from canopen.pdo.base import PdoBase, PdoMaps
 
 from drivers.can_bus import Received
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE
@@ -80,7 +81,7 @@ class RigNetwork(canopen.Network):
             can.Message(arbitration_id=can_id, data=bytes(data), is_extended_id=False, is_remote_frame=remote)
         )
 
-    def send_periodic(self, can_id, data, period, remote=False):  # type: ignore[override]
+    def send_periodic(self, can_id, data, period, remote=False):
         task = _TickTask(can_id, data, period, self.tick_s)
         self.tasks = [t for t in self.tasks if not t.stopped] + [task]
         return task
@@ -102,7 +103,10 @@ class Drive:
         self.state = State.SWITCH_ON_DISABLED
         self.error = ErrorCode.NONE
         self.controlword = 0
-        self.mode = int(self.node.object_dictionary[0x6060].default)
+        mode = self.node.object_dictionary[0x6060]
+        assert isinstance(mode, canopen.objectdictionary.ODVariable)
+        self.mode = int(mode.default or 0)
+        """Modes of operation: the EDS's default (CST), as configured before the run."""
         self.target = 0
         self.position = self.velocity = self.torque_actual = 0
         self.powered = True
@@ -111,7 +115,7 @@ class Drive:
         self.node.add_write_callback(self._write)
         self.node.tpdo.read(from_od=True)
         self.node.rpdo.read(from_od=True)
-        for pdo in self.node.rpdo.map.values():
+        for pdo in _maps(self.node.rpdo).values():
             pdo.add_callback(self._on_rpdo)
         self.rpdo_result: tuple[float, bool] | None = None
 
@@ -185,9 +189,14 @@ class Drive:
         elif cw & 0x8F == 0x07:  # switch on (3) / disable operation (5)
             if s in (State.READY_TO_SWITCH_ON, State.OPERATION_ENABLED):
                 self.state = State.SWITCHED_ON
-        elif cw & 0x8F == 0x0F:  # switch on + enable operation (3+4), enable operation (4, 16)
-            if s in (State.READY_TO_SWITCH_ON, State.SWITCHED_ON, State.QUICK_STOP_ACTIVE):
-                self.state = State.OPERATION_ENABLED
+        elif cw & 0x8F == 0x0F and s in (
+            State.READY_TO_SWITCH_ON,
+            State.SWITCHED_ON,
+            State.QUICK_STOP_ACTIVE,
+        ):
+            self.state = (
+                State.OPERATION_ENABLED
+            )  # switch on + enable operation (3+4), enable operation (4, 16)
 
     def fault(self, code: ErrorCode) -> None:
         if self.state is State.FAULT:
@@ -229,7 +238,7 @@ class Drive:
         """The TPDOs of this SYNC (only in OPERATIONAL), into the network's out."""
         if self.nmt != OPERATIONAL:
             return
-        for pdo in self.node.tpdo.map.values():
+        for pdo in _maps(self.node.tpdo).values():
             if pdo.enabled and pdo.cob_id - self.node_id in functions:
                 for var in pdo:
                     var.raw = self._read(var.index, var.subindex, var.od)
@@ -249,7 +258,9 @@ class Cia402Drives:
     def __init__(self, devices: Devices, counts_per_rev: int, tick_hz: float):
         options = devices.cia402
         self.network = RigNetwork(1.0 / tick_hz)
-        self.drives = [Drive(i, n, self.network, options.heartbeat_ms) for i, n in enumerate(options.node_ids)]
+        self.drives = [
+            Drive(i, n, self.network, options.heartbeat_ms) for i, n in enumerate(options.node_ids)
+        ]
         self._drive_of = {d.node_id: d for d in self.drives}
         self.counts_per_rev = counts_per_rev
         self.names = frozenset((*DRIVE_FEEDBACK, *DRIVE_TORQUE))
@@ -312,9 +323,11 @@ class Cia402Drives:
             return None
         if drive.nmt != OPERATIONAL:
             return None  # PDOs only in OPERATIONAL
-        pdo = drive.node.rpdo.map[1 if function == RPDO1 else 2]
+        pdo = _maps(drive.node.rpdo)[1 if function == RPDO1 else 2]
         if len(msg.data) < len(pdo.data):
-            raise ValueError(f"RPDO{1 if function == RPDO1 else 2}: {len(msg.data)} bytes, expected {len(pdo.data)}")
+            raise ValueError(
+                f"RPDO{1 if function == RPDO1 else 2}: {len(msg.data)} bytes, expected {len(pdo.data)}"
+            )
         drive.rpdo_result = None
         self.network.notify(cob, bytearray(msg.data), msg.timestamp)
         self._flush(drive.index)
@@ -329,6 +342,11 @@ class Cia402Drives:
         assert self._node is not None
         for m in self.network.take():
             self._node.reply(DRIVE_FEEDBACK[index], m)
+
+
+def _maps(pdos: PdoBase) -> PdoMaps:
+    assert pdos.map is not None  # a LocalNode's TPDO and RPDO always have their maps
+    return pdos.map
 
 
 def emulate(devices: Devices, counts_per_rev: int, tick_hz: float) -> Cia402Drives:
