@@ -185,7 +185,7 @@ def test_the_watchdog_faults_the_drive_with_emcy_until_fault_reset(master):
     assert node.sdo[0x603F].raw == 0
 
 
-def test_a_drive_kept_fed_never_faults_and_nmt_stop_silences_its_pdos(master):
+def test_a_drive_kept_fed_never_faults_nmt_stop_silences_its_pdos_and_reset_boots_it(master):
     _bench, network, nodes = master
     node = nodes[1]
     emcys = []
@@ -206,6 +206,11 @@ def test_a_drive_kept_fed_never_faults_and_nmt_stop_silences_its_pdos(master):
     _until(lambda: node.nmt.state == "STOPPED")  # the heartbeat goes on, saying so
     node.nmt.state = "OPERATIONAL"
     _until(lambda: node.tpdo[1].is_received)
+    # Reset node: the drive boots again (boot-up message), pre-operational until the next NMT start.
+    node.nmt.state = "RESET"
+    node.nmt.wait_for_bootup(timeout=2.0)
+    node.nmt.wait_for_heartbeat(timeout=2.0)
+    assert node.nmt.state == "PRE-OPERATIONAL"
 
 
 def test_a_frame_of_the_family_that_does_not_decode_is_counted_not_raised(master):

@@ -57,7 +57,9 @@ class _TickTask:
     def __init__(self, can_id: int, data: bytes, period: float, tick_s: float):
         self.can_id, self.data = can_id, bytes(data)
         self.every = max(1, round(period / tick_s))
-        self.count = 0
+        self.count = 1
+        """The first heartbeat one period after the task starts (after the boot-up message, not with it: a
+        master waiting for the boot-up would miss it behind a heartbeat in the same instant)."""
         self.stopped = False
 
     def update(self, data: bytes) -> None:
