@@ -312,3 +312,28 @@ def test_the_supervisors_estop_reaches_the_drives_as_quick_stop(tmp_path):
     assert quick == set(NODES)
     assert State.OPERATION_ENABLED in states and State.QUICK_STOP_ACTIVE in states
     assert states[-1] is not State.OPERATION_ENABLED
+
+
+def test_a_controller_killed_at_speed_is_ridden_to_rest_by_the_recovery_law_in_rpdos(tmp_path):
+    import msgspec
+    import numpy as np
+
+    from hil.faults import parse_fault
+    from hil.pipeline import load_scenario, run
+
+    base = load_scenario("braking")
+    kill = parse_fault({"kind": "process.kill", "target": "controller", "at": 4.5})
+    scenario = msgspec.structs.replace(base, faults=[kill], criteria=[])
+    trace = run(scenario, private_bench(BENCH), out=tmp_path).trace
+    assert np.hypot(*trace.velocity[np.searchsorted(trace.t, 4.5)]) > 1.2, "the fault comes at speed"
+    assert [e.to_state for e in trace.safety_events][:1] == ["RECOVERY"]
+    assert trace.fallen is None and np.hypot(*trace.velocity[-1]) < 0.05, "at rest, upright"
+    assert trace.stats.recovery_commands > 0
+    frames = [line.split()[2] for line in (tmp_path / "can.log").read_text().splitlines()]
+    last_heartbeat = max(i for i, f in enumerate(frames) if f.startswith("720#"))
+    torques = [
+        struct.unpack("<Hh", bytes.fromhex(f[4:]))
+        for f in frames[last_heartbeat + 1 :]
+        if f[:3] in ("201", "202", "203")
+    ]
+    assert any(cw == 0x0F and tq for cw, tq in torques), "the supervisor's torques after the controller"
