@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Mapping
+import struct
+from collections.abc import Callable, Mapping
 
 import can
 import canopen
@@ -120,6 +121,19 @@ class Drive:
         for pdo in _maps(self.node.rpdo).values():
             pdo.add_callback(self._on_rpdo)
         self.rpdo_result: tuple[float, bool] | None = None
+        self._tpdo_codecs = [self._codec(pdo) for pdo in _maps(self.node.tpdo).values() if pdo.enabled]
+        """Each enabled TPDO as (function, COB-ID, struct, getters), compiled once from python-canopen's map
+        (the EDS's mapping): packing a tick's TPDOs through its PdoVariable setters costs about twice as
+        much."""
+
+    def _codec(self, pdo) -> tuple[int, int, struct.Struct, list[Callable[[], int]]]:
+        getters = self._getters
+        fmt = "<"
+        for var in pdo:
+            if var.offset % 8 or var.length % 8 or var.index not in getters:
+                raise ValueError(f"{pdo.name}: 0x{var.index:04X} not a byte-aligned object it sends")
+            fmt += var.od.STRUCT_TYPES[var.od.data_type].format.lstrip("<")
+        return pdo.cob_id - self.node_id, pdo.cob_id, struct.Struct(fmt), [getters[var.index] for var in pdo]
 
     # -------------------------------------------------------------------------------- NMT and boot-up
     def boot(self) -> None:
@@ -146,6 +160,11 @@ class Drive:
         return word
 
     def _read(self, index: int, subindex: int, od) -> int | None:
+        getter = self._getters.get(index)
+        return None if getter is None else getter()
+
+    @property
+    def _getters(self) -> dict[int, Callable[[], int]]:
         return {
             0x6041: self.statusword,
             0x603F: lambda: int(self.error),
@@ -157,7 +176,7 @@ class Drive:
             0x606C: lambda: self.velocity,
             0x6071: lambda: self.target,
             0x6077: lambda: self.torque_actual,
-        }.get(index, lambda: None)()
+        }
 
     def _write(self, index: int, subindex: int, od, data: bytes) -> None:
         value = od.decode_raw(data)
@@ -240,11 +259,9 @@ class Drive:
         """The TPDOs of this SYNC (only in OPERATIONAL), into the network's out."""
         if self.nmt != OPERATIONAL:
             return
-        for pdo in _maps(self.node.tpdo).values():
-            if pdo.enabled and pdo.cob_id - self.node_id in functions:
-                for var in pdo:
-                    var.raw = self._read(var.index, var.subindex, var.od)
-                pdo.transmit()
+        for function, cob_id, codec, getters in self._tpdo_codecs:
+            if function in functions:
+                self.network.send_message(cob_id, codec.pack(*(get() for get in getters)))
 
     def heartbeat(self) -> None:
         for task in self.network.tasks:
