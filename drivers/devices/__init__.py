@@ -25,7 +25,7 @@ from drivers.can_bus import CanNode, Received
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, Catalog, MessageName
 
 Role = Literal["controller", "supervisor"]
-DRIVE_PROFILES = ("pure", "odrive")
+DRIVE_PROFILES = ("pure", "odrive", "cia402")
 """Drive profiles the host side speaks (docs/devices.md)."""
 IMU_PROFILES = ("pure",)
 
@@ -53,12 +53,35 @@ class OdriveOptions(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
             raise ValueError("encoder_ms, heartbeat_ms: >= 0 (0: only on request)")
 
 
+class Cia402Options(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Three CiA 402 drives on CANopen (configs/devices/cia402.eds) in cyclic synchronous torque."""
+
+    node_ids: tuple[int, int, int] = (1, 2, 3)
+    """Each motor's CANopen node id (motor 1 first), 1..127; a node owns EMCY 0x080+id, PDOs 0x180+id ..
+    0x500+id, SDO 0x580/0x600+id and NMT error control 0x700+id, none of which may be a contract frame that
+    stays on the bus (node 10's TPDO1-3 would be the IMU's 0x18A/0x28A/0x38A, node 32's heartbeat
+    CONTROLLER_HEARTBEAT 0x720)."""
+    heartbeat_ms: float = 10.0
+    """Producer heartbeat time (0x1017) at power-up; rounded to whole ticks (0: none)."""
+
+    def __post_init__(self) -> None:
+        if len(set(self.node_ids)) != 3 or not all(1 <= n <= 127 for n in self.node_ids):
+            raise ValueError("node_ids: three different node ids in 1..127")
+        if not 0 <= self.heartbeat_ms <= 65535:
+            raise ValueError("heartbeat_ms: 0..65535 (0: no heartbeat)")
+
+
+CANOPEN_FUNCTIONS = (0x080, 0x180, 0x200, 0x280, 0x300, 0x380, 0x400, 0x480, 0x500, 0x580, 0x600, 0x700)
+"""CiA 301's predefined connection set: a node's COB-IDs are these + node id."""
+
+
 class Devices(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Which device profile the drives and the IMU speak (a bench's `[devices]`)."""
 
-    drives: Literal["pure", "odrive"] = "pure"
+    drives: Literal["pure", "odrive", "cia402"] = "pure"
     imu: Literal["pure"] = "pure"
     odrive: OdriveOptions = OdriveOptions()
+    cia402: Cia402Options = Cia402Options()
 
     def __post_init__(self) -> None:
         if self.drives == "odrive":
@@ -69,6 +92,17 @@ class Devices(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=T
                     raise ValueError(
                         f"odrive.node_ids: node {node} owns ids 0x{node << 5:03X}-0x{(node << 5) + 31:03X}, "
                         f"which holds the contract's {', '.join(clash)}: pick another node id"
+                    )
+        if self.drives == "cia402":
+            owner = {i: name for name, i in _contract_ids(drives=False, imu=self.imu == "pure").items()}
+            for node in self.cia402.node_ids:
+                clash = sorted(
+                    f"{owner[f + node]} (0x{f + node:03X})" for f in CANOPEN_FUNCTIONS if f + node in owner
+                )
+                if clash:
+                    raise ValueError(
+                        f"cia402.node_ids: node {node}'s CANopen COB-IDs include the contract's "
+                        f"{', '.join(clash)}: pick another node id"
                     )
 
     @property
@@ -173,7 +207,7 @@ class ProfileNode(CanNode):
         return rx
 
 
-HOSTS: dict[str, str] = {"odrive": "drivers.devices.odrive:host"}
+HOSTS: dict[str, str] = {"odrive": "drivers.devices.odrive:host", "cia402": "drivers.devices.cia402:host"}
 """Host-side translators by drive profile, imported only when a bench names one."""
 
 

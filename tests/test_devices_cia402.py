@@ -1,0 +1,339 @@
+"""The cia402 device profile (docs/devices.md): three emulated CiA 402 drives on CANopen.
+
+The emulation is proven by python-canopen's own master, `canopen.BaseNode402` on a client bus (its Notifier
+thread, its SDO client, its PDO codecs), not by our controller: the PDO configuration read over SDO, NMT
+start, the 402 walk to OPERATION ENABLED, CST, target torque reaching the power stage, the statusword in
+TPDOs, the watchdog's fault and EMCY, fault reset, NMT stop. Then the whole rig: the reference controller
+and the supervisor speak CANopen to the emulated drives, deterministic in lockstep, replayed byte for byte.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from drivers.can_bus import BusConfig, open_bus, private_channel
+from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MessageName
+from drivers.config import ConfigError
+from drivers.devices import Devices, ProfileNode
+from drivers.devices.cia402 import ErrorCode, State, eds_path, state_of
+from hil.devices.cia402 import Cia402Drives
+from plant.drives import DriveArray, DriveState
+from plant.params import Drive
+from tests.zenoh_helpers import private_bench
+
+canopen = pytest.importorskip("canopen", reason="the cia402 profile needs python-canopen (a dependency)")
+
+NODES = (1, 2, 3)
+BENCH = str(Path(__file__).resolve().parents[1] / "configs" / "benches" / "cia402.toml")
+TICK = 0.0025
+
+
+class DrivesOnABench:
+    """The emulated drives in front of three plant drives, ticking on a thread at about 400 Hz (wall clock,
+    as real drives would): feedback and SYNC out, the master's frames in and onto the power stages."""
+
+    def __init__(self, channel: str):
+        self.bus = open_bus(BusConfig(channel=channel))
+        self.emulation = Cia402Drives(Devices(drives="cia402"), 8192, 1 / TICK)
+        self.node = ProfileNode(self.bus, [self.emulation], name="rig")
+        self.drives = DriveArray(Drive())
+        self.t, self.k = 0.0, 0
+        self.lock = threading.Lock()
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            with self.lock:
+                self.k += 1
+                self.t += TICK
+                self.drives.advance(TICK, self.t)
+                for name, m in zip(DRIVE_FEEDBACK, self.drives.motors, strict=True):
+                    self.node.send(
+                        name,
+                        {
+                            "Position": 1000 * self.k,
+                            "Velocity": 2.0,
+                            "Enabled": int(m.state is DriveState.ENABLED),
+                            "WatchdogTripped": int(m.state is DriveState.WATCHDOG),
+                            "BusPowered": int(m.bus_powered),
+                        },
+                    )
+                if self.k % 4 == 0:
+                    for name, m in zip(DRIVE_TORQUE, self.drives.motors, strict=True):
+                        self.node.send(name, {"Torque": m.torque})
+                self.node.send(MessageName.SYNC, {"Tick": self.k % 65536})
+                while (rx := self.node.recv(timeout=0.0)) is not None:
+                    if rx.name in DRIVE_COMMAND:
+                        motor = self.drives.motors[DRIVE_COMMAND.index(rx.name)]
+                        motor.set_command(float(rx.signals["Torque"]), bool(rx.signals["Enable"]), self.t)
+            time.sleep(TICK)
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join()
+        self.bus.shutdown()
+
+
+@pytest.fixture
+def master():
+    """The emulated drives, and python-canopen's master on a bus of its own on the same channel (with its
+    own Notifier thread): (bench, network, {node id: BaseNode402})."""
+    channel = private_channel("cia402")
+    network = canopen.Network(open_bus(BusConfig(channel=channel)))
+    network.connect()  # the bus is given: only the Notifier starts
+    nodes = {n: canopen.BaseNode402(n, str(eds_path())) for n in NODES}
+    for node in nodes.values():
+        network.add_node(node)
+    bench = DrivesOnABench(channel)
+    yield bench, network, nodes
+    bench.close()
+    network.disconnect()
+
+
+def _until(predicate, timeout: float = 2.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.005)
+
+
+def _up(network, node) -> None:
+    """A master's start-up: wait for the heartbeat, read the PDO configuration over SDO, NMT start."""
+    node.nmt.wait_for_heartbeat(timeout=2.0)
+    assert node.nmt.state == "PRE-OPERATIONAL"
+    node.setup_402_state_machine()  # SDO uploads of 0x1400-0x1A03 (python-canopen's BaseNode402)
+    node.nmt.state = "OPERATIONAL"
+    _until(lambda: node.nmt.state == "OPERATIONAL" and node.tpdo[1].is_received)
+
+
+def test_python_canopens_master_configures_starts_enables_and_commands_torque(master):
+    bench, network, nodes = master
+    node, motor = nodes[2], bench.drives.motors[1]
+    # Before NMT start the drive is silent on PDOs (pre-operational: heartbeat and SDO only).
+    node.nmt.wait_for_heartbeat(timeout=2.0)
+    node.pdo.read()  # TPDO and RPDO configuration over SDO
+    time.sleep(0.05)
+    assert not node.tpdo[1].is_received, "TPDOs before NMT start"
+    assert node.sdo[0x1018][2].raw == 402 and node.sdo[0x6502].raw & 0x200, "identity, CST supported"
+    assert node.tpdo[1].cob_id == 0x182 and [v.index for v in node.tpdo[2]] == [0x6064, 0x606C]
+    assert [v.index for v in node.rpdo[1]] == [0x6040, 0x6071]
+    _up(network, node)
+    assert node.state == "SWITCH ON DISABLED"
+    node.op_mode = "CYCLIC SYNCHRONOUS TORQUE"
+    assert node.op_mode == "CYCLIC SYNCHRONOUS TORQUE"
+    # The master's cyclic RPDO1 (faster than the plant drive's 20 ms watchdog): it repeats the controlword
+    # BaseNode402 last set in the map and the target torque.
+    stop, torque = threading.Event(), [0.0]
+
+    def feed() -> None:
+        while not stop.is_set():
+            node.rpdo[1][0x6071].raw = round(torque[0] * 1000)
+            node.rpdo[1].transmit()
+            time.sleep(0.005)
+
+    feeder = threading.Thread(target=feed, daemon=True)
+    feeder.start()
+    try:
+        time.sleep(0.05)
+        assert motor.state is not DriveState.ENABLED, "SWITCH ON DISABLED: a target torque makes no torque"
+        node.state = "OPERATION ENABLED"  # the walk: READY TO SWITCH ON, SWITCHED ON, OPERATION ENABLED
+        assert node.state == "OPERATION ENABLED"
+        torque[0] = 0.8
+        _until(lambda: motor.state is DriveState.ENABLED and motor.command == pytest.approx(0.8))
+        # The TPDOs as the master decodes them: position in increments, velocity in increments/s.
+        _until(lambda: node.tpdo[2].is_received)
+        seen = node.tpdo[2][0x6064].raw
+        _until(lambda: node.tpdo[2][0x6064].raw > seen)
+        assert node.tpdo[2][0x606C].raw == round(2.0 * 8192 / (2 * 3.141592653589793))
+        _until(lambda: node.tpdo[3][0x6077].raw != 0)
+        # Fed faster than the watchdog, it stays enabled (the positive control of the watchdog test).
+        time.sleep(0.2)
+        assert node.state == "OPERATION ENABLED" and motor.state is DriveState.ENABLED
+        node.state = "SWITCH ON DISABLED"
+        _until(lambda: motor.state is DriveState.DISABLED)
+    finally:
+        stop.set()
+        feeder.join()
+
+
+def test_the_watchdog_faults_the_drive_with_emcy_until_fault_reset(master):
+    bench, network, nodes = master
+    node, motor = nodes[3], bench.drives.motors[2]
+    emcys = []
+    node.emcy.add_callback(emcys.append)
+    _up(network, node)
+    node.state = "OPERATION ENABLED"
+    node.rpdo[1][0x6071].raw = 300
+    node.rpdo[1].transmit()  # one target torque, then silence: the plant drive's 20 ms watchdog trips
+    _until(lambda: motor.state is DriveState.WATCHDOG)
+    _until(lambda: node.is_faulted())
+    assert node.state == "FAULT"
+    _until(lambda: emcys)
+    assert emcys[0].code == ErrorCode.COMMUNICATION and emcys[0].register & 0x10
+    assert node.sdo[0x603F].raw == ErrorCode.COMMUNICATION
+    node.state = "SWITCHED ON"  # BaseNode402 resets the fault (controlword bit 7 rising) on its way
+    assert node.state == "SWITCHED ON"
+    _until(lambda: any(e.code == 0 for e in emcys))  # EMCY error reset
+    assert node.sdo[0x603F].raw == 0
+
+
+def test_a_drive_kept_fed_never_faults_nmt_stop_silences_its_pdos_and_reset_boots_it(master):
+    _bench, network, nodes = master
+    node = nodes[1]
+    emcys = []
+    node.emcy.add_callback(emcys.append)
+    _up(network, node)
+    node.state = "OPERATION ENABLED"
+    for _ in range(40):  # 200 ms fed every 5 ms: the watchdog's positive control
+        node.rpdo[1].transmit()
+        time.sleep(0.005)
+    assert node.state == "OPERATION ENABLED" and not emcys
+    node.state = "SWITCH ON DISABLED"
+    node.nmt.state = "STOPPED"
+    time.sleep(0.05)
+    node.tpdo[1].is_received = False
+    node.tpdo[2].is_received = False
+    time.sleep(0.1)
+    assert not node.tpdo[1].is_received and not node.tpdo[2].is_received, "PDOs in STOPPED"
+    _until(lambda: node.nmt.state == "STOPPED")  # the heartbeat goes on, saying so
+    node.nmt.state = "OPERATIONAL"
+    _until(lambda: node.tpdo[1].is_received)
+    # Reset node: the drive boots again (boot-up message), pre-operational until the next NMT start.
+    node.nmt.state = "RESET"
+    node.nmt.wait_for_bootup(timeout=2.0)
+    node.nmt.wait_for_heartbeat(timeout=2.0)
+    assert node.nmt.state == "PRE-OPERATIONAL"
+
+
+def test_a_frame_of_the_family_that_does_not_decode_is_counted_not_raised(master):
+    bench, network, nodes = master
+    node = nodes[1]
+    _up(network, node)
+    network.send_message(0x201, b"\x0f")  # RPDO1 is 4 bytes
+    _until(lambda: bench.node.stats.malformed["malformed_device_frame"] == 1)
+    assert bench.thread.is_alive()
+
+
+def test_state_of_reads_statuswords_as_basenode402_does():
+    from canopen.profiles.p402 import State402
+
+    for word, state in ((0x0250, State.SWITCH_ON_DISABLED), (0x0231, State.READY_TO_SWITCH_ON),
+                        (0x0233, State.SWITCHED_ON), (0x0237, State.OPERATION_ENABLED),
+                        (0x0217, State.QUICK_STOP_ACTIVE), (0x0208, State.FAULT)):  # fmt: skip
+        assert state_of(word) is state
+        assert (
+            State402.SW_MASK[state.name.replace("_", " ")][1]
+            == word & State402.SW_MASK[state.name.replace("_", " ")][0]
+        )
+
+
+# ------------------------------------------------------------------------------------------- the rig
+def test_a_node_id_whose_cob_ids_hold_a_contract_frame_is_refused_naming_the_field(tmp_path):
+    from hil.bench.bench import load_bench
+
+    path = tmp_path / "bench.toml"
+    path.write_text('name = "x"\n[devices]\ndrives = "cia402"\n[devices.cia402]\nnode_ids = [10, 1, 2]\n')
+    with pytest.raises(
+        ConfigError, match=r"cia402\.node_ids: node 10's .*IMU_ATTITUDE \(0x18A\).* - at `\$\.devices`"
+    ):
+        load_bench(path)
+    path.write_text('name = "x"\n[devices]\ndrives = "cia402"\n[devices.cia402]\nnode_ids = [32, 1, 2]\n')
+    with pytest.raises(ConfigError, match=r"node 32's .*CONTROLLER_HEARTBEAT \(0x720\)"):
+        load_bench(path)
+    # The positive control: the contract's drive frames are not on a cia402 bus (node 1's TPDO1 is 0x181).
+    path.write_text('name = "x"\n[devices]\ndrives = "cia402"\n[devices.cia402]\nnode_ids = [1, 2, 3]\n')
+    assert load_bench(path).devices.cia402.node_ids == (1, 2, 3)
+
+
+def test_speed_limiting_on_cia402_passes_deterministically_and_replays_byte_for_byte(tmp_path):
+    from hil.pipeline import load_scenario, run
+    from hil.suites.replay import replay
+
+    scenario = load_scenario("speed_limiting")
+    first, second = tmp_path / "a", tmp_path / "b"
+    a = run(scenario, private_bench(BENCH), out=first)
+    assert a.passed, [v for v in a.verdicts if not v.passed]
+    run(scenario, private_bench(BENCH), out=second)
+    frames = [line.split()[2] for line in (first / "can.log").read_text().splitlines()]
+    ids = {int(f.split("#")[0], 16) for f in frames}
+    assert {0x000, 0x701, 0x181, 0x281, 0x381, 0x201} <= ids, "NMT, heartbeat, TPDO1-3, RPDO1 on the wire"
+    assert "000#0101" in frames and "701#00" in frames, "NMT start of node 1 after its boot-up"
+    enabled = [
+        f
+        for f in frames
+        if f.startswith("181#")
+        and state_of(int.from_bytes(bytes.fromhex(f[4:8]), "little")) is State.OPERATION_ENABLED
+    ]
+    assert enabled, "the controller walked node 1 to OPERATION ENABLED"
+
+    def payloads(folder):
+        return [line.split()[2] for line in (folder / "can.log").read_text().splitlines()]
+
+    assert payloads(first) == payloads(second)
+    summary = json.loads((first / "summary.json").read_text())
+    assert summary["bench"]["devices"]["drives"] == "cia402"
+    assert summary["bus"]["malformed"] == {}
+    result = replay(first, private_bench())
+    assert result.identical and result.frames_compared > 4 * result.ticks, result.mismatches[:3]
+    # Test the test: the same frames read as another profile's (the contract's own) answer nothing alike.
+    summary["bench"]["devices"] = {"drives": "pure"}
+    (first / "summary.json").write_text(json.dumps(summary))
+    assert not replay(first, private_bench(), limit=50).identical
+
+
+def test_balance_on_cia402_passes(tmp_path):
+    from hil.pipeline import load_scenario, run
+
+    result = run(load_scenario("balance"), private_bench(BENCH), out=tmp_path)
+    assert result.passed, [v for v in result.verdicts if not v.passed]
+
+
+def test_the_supervisors_estop_reaches_the_drives_as_quick_stop(tmp_path):
+    from hil.pipeline import load_scenario, run
+
+    result = run(load_scenario("estop_at_speed"), private_bench(BENCH), out=tmp_path)
+    assert result.passed, [v for v in result.verdicts if not v.passed]
+    quick, states = set(), []
+    for line in (tmp_path / "can.log").read_text().splitlines():
+        frame = line.split()[2]
+        fid, data = int(frame.split("#")[0], 16), bytes.fromhex(frame.split("#")[1])
+        if fid - 0x200 in NODES and struct.unpack_from("<H", data)[0] == 0x02:
+            quick.add(fid - 0x200)
+        if fid == 0x181:
+            states.append(state_of(struct.unpack_from("<H", data)[0]))
+    assert quick == set(NODES)
+    assert State.OPERATION_ENABLED in states and State.QUICK_STOP_ACTIVE in states
+    assert states[-1] is not State.OPERATION_ENABLED
+
+
+def test_a_controller_killed_at_speed_is_ridden_to_rest_by_the_recovery_law_in_rpdos(tmp_path):
+    import msgspec
+    import numpy as np
+
+    from hil.faults import parse_fault
+    from hil.pipeline import load_scenario, run
+
+    base = load_scenario("braking")
+    kill = parse_fault({"kind": "process.kill", "target": "controller", "at": 4.5})
+    scenario = msgspec.structs.replace(base, faults=[kill], criteria=[])
+    trace = run(scenario, private_bench(BENCH), out=tmp_path).trace
+    assert np.hypot(*trace.velocity[np.searchsorted(trace.t, 4.5)]) > 1.2, "the fault comes at speed"
+    assert [e.to_state for e in trace.safety_events][:1] == ["RECOVERY"]
+    assert trace.fallen is None and np.hypot(*trace.velocity[-1]) < 0.05, "at rest, upright"
+    assert trace.stats.recovery_commands > 0
+    frames = [line.split()[2] for line in (tmp_path / "can.log").read_text().splitlines()]
+    last_heartbeat = max(i for i, f in enumerate(frames) if f.startswith("720#"))
+    torques = [
+        struct.unpack("<Hh", bytes.fromhex(f[4:]))
+        for f in frames[last_heartbeat + 1 :]
+        if f[:3] in ("201", "202", "203")
+    ]
+    assert any(cw == 0x0F and tq for cw, tq in torques), "the supervisor's torques after the controller"
