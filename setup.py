@@ -68,8 +68,16 @@ def build_requires() -> list[str]:
 
 compiled = WANTED and mypycify is not None
 setup(
-    # group_name: the modules' shared C library is pure_hil_native__mypyc.*.so (not a hash) in the wheel.
-    ext_modules=mypycify(COMPILED, opt_level="3", group_name="pure_hil_native") if compiled else [],
+    # group_name: the modules' shared C library is pure_hil_native__mypyc.*.so in the wheel (not a hash);
+    # target_dir: mypyc's generated C.
+    ext_modules=(
+        mypycify(COMPILED, opt_level="3", group_name="pure_hil_native", target_dir="build/mypyc")
+        if compiled
+        else []
+    ),
     setup_requires=build_requires() if WANTED else [],
     cmdclass={"build_py": BuildPy},
+    # The compiled build stages its files apart (build/mypyc/, not build/lib...): a pure build run later in
+    # the same tree must not pick up the compiled build's .so files left there.
+    options={"build": {"build_base": "build/mypyc"}} if WANTED else {},
 )
