@@ -407,7 +407,7 @@ class Plant:
     def energy(self) -> float:
         """Mechanical energy of both planes and yaw (J); conserved without torques and friction."""
         x = self.x
-        e: float = 0  # sum()'s start: 0 + e₁ + e₂
+        e = 0.0
         for k in (PITCH, ROLL):
             q, dq = x[6 * k : 6 * k + 3], x[6 * k + 3 : 6 * k + 6]
             e += self.planes[k].energy((q[0], q[1], q[2]), (dq[0], dq[1], dq[2]))

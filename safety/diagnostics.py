@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Sequence
+from typing import ClassVar
 
 import numpy as np
 
@@ -53,7 +54,7 @@ class Window:
 class Check:
     """A residual against its bound: `judge` records the peak ratio and returns a finding when over."""
 
-    cause = Cause.SENSOR_DISAGREE
+    cause: ClassVar[Cause] = Cause.SENSOR_DISAGREE
 
     def __init__(self, name: str, parts: tuple[str, ...] = ()):
         self.name = name
@@ -246,7 +247,7 @@ class TrendCheck(Check):
 class TorqueCheck(Check):
     """One drive: its measured torque vs the command it follows (the last one before the sample)."""
 
-    cause = Cause.ACTUATOR_MISMATCH
+    cause: ClassVar[Cause] = Cause.ACTUATOR_MISMATCH
 
     def __init__(self, index: int, tolerance: float, relative: float, samples: int, limit: float):
         super().__init__(f"drive {index} torque", (f"Drive{index}",))
@@ -274,7 +275,7 @@ class TorqueCheck(Check):
 class SeatCheck(Check):
     """The seat wrench as a seated rider can make it."""
 
-    cause = Cause.WRENCH_IMPLAUSIBLE
+    cause: ClassVar[Cause] = Cause.WRENCH_IMPLAUSIBLE
 
     def __init__(self, rules: SeatRules, min_load: float, seat_height: float, period: float, moved: float):
         super().__init__("seat")

@@ -52,7 +52,9 @@ def wheel(tmp_path_factory) -> Path:
     skip = (".git", ".venv", "runs", "build", "dist", "*.egg-info", "__pycache__", ".*_cache", ".hypothesis")
     shutil.copytree(ROOT, source, ignore=shutil.ignore_patterns(*skip))
     pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q"]
-    subprocess.run([*pip, "wheel", "--no-deps", "-w", str(out), str(source)], check=True, timeout=300)
+    env = {k: v for k, v in os.environ.items() if k != "PURE_HIL_MYPYC"}  # the default build
+    command = [*pip, "wheel", "--no-deps", "-w", str(out), str(source)]
+    subprocess.run(command, check=True, timeout=300, env=env)
     return next(out.glob("pure_hil-*.whl"))
 
 
@@ -64,6 +66,8 @@ def test_the_wheel_holds_the_code_and_every_shipped_config(wheel):
     assert {"hil/cli.py", "hil/faults/__init__.py", "controller/embedded.py", "drivers/resources.py"} <= names
     page = {f"hil/console/static/{name}" for name in ("index.html", "console.js", "console.css")}
     assert page <= names, "the console's page ships in the wheel"
+    # The default build is pure Python (the compiled one is asked for: PURE_HIL_MYPYC=1, setup.py).
+    assert wheel.name.endswith("-py3-none-any.whl") and not [n for n in names if n.endswith(".so")]
 
 
 def test_the_installed_wheel_runs_a_shipped_scenario_by_short_name_from_another_folder(wheel, tmp_path):

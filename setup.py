@@ -1,0 +1,83 @@
+"""The optional compiled build (issue 29): pyproject.toml holds every piece of the package's metadata; this
+file only adds, when asked, the hot modules compiled to C extensions by mypyc (docs/performance.md,
+"Compiled build").
+
+    PURE_HIL_MYPYC=1 pip install .            # or: PURE_HIL_MYPYC=1 pip wheel --no-deps -w dist .
+
+Without PURE_HIL_MYPYC=1 (README's commands, the editable dev install) nothing is compiled and no
+compiler or mypy is needed. With it, pip installs mypy and the run-time dependencies into the build's own
+environment (mypyc type-checks the modules against numpy's, msgspec's, python-can's and cantools' types);
+with --no-build-isolation they must be installed already.
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from pathlib import Path
+
+from setuptools import setup
+from setuptools.command.build_py import build_py
+
+COMPILED = [
+    # The frames: every CAN frame is encoded, sealed, checked and decoded through these.
+    "drivers/can_codec.py",
+    "drivers/e2e.py",
+    # The supervisor's pure parts (safety/node.py, its adapter, stays Python).
+    "safety/machine.py",
+    "safety/monitors.py",
+    "safety/diagnostics.py",
+    # The reference controller's estimator and step (controller/node.py, its adapter, stays Python).
+    "controller/estimator.py",
+    "controller/core.py",
+    # The plant's dynamics and sensors. Not plant/ballbot.py (benchmarks/lockstep.py times Plant.step by
+    # wrapping it) nor plant/drives.py (tests/test_failop.py wraps MotorDrive.set_command): a compiled
+    # class cannot be patched. Not plant/rider.py: msgspec does not see the class keywords (tag=...,
+    # frozen=True) of a Struct compiled by mypyc, and the rider's segments are a tagged union.
+    "plant/plane.py",
+    "plant/sensors.py",
+    "plant/omniwheel.py",
+]
+"""The modules the compiled build compiles, declared once (tests/test_compiled.py reads this list)."""
+
+ROOT = Path(__file__).resolve().parent
+WANTED = os.environ.get("PURE_HIL_MYPYC", "") == "1"
+
+try:
+    from mypyc.build import mypycify
+except ImportError:  # the pure build, or the first pass of an isolated build (which installs mypy)
+    mypycify = None
+
+
+class BuildPy(build_py):
+    def run(self) -> None:
+        if WANTED and mypycify is None:
+            raise SystemExit(
+                "PURE_HIL_MYPYC=1 needs mypy (mypyc) in the build environment: pip installs it there unless "
+                "--no-build-isolation is given; then `pip install mypy` and the run-time dependencies first"
+            )
+        super().run()
+
+
+def build_requires() -> list[str]:
+    """mypy, and the run-time dependencies whose types mypyc compiles against (pyproject.toml's list)."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    mypy = next(d for d in project["optional-dependencies"]["dev"] if d.startswith("mypy"))
+    return [mypy, *project["dependencies"]]
+
+
+compiled = WANTED and mypycify is not None
+setup(
+    # group_name: the modules' shared C library is pure_hil_native__mypyc.*.so in the wheel (not a hash);
+    # target_dir: mypyc's generated C.
+    ext_modules=(
+        mypycify(COMPILED, opt_level="3", group_name="pure_hil_native", target_dir="build/mypyc")
+        if compiled
+        else []
+    ),
+    setup_requires=build_requires() if WANTED else [],
+    cmdclass={"build_py": BuildPy},
+    # The compiled build stages its files apart (build/mypyc/, not build/lib...): a pure build run later in
+    # the same tree must not pick up the compiled build's .so files left there.
+    options={"build": {"build_base": "build/mypyc"}} if WANTED else {},
+)

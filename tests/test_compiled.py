@@ -1,0 +1,71 @@
+"""The optional compiled build (setup.py, PURE_HIL_MYPYC=1; docs/performance.md "Compiled build").
+
+.ci/run builds the compiled wheel, installs it into a fresh venv and runs COMPILED_SUITE below against it
+from a copy of tests/ outside the source tree, with PURE_HIL_COMPILED=1: there every module of setup.py's
+COMPILED must be a C extension, or the suite would test the pure code and pass for nothing. Elsewhere (the
+README's commands, an editable install) none of them may be.
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import os
+
+import pytest
+
+from tests.helpers import ROOT
+
+COMPILED_SUITE = (
+    # Every compiled module is exercised by at least one of these (test_every_compiled_module_is_covered).
+    "tests/test_compiled.py",
+    "tests/test_can.py",  # drivers/can_codec.py, drivers/e2e.py
+    "tests/test_safety_machine.py",  # safety/machine.py
+    "tests/test_safety_monitors.py",  # safety/monitors.py
+    "tests/test_safety_diagnostics.py",  # safety/diagnostics.py
+    "tests/test_controller_units.py",  # controller/estimator.py, controller/core.py
+    "tests/test_controller_closed_loop.py",
+    "tests/test_plant_dynamics.py",  # plant/plane.py
+    "tests/test_sensors.py",  # plant/sensors.py
+    "tests/test_omniwheel.py",  # plant/omniwheel.py
+    "tests/test_rider.py",
+    # End to end: every shipped scenario, determinism, replay, faults on the wire, the supervisor's paths.
+    "tests/test_scenarios.py",
+    "tests/test_faults_wire.py",
+    "tests/test_safety_e2e.py",
+)
+"""What .ci/run runs against the compiled build (about a minute and a half of tests here)."""
+
+
+def compiled_modules() -> list[str]:
+    """setup.py's COMPILED, as module names (read from the file: setup.py is not importable)."""
+    tree = ast.parse((ROOT / "setup.py").read_text())
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", "") == "COMPILED" for t in node.targets):
+            paths = ast.literal_eval(node.value)
+            return [p.removesuffix(".py").replace("/", ".") for p in paths]
+    raise AssertionError("setup.py declares no COMPILED list")
+
+
+@pytest.mark.parametrize("name", compiled_modules())
+def test_the_compiled_modules_are_what_this_build_says(name):
+    module = importlib.import_module(name)
+    path = module.__file__ or ""
+    if os.environ.get("PURE_HIL_COMPILED") == "1":
+        assert path.endswith(".so"), f"{name} imported from {path}, not the compiled build"
+        assert not path.startswith(str(ROOT)), f"{name} imported from the source tree"
+    else:
+        assert path.endswith(".py"), f"{name} is compiled ({path}): the default build is pure Python"
+
+
+def test_every_compiled_module_is_covered_by_the_compiled_suite():
+    # Covered: a test file of the suite imports the module itself (the end-to-end files run them all too).
+    imported = set()
+    for test in COMPILED_SUITE:
+        for node in ast.walk(ast.parse((ROOT / test).read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module:
+                imported.add(node.module)
+            elif isinstance(node, ast.Import):
+                imported.update(alias.name for alias in node.names)
+    assert set(compiled_modules()) <= imported, set(compiled_modules()) - imported
+    assert all((ROOT / test).is_file() for test in COMPILED_SUITE)
