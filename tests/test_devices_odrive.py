@@ -13,6 +13,7 @@ import json
 import threading
 import time
 
+import msgspec
 import pytest
 
 from drivers.can_bus import BusConfig, open_bus, private_channel
@@ -324,3 +325,37 @@ def test_a_controller_on_odrive_cans_own_client_balances_the_robot(tmp_path):
     assert result.passed, [v for v in result.verdicts if not v.passed]
     assert result.trace.stats.missing_commands == 0
     assert not thread.is_alive()
+
+
+# ----------------------------------------------------------------------------------- protocol faults
+@pytest.mark.parametrize(
+    ("kind", "cause", "within"),
+    [
+        ("odrive.axis_error", "DRIVE_FAULT", 0.01),  # the heartbeat after it says DRV_FAULT
+        ("odrive.disarm", "DRIVE_FAULT", 0.01),  # IDLE while permitted and told to enable
+        ("odrive.heartbeat_loss", "DRIVES_SILENT", 0.06),  # 3 heartbeats (30 ms), then the drive's timeout
+    ],
+)
+def test_an_odrive_protocol_fault_is_seen_and_ridden_out_by_the_supervisor(kind, cause, within):
+    from hil.faults import parse_fault
+    from hil.pipeline import load_scenario, run
+
+    at = 1.0
+    fault = parse_fault({"kind": kind, "motor": 2, "at": at})
+    scenario = msgspec.structs.replace(load_scenario("balance"), duration=2.0, faults=[fault])
+    trace = run(scenario, private_bench("odrive")).trace
+    assert trace.failure is None and trace.fallen is None
+    first = next(e for e in trace.safety_events if e.kind == "transition")
+    assert (first.to_state, first.cause) == ("RECOVERY", cause)
+    assert at < first.t <= at + within
+
+
+def test_a_fault_of_a_profile_the_bench_does_not_speak_is_refused_before_the_run():
+    from hil.faults import parse_fault
+    from hil.pipeline import load_scenario, run
+
+    fault = parse_fault({"kind": "odrive.disarm", "motor": 1, "at": 0.5})
+    scenario = msgspec.structs.replace(load_scenario("balance"), duration=1.0, faults=[fault])
+    trace = run(scenario, private_bench()).trace
+    assert trace.failure is not None and trace.failure.config
+    assert "needs a bench whose drives speak 'odrive'" in trace.failure.error

@@ -29,6 +29,8 @@ if TYPE_CHECKING:
 
 DBC_NAME = "odrive-cansimple-0.6.10.dbc"
 REQUESTED = "Axis_Requested_State"
+HEARTBEATS_MISSED = 3
+"""Heartbeat periods without one before a host stops passing the axis's estimates on."""
 
 
 class Cmd(IntEnum):
@@ -63,6 +65,7 @@ class AxisError(IntFlag):
     """The firmware 0.6 error bits the emulation raises (ODrive.Error)."""
 
     NONE = 0
+    SYSTEM_LEVEL = 0x00000002
     DC_BUS_UNDER_VOLTAGE = 0x00000200
     DRV_FAULT = 0x00000020
     WATCHDOG_TIMER_EXPIRED = 0x01000000
@@ -141,6 +144,8 @@ class HostAxis:
     last Set_Axis_State it saw)."""
     rearm: bool = False
     """A heartbeat showed the axis disarmed while this host wants it armed: clear and re-arm it once."""
+    since_heartbeat: int = 0
+    """Encoder estimates since its last heartbeat (the host's clock for the heartbeat's timeout)."""
 
 
 class OdriveHost:
@@ -158,7 +163,16 @@ class OdriveHost:
             self.names = frozenset({MessageName.SUPERVISOR_ESTOP, MessageName.SUPERVISOR_RECOVERY})
         else:
             self.names = frozenset(DRIVE_COMMAND)
+            reads += HOST_SENDS  # the supervisor's own (its takeover, its Estop): seen, not used
         self.frame_ids = self.wire.ids(nodes, reads)
+        options = self.options
+        self.heartbeat_patience = (
+            HEARTBEATS_MISSED * max(1, round(options.heartbeat_ms / options.encoder_ms))
+            if options.heartbeat_ms > 0 and options.encoder_ms > 0
+            else 0
+        )
+        """Encoder estimates without a heartbeat after which the axis's state is unknown and its estimates
+        are not passed on (0: no heartbeat to expect)."""
         self.sends = self.wire.ids(nodes, HOST_SENDS)
         self.tick = 0
         self.takeover = False
@@ -221,16 +235,22 @@ class OdriveHost:
             return None  # another host's request: its answer is what counts
         i = self._axis_of[node]
         axis = self.axes[i]
+        if self.role == "controller" and cmd in HOST_SENDS:
+            return None
         if cmd == Cmd.ESTOP:
             axis.want = False
             return None
         s = self.wire.decode(msg)
         if cmd == Cmd.HEARTBEAT:
+            axis.since_heartbeat = 0
             axis.state, axis.error = int(s["Axis_State"]), int(s["Axis_Error"])
             armed = axis.state == AxisState.CLOSED_LOOP_CONTROL
             axis.rearm = axis.want and not armed
             return None
         if cmd == Cmd.GET_ENCODER_ESTIMATES:
+            axis.since_heartbeat += 1
+            if self.heartbeat_patience and axis.since_heartbeat > self.heartbeat_patience:
+                return None  # its heartbeat is lost: what state the axis is in is unknown, so is its data
             error = axis.error
             signals: dict[str, float | int] = {
                 "Position": round(s["Pos_Estimate"] * self.counts_per_rev),

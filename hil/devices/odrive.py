@@ -57,6 +57,10 @@ class Axis:
     sent: int = 0
     """Feedback calls so far (the cyclic messages' phase)."""
     warned_mode: bool = False
+    forced_error: int = 0
+    """An error a fault holds active (hil/faults/devices.py): Clear_Errors cannot clear it."""
+    mute_heartbeat: bool = False
+    """A fault keeps its heartbeat off the bus."""
 
     @property
     def armed(self) -> bool:
@@ -110,7 +114,7 @@ class OdriveAxes:
         frames = []
         if self.encoder_every and axis.sent % self.encoder_every == 0:
             frames.append(self._reply(axis, Cmd.GET_ENCODER_ESTIMATES))
-        if self.heartbeat_every and axis.sent % self.heartbeat_every == 0:
+        if self.heartbeat_every and axis.sent % self.heartbeat_every == 0 and not axis.mute_heartbeat:
             frames.append(self._reply(axis, Cmd.HEARTBEAT))
         axis.sent += 1
         return frames
@@ -166,7 +170,7 @@ class OdriveAxes:
             axis.disarm(AxisError.ESTOP_REQUESTED)
             return self._command(i, 0.0, False, msg)
         if cmd == Cmd.CLEAR_ERRORS:
-            axis.error = 0 if axis.powered else AxisError.DC_BUS_UNDER_VOLTAGE
+            axis.error = axis.forced_error | (0 if axis.powered else AxisError.DC_BUS_UNDER_VOLTAGE)
             return None
         s = self.wire.decode(msg)
         if cmd == Cmd.SET_AXIS_STATE:
@@ -189,6 +193,26 @@ class OdriveAxes:
             torque = axis.setpoint if axis.control_mode == ControlMode.TORQUE_CONTROL else 0.0
             return self._command(i, torque, axis.armed, msg)
         return None  # limits, gains, trajectories: accepted, not emulated
+
+    # ------------------------------------------------------------------ protocol faults (hil/faults)
+    profile = "odrive"
+
+    def axis_error(self, motor: int, error: int) -> None:
+        """The axis raises `error` and disarms; it stays active, whatever Clear_Errors says, until 0."""
+        axis = self.axes[motor]
+        axis.forced_error = error
+        if error:
+            axis.disarm(error)
+
+    def heartbeat_loss(self, motor: int, lost: bool) -> None:
+        self.axes[motor].mute_heartbeat = lost
+
+    def disarm(self, motor: int) -> None:
+        """The axis drops to IDLE unasked, with no active error (its Disarm_Reason says SYSTEM_LEVEL)."""
+        axis = self.axes[motor]
+        if axis.armed:
+            axis.disarm_reason = AxisError.SYSTEM_LEVEL
+        axis.state = AxisState.IDLE
 
     def _command(self, i: int, torque: float, enable: bool, msg: can.Message) -> Received:
         signals = {"Torque": torque, "Tick": self.tick, "Enable": int(enable)}

@@ -1,7 +1,8 @@
 """The fault catalog (docs/faults.md): every fault a scenario, a campaign or a live session can inject.
 
 One module per family, as python-can keeps one module per interface: sensors, frames (CAN), topics
-(zenoh), actuators (drives and the world), processes (and timing). Each fault is a typed msgspec Struct
+(zenoh), actuators (drives and the world), processes (and timing), devices (a device profile's own
+protocol). Each fault is a typed msgspec Struct
 tagged by `kind` ("sensor.stuck", "can.drop", ...); `Fault` is their union, so a TOML table or a JSON
 object decodes to the right one with a clear error for a wrong field.
 """
@@ -12,7 +13,7 @@ from typing import TYPE_CHECKING, Any, Union
 
 import msgspec
 
-from hil.faults import actuators, frames, processes, sensors, topics
+from hil.faults import actuators, devices, frames, processes, sensors, topics
 from hil.faults.base import Expect, FaultError, FaultEvent, FaultSpec, FaultState, kind_of
 from hil.faults.runtime import FaultSet
 
@@ -22,6 +23,7 @@ FAMILIES: dict[str, tuple[type[FaultSpec], ...]] = {
     "topics": topics.FAULTS,
     "actuators": actuators.FAULTS,
     "processes": processes.FAULTS,
+    "devices": devices.FAULTS,
 }
 CATALOG: dict[str, type[FaultSpec]] = {kind_of(cls): cls for family in FAMILIES.values() for cls in family}
 """kind -> fault class."""
