@@ -106,6 +106,11 @@ class Devices(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=T
                     )
 
     @property
+    def profiles(self) -> tuple[str, ...]:
+        """The profiles other than `pure` on this bench, the drives' first: each has its translators."""
+        return tuple(p for p in (self.drives, self.imu) if p != "pure")
+
+    @property
     def pure(self) -> bool:
         """Every device speaks the contract's own frames: no translation anywhere."""
         return self.drives == "pure" and self.imu == "pure"
@@ -231,5 +236,5 @@ def host_node(
     name = name or role
     if devices.pure:
         return CanNode(bus, name=name)
-    translators = [_load(HOSTS[devices.drives])(devices, counts_per_rev, role)]
+    translators = [_load(HOSTS[profile])(devices, counts_per_rev, role) for profile in devices.profiles]
     return ProfileNode(bus, translators, name=name)

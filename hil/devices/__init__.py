@@ -38,4 +38,5 @@ def rig_node(bus: can.BusABC, devices: Devices, counts_per_rev: int, tick_hz: fl
     """The rig's node: the devices' frames as the bench's profile speaks them."""
     if devices.pure:
         return CanNode(bus, name="rig")
-    return ProfileNode(bus, [emulation(devices.drives)(devices, counts_per_rev, tick_hz)], name="rig")
+    emulations = [emulation(profile)(devices, counts_per_rev, tick_hz) for profile in devices.profiles]
+    return ProfileNode(bus, emulations, name="rig")
