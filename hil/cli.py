@@ -48,7 +48,10 @@ def package_version() -> str:
 def add_bench_options(parser: argparse.ArgumentParser, clock: bool = False) -> None:
     group = parser.add_argument_group("the bench (configs/benches/*.toml; docs/bench.md)")
     group.add_argument(
-        "--bench", default="embedded", help=f"bench file or shipped name: {', '.join(shipped('benches'))}"
+        "--bench",
+        default=None,
+        help=f"bench file or shipped name: {', '.join(shipped('benches'))} (default embedded; a campaign: its own "
+        "bench, else embedded)",
     )
     group.add_argument(
         "--can", default=None, help="override the bus: INTERFACE:CHANNEL, e.g. socketcan:vcan0"
@@ -74,9 +77,9 @@ def add_bench_options(parser: argparse.ArgumentParser, clock: bool = False) -> N
 
 def bench_from(args: argparse.Namespace):
     from drivers.can_bus import parse_can_spec
-    from hil.bench.bench import load_bench
+    from hil.bench.bench import EMBEDDED, load_bench
 
-    bench = load_bench(args.bench)
+    bench = load_bench(args.bench or EMBEDDED)
     return bench.with_overrides(
         can=None if args.can is None else parse_can_spec(args.can, bench.can),
         controller=args.controller,
@@ -225,6 +228,8 @@ def _campaign(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"pure-hil campaign: {exc}", file=sys.stderr)
         return 2
+    if args.bench is None:
+        args.bench = campaign.bench  # the bench its cases need, unless the command names another
     bench = bench_from(args)
     check(bench)
     out = _out_folder(args, bench, f"campaign-{campaign.name}")

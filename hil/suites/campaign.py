@@ -82,6 +82,10 @@ class Campaign(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
     coverage: Bounds | None = None
     """A diagnostic coverage campaign: faulty cases classed against their fault-free twins."""
     fault_free: list[FaultFree] = []
+    bench: str | None = None
+    """The bench its cases need (a device profile's protocol faults: configs/benches/odrive.toml, ...); a
+    command's --bench (the pytest plugin's --hil-bench) given explicitly runs them on another. None: the
+    command's default bench."""
     pytest_select: list[str] = []
     """What the pytest plugin collects: the cases whose id contains one of these (and their twins); empty:
     every case. A long campaign's representative subset for CI (`pytest --hil-full` runs them all)."""

@@ -30,8 +30,9 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     group.addoption("--hil-out", default=None, help="write each HIL case's run folder under this folder")
     group.addoption(
         "--hil-bench",
-        default="embedded",
-        help="the bench HIL runs and campaign cases run on: a bench file or shipped name (default embedded)",
+        default=None,
+        help="the bench HIL runs and campaign cases run on: a bench file or shipped name (default embedded; "
+        "a campaign's cases: the campaign's own bench, else embedded)",
     )
     group.addoption("--hil-can", default=None, help="override the bench's bus: INTERFACE:CHANNEL")
     group.addoption(
@@ -41,12 +42,13 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     )
 
 
-def bench_of(config: pytest.Config):
+def bench_of(config: pytest.Config, default: str | None = None):
+    """The bench of --hil-bench; without it `default` (a campaign's own), else the embedded bench."""
     from drivers.can_bus import parse_can_spec
-    from hil.bench.bench import load_bench
+    from hil.bench.bench import EMBEDDED, load_bench
 
     can = config.getoption("--hil-can")
-    return load_bench(config.getoption("--hil-bench")).with_overrides(
+    return load_bench(config.getoption("--hil-bench") or default or EMBEDDED).with_overrides(
         can=None if can is None else parse_can_spec(can)
     )
 
@@ -72,7 +74,7 @@ class CampaignFile(pytest.File):
         campaign = load_campaign(self.path)
         select = None if self.config.getoption("--hil-full") else campaign.pytest_select
         for case in expand(campaign, select or None):
-            item = CampaignItem.from_parent(self, name=case.id, case=case)
+            item = CampaignItem.from_parent(self, name=case.id, case=case, bench=campaign.bench)
             item.add_marker(pytest.mark.hil)
             yield item
 
@@ -82,9 +84,11 @@ _twins: dict[str, CaseResult] = {}
 
 
 class CampaignItem(pytest.Item):
-    def __init__(self, *, case, **kwargs):
+    def __init__(self, *, case, bench=None, **kwargs):
         super().__init__(**kwargs)
         self.case = case
+        self.bench = bench
+        """The campaign's own bench (None: the embedded one), unless --hil-bench names another."""
 
     def runtest(self) -> None:
         from hil.suites.campaign import expand, judge, load_campaign, run_case
@@ -92,7 +96,7 @@ class CampaignItem(pytest.Item):
         config = self.config
         root = config.getoption("--hil-out")
 
-        bench = bench_of(config)
+        bench = bench_of(config, self.bench)
 
         def run(case):
             return run_case(case, None if root is None else Path(root) / case.id, bench)
