@@ -151,6 +151,7 @@ class Cia402Drives:
                 node.state = target
             except (RuntimeError, ValueError) as e:  # a step not confirmed in time: look again
                 log.info("node %d: %s -> %s: %s", node.id, state, target, e)
+                statusword.wait_for_reception(timeout=0.05)
 
     def close(self) -> None:
         for walker in self._walkers:

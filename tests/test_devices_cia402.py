@@ -346,8 +346,9 @@ def test_a_controller_on_python_canopens_basenode402_master_balances_the_robot(t
     OPERATION ENABLED through its `state` property; target torque in RPDO1 every SYNC, velocity and
     statusword from the TPDOs), as a lab with CiA 402 drives would write it; an external controller to the
     rig, in lockstep, here on a thread of this process on the in-process bus. Checked by hand (positive
-    control): the same example with its walk never reaching OPERATION ENABLED (the state setter made a
-    no-op) sends its RPDOs every tick and the robot falls."""
+    controls): the same example with BaseNode402's state setter made a no-op (never OPERATION ENABLED)
+    still sends RPDO1 every tick (no missing command), and the robot falls at 0.6 s; with the velocity
+    taken as rad/s without converting from increments/s, it falls at 0.2 s."""
     import importlib.util
 
     from hil.pipeline import load_scenario, run
