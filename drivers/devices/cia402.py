@@ -198,7 +198,7 @@ class Cia402Host:
         nodes = self.options.node_ids
         self.drives = [HostDrive(n) for n in nodes]
         self._drive_of: dict[int, tuple[int, int]] = {}
-        reads = [TPDO1, TPDO2, TPDO3, HEARTBEAT, EMCY]
+        reads = [TPDO1, TPDO2, TPDO3, HEARTBEAT, EMCY, SDO_TX, SDO_RX]  # SDO: another master's, not used
         if role == "supervisor":  # it checks the controller's commands against what the drives do
             reads.append(RPDO1)
             self.names = frozenset({MessageName.SUPERVISOR_ESTOP, MessageName.SUPERVISOR_RECOVERY})
@@ -279,6 +279,8 @@ class Cia402Host:
         if msg.is_remote_frame or msg.arbitration_id == NMT:
             return None  # the controller's NMT start, as the supervisor sees it
         i, function = self._drive_of[msg.arbitration_id]
+        if function in (SDO_TX, SDO_RX):
+            return None  # a master configuring its drives (examples/cia402_controller.py): seen, not used
         drive = self.drives[i]
         if function == HEARTBEAT:
             if not msg.data:
