@@ -50,8 +50,8 @@ def add_bench_options(parser: argparse.ArgumentParser, clock: bool = False) -> N
     group.add_argument(
         "--bench",
         default=None,
-        help=f"bench file or shipped name: {', '.join(shipped('benches'))} (default embedded; a campaign: its own "
-        "bench, else embedded)",
+        help=f"bench file or shipped name: {', '.join(shipped('benches'))} (default embedded; a campaign: "
+        "its own bench, else embedded)",
     )
     group.add_argument(
         "--can", default=None, help="override the bus: INTERFACE:CHANNEL, e.g. socketcan:vcan0"
