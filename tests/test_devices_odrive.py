@@ -30,6 +30,9 @@ odrive_can = pytest.importorskip("odrive_can", reason="the odrive profile needs 
 
 NODES = (1, 2, 3)
 TICK = 0.0025
+WATCHDOG = 0.5
+"""s: the bench's drives' watchdog, long beside the 5 ms feeds (a loaded machine may starve a thread for
+tens of ms; the rig's drives keep the plant's 20 ms in simulated time)."""
 
 
 class AxesOnABench:
@@ -40,7 +43,7 @@ class AxesOnABench:
         self.bus = open_bus(BusConfig(channel=channel))
         self.axes = OdriveAxes(Devices(drives="odrive"), 8192, 1 / TICK)
         self.node = ProfileNode(self.bus, [self.axes], name="rig")
-        self.drives = DriveArray(Drive())
+        self.drives = DriveArray(Drive(watchdog_timeout=WATCHDOG))
         self.t, self.k = 0.0, 0
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._run, daemon=True)
@@ -88,7 +91,7 @@ def bench():
 
 class Feeder:
     """Sends the axis's setpoint every 5 ms, as a host must with the watchdog on (the emulated axes run
-    the plant drive's 20 ms watchdog; ODrive's is configurable and off by default)."""
+    the plant drive's watchdog; ODrive's is configurable and off by default)."""
 
     def __init__(self, client):
         self.client, self.torque, self.running = client, 0.0, True
@@ -104,7 +107,14 @@ class Feeder:
         await self.task
 
 
-async def _until(predicate, timeout: float = 2.0) -> None:
+async def arm(client, state: str) -> None:
+    """client.set_axis_state(state) and wait for the heartbeat to say so (the client's own wait gives up
+    after a fixed second, which a loaded machine can take)."""
+    client.set_axis_state_no_wait(state)
+    await _until(lambda: client.axis_state == state)
+
+
+async def _until(predicate, timeout: float = 10.0) -> None:
     deadline = time.monotonic() + timeout
     while not predicate():
         assert time.monotonic() < deadline, "timed out"
@@ -127,7 +137,7 @@ def test_odrive_cans_own_client_arms_an_axis_commands_torque_and_reads_it_back(b
             feeder.torque = 0.8
             await asyncio.sleep(0.05)
             assert motor.state is not DriveState.ENABLED, "IDLE: a torque setpoint makes no torque"
-            await client.set_axis_state("CLOSED_LOOP_CONTROL")  # waits for the heartbeat to say so
+            await arm(client, "CLOSED_LOOP_CONTROL")
             await _until(lambda: motor.state is DriveState.ENABLED and motor.command == pytest.approx(0.8))
             # The cyclic estimates through the client's own callback. (Its RTR helper shares one response
             # slot with cyclic frames of the same id, as against a real ODrive: asked only for the rest.)
@@ -140,10 +150,10 @@ def test_odrive_cans_own_client_arms_an_axis_commands_torque_and_reads_it_back(b
             assert bus["Bus_Voltage"] > 0
             # Torque keeps flowing while the setpoints come faster than the watchdog (the positive control
             # of the watchdog test below).
-            await asyncio.sleep(0.2)
+            await asyncio.sleep(2 * WATCHDOG)
             assert motor.state is DriveState.ENABLED
             client.check_errors()
-            await client.set_axis_state("IDLE")
+            await arm(client, "IDLE")
             await _until(lambda: motor.state is DriveState.DISABLED)
             await feeder.stop()
         finally:
@@ -162,7 +172,7 @@ def test_estop_disarms_with_estop_requested_until_clear_errors(bench):
         try:
             feeder = Feeder(client)
             feeder.torque = 0.5
-            await client.set_axis_state("CLOSED_LOOP_CONTROL")
+            await arm(client, "CLOSED_LOOP_CONTROL")
             await _until(lambda: motor.state is DriveState.ENABLED)
             client._send_message("Estop")
             await _until(lambda: client.axis_state == "IDLE")
@@ -175,7 +185,7 @@ def test_estop_disarms_with_estop_requested_until_clear_errors(bench):
             await asyncio.sleep(0.1)
             assert client.axis_state == "IDLE"
             client.clear_errors()
-            await client.set_axis_state("CLOSED_LOOP_CONTROL")
+            await arm(client, "CLOSED_LOOP_CONTROL")
             client.check_errors()
             await feeder.stop()
         finally:
@@ -193,10 +203,10 @@ def test_the_watchdog_disarms_an_axis_whose_setpoints_stop(bench):
         try:
             feeder = Feeder(client)
             feeder.torque = 0.3
-            await client.set_axis_state("CLOSED_LOOP_CONTROL")
+            await arm(client, "CLOSED_LOOP_CONTROL")
             await _until(lambda: axes.drives.motors[2].state is DriveState.ENABLED)
             await feeder.stop()
-            await asyncio.sleep(0.2)  # no setpoint for 10x the drive's watchdog
+            await asyncio.sleep(2 * WATCHDOG)  # no setpoint for twice the drive's watchdog
             await _until(lambda: client.axis_state == "IDLE")
             with pytest.raises(odrive_can.odrive.DriveError, match="WATCHDOG_TIMER_EXPIRED"):
                 client.check_errors()
