@@ -31,7 +31,7 @@ class _Part(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tru
     pass
 
 
-class ControllerPart(_Part):
+class ControllerPart(_Part, frozen=True):
     where: Where = "embedded"
     """embedded: a plugin on a thread of the rig's process; spawned: the rig starts `command` (default
     pure-controller) and stops it after the run; external: the rig waits for one started by someone else."""
@@ -50,7 +50,7 @@ class ControllerPart(_Part):
     """s the rig waits for the controller's boot-up (None: 10 embedded, 30 spawned, 120 external)."""
 
 
-class SupervisorPart(_Part):
+class SupervisorPart(_Part, frozen=True):
     where: Where = "embedded"
     """embedded: in the rig's tick; spawned: the rig starts `pure-hil supervisor` on this bench; external:
     one runs elsewhere on the bus."""
@@ -58,7 +58,7 @@ class SupervisorPart(_Part):
     """Its rules; a scenario's `[safety]` table overrides them for that scenario's runs."""
 
 
-class RealtimePart(_Part):
+class RealtimePart(_Part, frozen=True):
     """How the rig's loop runs under the real-time clock. Each setting falls back where the machine refuses
     it, and the run's summary says which held (`timing.policy`)."""
 
@@ -72,7 +72,7 @@ class RealtimePart(_Part):
     """Pin the rig's tick thread to this CPU."""
 
 
-class OutputsPart(_Part):
+class OutputsPart(_Part, frozen=True):
     folder: str = "runs"
     """Where a command (run, campaign, compare, calibrate, adversary) puts its output folder when no --out
     is given."""
@@ -83,7 +83,7 @@ class OutputsPart(_Part):
     """run.mcap: CAN frames and signals, zenoh inputs and the trace for Foxglove, PlotJuggler, rerun."""
 
 
-class Bench(_Part):
+class Bench(_Part, frozen=True):
     name: str
     description: str = ""
     can: BusConfig = BusConfig(channel="")

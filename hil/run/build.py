@@ -17,6 +17,7 @@ from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import msgspec
 import zenoh
@@ -26,7 +27,7 @@ from drivers.can_codec import MessageName
 from drivers.config import load_toml
 from drivers.contract import CONTRACT_VERSION, mismatch
 from drivers.devices import host_node
-from drivers.dut import DutSpec, start_dut
+from drivers.dut import DutHandle, DutSpec, start_dut
 from drivers.keys import Keys
 from drivers.resources import find
 from drivers.schemas import SafetyState
@@ -37,7 +38,7 @@ from hil.devices import rig_node
 from hil.faults import FaultError, FaultSet
 from hil.outputs.inputs_log import InputsLog
 from hil.outputs.mcap_log import McapLog
-from hil.run.rig import OperatorStep, Rig, ScStep
+from hil.run.rig import AgentLinks, OperatorStep, Rig, ScStep
 from hil.run.scenario import Scenario
 from hil.run.trace import ControllerUnavailable
 from plant.ballbot import Plant, RiderIntent
@@ -89,7 +90,7 @@ class Built:
     law: str
     clock: str
     duration: float
-    dut: object | None
+    dut: DutHandle | None
     """The embedded controller's handle (process faults stop or pause it); None: in another process."""
     trace_path: Path | None = None
     """Where the run's rows stream (hil/outputs/trace_log.py); None: kept in memory."""
@@ -109,6 +110,11 @@ CAN alone never does, and the run starts without it."""
 def law_of(bench: Bench, scenario: Scenario) -> str:
     if bench.controller.where == "external":
         return "external"
+    return reference_law(bench, scenario)
+
+
+def reference_law(bench: Bench, scenario: Scenario) -> Literal["hacs", "ihacs"]:
+    """The law the reference controller runs: the bench's, or the scenario's."""
     return scenario.law if bench.controller.law == "scenario" else bench.controller.law
 
 
@@ -136,7 +142,8 @@ def build(
         load_toml(find(bench.sim, "sim"), SimParams), tick_hz=scenario.tick_hz, seed=seed
     )
     intent = RiderIntent(list(scenario.intent.pitch), list(scenario.intent.roll), list(scenario.intent.twist))
-    tilt = tuple(math.radians(a) for a in scenario.initial_tilt_deg)
+    pitch_deg, roll_deg = scenario.initial_tilt_deg
+    tilt = (math.radians(pitch_deg), math.radians(roll_deg))
     plant = Plant(load_toml(robot_path, RobotParams), load_toml(rider_path, RiderParams), sim, intent, tilt)
     plant.heeds_alert = scenario.intent.heeds_alert
     if mcap is not None:
@@ -222,7 +229,7 @@ def build(
             DutSpec(
                 can=bus_config,
                 zenoh=zenoh_access,
-                mode=law,  # type: ignore[arg-type]
+                mode=reference_law(bench, scenario),
                 robot=str(find(controller.robot or robot_path, "robot")),
                 rider=str(rider_path),
                 devices=bench.devices,
@@ -257,14 +264,6 @@ def build(
     faults.attach(rig)
     trace = None if out is None else out / "trace.npy"
     return Built(rig, plant, bus_config, law, clock, scenario.duration, dut, trace, bench.realtime, mcap)
-
-
-@dataclass(frozen=True, slots=True)
-class AgentLinks:
-    """The sessions the rig's scenario speaks through as the SC agent and the operator (secured bench)."""
-
-    sc_agent: ZenohLink
-    operator: ZenohLink
 
 
 def _agent_link(

@@ -162,6 +162,10 @@ MCL_CURRENT, MCL_FUTURE, MCL_ONFAULT = 1, 2, 4
 """mlockall flags (<sys/mman.h>; MCL_ONFAULT since Linux 4.4)."""
 
 
+Clock = LockstepClock | RealtimeClock
+"""What the tick loop runs under: the scenario's (or the bench's) clock."""
+
+
 def _mlockall() -> bool:
     """Keep every page the process touches in memory, now and later: no page of the loop is swapped out.
     ON_FAULT, because locking what is merely mapped faults it all in: 143 MB -> 1.6 GB resident for the

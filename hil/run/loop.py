@@ -10,9 +10,10 @@ import numpy as np
 
 from hil.outputs.trace_log import TELEMETRY, TraceLog
 from hil.run.build import Built, RunOptions, RunStatus
-from hil.run.clock import LockstepClock, RealtimeClock
+from hil.run.clock import Clock, LockstepClock, RealtimeClock
 from hil.run.rig import Rig
 from hil.run.trace import Failure, Trace, reason
+from plant.ballbot import Truth
 from safety.machine import Event, State
 
 TELEMETRY_EVERY = 64
@@ -25,6 +26,7 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
     rig, plant = built.rig, built.plant
     ticks = round(built.duration / plant.dt)
     lockstep = built.clock == "lockstep"
+    clock: Clock
     if lockstep:
         clock = LockstepClock(plant.dt, rig.command_guard)
     else:
@@ -114,7 +116,7 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
     )
 
 
-def _status(tr, rig: Rig, clock, duration: float, began: float) -> RunStatus:
+def _status(tr: Truth, rig: Rig, clock: Clock, duration: float, began: float) -> RunStatus:
     state = rig.safety_state
     return RunStatus(
         t=tr.t,
@@ -127,7 +129,7 @@ def _status(tr, rig: Rig, clock, duration: float, began: float) -> RunStatus:
     )
 
 
-def _row(tr, rig: Rig) -> tuple:
+def _row(tr: Truth, rig: Rig) -> tuple[float, ...]:
     """The rig's columns of a tick's row (hil/outputs/trace_log.py COLUMNS)."""
     return (
         tr.t,

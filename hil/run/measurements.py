@@ -228,7 +228,12 @@ MEASUREMENTS: dict[str, Measurement] = {
 
 
 def measure(
-    trace: Trace, name: str, plane: str = "pitch", after: float = 0.0, cause: str = "", ball_radius=math.nan
+    trace: Trace,
+    name: str,
+    plane: str = "pitch",
+    after: float = 0.0,
+    cause: str = "",
+    ball_radius: float = math.nan,
 ) -> float:
     """One measurement of a run; `plane` "both" takes the larger of the two planes."""
     m = MEASUREMENTS[name]

@@ -25,29 +25,35 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter, deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Literal
 
 from drivers.can_bus import BusRecorder, CanNode, Received
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MessageName
+from drivers.dut import DutHandle
 from drivers.schemas import (
     ControllerCommand,
     ControllerTelemetry,
     EstopCommand,
     Payload,
+    SafetyState,
+    ScMode,
     ScRequest,
     TesWrench,
     encode,
 )
-from drivers.zenoh_link import ZenohLink
+from drivers.zenoh_link import Subscription, ZenohLink
 from hil.faults import FaultSet
 from hil.outputs.inputs_log import InputsLog
 from plant.ballbot import Plant
-from plant.drives import DriveState
+from plant.drives import DriveState, MotorDrive
+from plant.sensors import DriveFeedback, ImuSample, TesSample
 from safety.node import SupervisorNode
 
 TICK_MODULO = 1 << 16
-COMMANDS = {name: motor for motor, name in enumerate(DRIVE_COMMAND)}
+COMMANDS: dict[str, int] = {name: motor for motor, name in enumerate(DRIVE_COMMAND)}
+"""Each drive's command frame (keyed by name as frames carry it: Received.name) -> its motor."""
 TORQUE_EVERY = 4  # DRIVEn_TORQUE at 100 Hz on a 400 Hz tick (the DBC's GenMsgCycleTime)
 TELEMETRY_CAPACITY = 1 << 12
 """Controller telemetry samples buffered between the loop's takes (hil/run/loop.py TELEMETRY_EVERY)."""
@@ -59,8 +65,11 @@ class ScStep:
     """From `tick` on, the shared controller asks for `mode` (free, idle, limit) with `cap` (m/s)."""
 
     tick: int
-    mode: str
+    mode: ScMode
     cap: float = 0.0
+
+
+OperatorAction = Literal["estop", "reset", "enable", "disable"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,7 +78,7 @@ class OperatorStep:
     (pure/controller/command)."""
 
     tick: int
-    action: str
+    action: OperatorAction
 
 
 @dataclass(slots=True)
@@ -100,6 +109,14 @@ class TickStats:
     """The controller's commands the drives ignored because the recovery law held them."""
 
 
+@dataclass(frozen=True, slots=True)
+class AgentLinks:
+    """The sessions the rig's scenario speaks through as the SC agent and the operator (secured bench)."""
+
+    sc_agent: ZenohLink
+    operator: ZenohLink
+
+
 class Rig:
     def __init__(
         self,
@@ -112,9 +129,9 @@ class Rig:
         operator: list[OperatorStep] | tuple[OperatorStep, ...] = (),
         faults: FaultSet | None = None,
         bitrate: int = 1_000_000,
-        agent_link=None,
+        agent_link: AgentLinks | None = None,
         recovery_in_commands: bool = False,
-    ):
+    ) -> None:
         """agent_link: where the scenario's SC requests and operator actions go out (`sc_agent`, `operator`
         links under those roles' certificates on a secured bench); None: the rig's own link.
         recovery_in_commands: the supervisor's takeover reaches the drives in their own command frames (a
@@ -128,7 +145,7 @@ class Rig:
         self.command_guard = command_guard
         self.supervisor = supervisor
         """In-process supervisor, updated every tick; None: a supervisor elsewhere on the bus."""
-        self.dut = None
+        self.dut: DutHandle | None = None
         """The in-process controller's handle (process faults stop or pause it); None: external."""
         self.controller_contract: int | None = None
         """CONTROLLER_HEARTBEAT.Contract of the controller's boot-up (docs/contract.md, Versions)."""
@@ -175,7 +192,7 @@ class Rig:
         """Tick tag of the last SUPERVISOR_RECOVERY the drives followed."""
         self.safety_state = -1
         """SUPERVISOR_ESTOP.State of the last trusted frame (-1: none yet)."""
-        self.safety_states = None
+        self.safety_states: Subscription[SafetyState] | None = None
         """With an external supervisor: its pure/safety/state announcements (a Subscription)."""
         self._permitted = False
         plant.drives.set_permission(False)  # both paths open until the supervisor's first frame
@@ -261,7 +278,7 @@ class Rig:
         self.stats.ticks += 1
 
     # ------------------------------------------------------------------------------------------ outputs
-    def _sample(self):
+    def _sample(self) -> tuple[Sequence[DriveFeedback], ImuSample, TesSample, set[str]]:
         """The sensors' outputs of this tick as the (maybe faulty) sensors report them, and the frames
         that stay silent."""
         plant = self.plant
@@ -270,7 +287,9 @@ class Rig:
             return self.faults.sensors(plant, feedback, imu, tes)
         return feedback, imu, tes, set()
 
-    def _send_sensors(self, k: int, feedback, imu, silent: set[str]) -> None:
+    def _send_sensors(
+        self, k: int, feedback: Sequence[DriveFeedback], imu: ImuSample, silent: set[str]
+    ) -> None:
         plant, send = self.plant, self.can.send
         for name, fb, motor in zip(DRIVE_FEEDBACK, feedback, plant.drives.motors, strict=True):
             if silent and name in silent:
@@ -316,7 +335,7 @@ class Rig:
         self._seq[key] += 1
         return self._seq[key]
 
-    def _publish_tes(self, k: int, s) -> None:
+    def _publish_tes(self, k: int, s: TesSample) -> None:
         """Publish the seat sample of tick k (as seat faults alter it)."""
         key = self.keys.tes_wrench
         payload = TesWrench(
@@ -355,7 +374,8 @@ class Rig:
         while self._operator_next < len(self.operator) and self.operator[self._operator_next].tick <= k:
             action = self.operator[self._operator_next].action
             self._operator_next += 1
-            if action in ("estop", "reset"):
+            command: EstopCommand | ControllerCommand
+            if action == "estop" or action == "reset":
                 key = self.keys.safety_estop
                 command = EstopCommand(seq=self._next_seq(key), stamp=t, action=action, source="operator")
             else:
@@ -418,7 +438,7 @@ class Rig:
             # What a seat, a handle or an operator's screen tells the rider.
             self.plant.alert(int(rx.signals["Alert"]))
 
-    def _recover(self, signals) -> None:
+    def _recover(self, signals: Mapping[str, float | int]) -> None:
         """The recovery law's torques, applied like a command (fresh ones only: no older than the drives'
         own watchdog, in ticks)."""
         tag = int(signals["Tick"])
@@ -432,7 +452,7 @@ class Rig:
         for drive, name in zip(self.plant.drives.motors, ("Torque1", "Torque2", "Torque3"), strict=True):
             drive.set_command(signals[name], True, now)
 
-    def _recover_drive(self, index: int, signals) -> None:
+    def _recover_drive(self, index: int, signals: Mapping[str, float | int]) -> None:
         """One drive's recovery command, as a device profile carries it (the controller is silent under
         the takeover: every command frame is the supervisor's)."""
         self._recovery_tick = int(signals["Tick"])
@@ -518,7 +538,7 @@ class Rig:
         elif lockstep and self._answered:
             self._silent = True
 
-    def _command(self, drive, torque: float, enable: bool) -> None:
+    def _command(self, drive: MotorDrive, torque: float, enable: bool) -> None:
         if self.takeover:
             self.stats.overridden_commands += 1  # one master at a time: the recovery law holds the drives
             return

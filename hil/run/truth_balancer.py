@@ -30,7 +30,7 @@ def linearise_plane(params: PlaneParams, eps: float = 1e-6) -> tuple[np.ndarray,
         raise ValueError("linearise the rigid-rider (two-body) plane")
     dyn = PlaneDynamics(replace(params, drivetrain_coulomb=0.0, drivetrain_stiction=0.0))
 
-    def acc(th, dphi, dth, tau):
+    def acc(th: float, dphi: float, dth: float, tau: float) -> np.ndarray:
         ddphi, ddth, _ = dyn.accelerations(th, th, dphi, dth, dth, tau, 0.0, None)
         return np.array([ddth, ddphi])
 
@@ -48,7 +48,13 @@ def linearise_plane(params: PlaneParams, eps: float = 1e-6) -> tuple[np.ndarray,
 class TruthBalancer:
     """LQR on the true state; outputs motor torque commands through the inverse omniwheel torque map."""
 
-    def __init__(self, plant: Plant, q=DEFAULT_Q, r=DEFAULT_R, yaw_gains=(20.0, 0.0)):
+    def __init__(
+        self,
+        plant: Plant,
+        q: tuple[float, float, float] = DEFAULT_Q,
+        r: float = DEFAULT_R,
+        yaw_gains: tuple[float, float] = (20.0, 0.0),
+    ) -> None:
         self.plant = plant
         self.gains = []
         for name in ("pitch", "roll"):
