@@ -84,7 +84,9 @@ class RigNetwork(canopen.Network):
             can.Message(arbitration_id=can_id, data=bytes(data), is_extended_id=False, is_remote_frame=remote)
         )
 
-    def send_periodic(self, can_id, data, period, remote=False):
+    def send_periodic(  # type: ignore[override]  # a task of the tick, not python-can's thread
+        self, can_id: int, data: bytes, period: float, remote: bool = False
+    ) -> _TickTask:
         task = _TickTask(can_id, data, period, self.tick_s)
         self.tasks = [t for t in self.tasks if not t.stopped] + [task]
         return task
@@ -126,11 +128,13 @@ class Drive:
         (the EDS's mapping): packing a tick's TPDOs through its PdoVariable setters costs about twice as
         much."""
 
-    def _codec(self, pdo) -> tuple[int, int, struct.Struct, list[Callable[[], int]]]:
+    def _codec(self, pdo: canopen.pdo.PdoMap) -> tuple[int, int, struct.Struct, list[Callable[[], int]]]:
         getters = self._getters
         fmt = "<"
+        if pdo.cob_id is None:  # python-canopen's type allows it; an enabled map of the EDS has one
+            raise ValueError(f"{pdo.name}: no COB-ID")
         for var in pdo:
-            if var.offset % 8 or var.length % 8 or var.index not in getters:
+            if var.offset is None or var.offset % 8 or var.length % 8 or var.index not in getters:
                 raise ValueError(f"{pdo.name}: 0x{var.index:04X} not a byte-aligned object it sends")
             fmt += var.od.STRUCT_TYPES[var.od.data_type].format.lstrip("<")
         return pdo.cob_id - self.node_id, pdo.cob_id, struct.Struct(fmt), [getters[var.index] for var in pdo]
@@ -159,7 +163,7 @@ class Drive:
             word |= VOLTAGE_ENABLED
         return word
 
-    def _read(self, index: int, subindex: int, od) -> int | None:
+    def _read(self, index: int, subindex: int, od: canopen.objectdictionary.Variable) -> int | None:
         getter = self._getters.get(index)
         return None if getter is None else getter()
 
@@ -178,7 +182,7 @@ class Drive:
             0x6077: lambda: self.torque_actual,
         }
 
-    def _write(self, index: int, subindex: int, od, data: bytes) -> None:
+    def _write(self, index: int, subindex: int, od: canopen.objectdictionary.Variable, data: bytes) -> None:
         value = od.decode_raw(data)
         if index == 0x6040:
             self.apply_controlword(int(value))
@@ -229,7 +233,7 @@ class Drive:
     def makes_torque(self) -> bool:
         return self.state is State.OPERATION_ENABLED and self.mode == CST
 
-    def _on_rpdo(self, pdo) -> None:
+    def _on_rpdo(self, pdo: canopen.pdo.PdoMap) -> None:
         values = {var.index: var.raw for var in pdo}
         if 0x6060 in values:
             self.mode = int(values[0x6060])
