@@ -8,13 +8,13 @@ robot and rider files describe the world. The rig never imports a controller.
 
 from __future__ import annotations
 
-from importlib.metadata import entry_points
 from typing import Literal, Protocol
 
 import msgspec
 
 from drivers.can_bus import BusConfig
 from drivers.devices import Devices
+from drivers.plugs import find_plug
 from drivers.zenoh_link import ZenohAccess
 
 GROUP = "pure_hil.controllers"
@@ -46,13 +46,6 @@ class DutHandle(Protocol):
     # Optional: pause() / resume() (a hang fault), poll() (driven, see DutSpec.driven).
 
 
-class DutNotFound(LookupError):
-    pass
-
-
 def start_dut(name: str, spec: DutSpec) -> DutHandle:
-    found = {ep.name: ep for ep in entry_points(group=GROUP)}
-    if name not in found:
-        raise DutNotFound(f"no controller {name!r} in entry points {GROUP!r} (have: {sorted(found)})")
-    handle: DutHandle = found[name].load()(spec)  # an entry point: whatever it loads is untyped
+    handle: DutHandle = find_plug(GROUP, name, "controller")(spec)
     return handle

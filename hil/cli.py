@@ -557,6 +557,41 @@ def _supervisor(args: argparse.Namespace) -> int:
     return 0
 
 
+def _part(args: argparse.Namespace) -> int:
+    """A bench part's plug in this process, on a thread of its own, until SIGINT or SIGTERM (the rig
+    spawns its parts so: drivers/plugs.py)."""
+    from drivers.dut import GROUP, DutSpec
+    from drivers.plugs import SUPERVISORS, PlugNotFound, SupervisorSpec, find_plug
+
+    spec_type: type[DutSpec] | type[SupervisorSpec] = DutSpec if args.kind == "controller" else SupervisorSpec
+    group = GROUP if args.kind == "controller" else SUPERVISORS
+    try:
+        spec: DutSpec | SupervisorSpec = msgspec.json.decode(Path(args.spec).read_bytes(), type=spec_type)
+        start = find_plug(group, args.plugin, args.kind)
+    except OSError as exc:
+        print(f"pure-hil part: {args.spec}: cannot read: {exc.strerror or exc}", file=sys.stderr)
+        return 2
+    except msgspec.MsgspecError as exc:
+        print(f"pure-hil part: {args.spec}: {exc}", file=sys.stderr)
+        return 2
+    except PlugNotFound as exc:
+        print(f"pure-hil part: {exc}", file=sys.stderr)
+        return 2
+    if spec.driven:
+        print(
+            f"pure-hil part: {args.spec}: driven = true is for a part in the rig's own process",
+            file=sys.stderr,
+        )
+        return 2
+    handle = start(spec)
+    try:
+        bus = f"{spec.can.interface}:{spec.can.channel}"
+        _until_interrupted(f"pure-hil part: {args.kind} {args.plugin} on {bus}; Ctrl-C to stop")
+    finally:
+        handle.stop()
+    return 0
+
+
 def controller_command(bench, rider: str, robot: str, law: str, lockstep: bool) -> list[str]:
     """`pure-controller` on this bench: its bus, its zenoh (with the controller's certificate on a router)."""
     script = Path(sys.executable).with_name("pure-controller")
@@ -925,6 +960,18 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ctl.add_argument("--lockstep", action="store_true", help="beside a lockstep rig")
     ctl.set_defaults(func=_controller)
+
+    prt = sub.add_parser(
+        "part",
+        help="a bench part's plug in a process of its own, from the spec the rig wrote (the rig's spawned "
+        "parts run so)",
+    )
+    prt.add_argument("kind", choices=("controller", "supervisor"), help="which part")
+    prt.add_argument("plugin", help="its entry point in pure_hil.controllers or pure_hil.supervisors")
+    prt.add_argument(
+        "spec", help="the part's spec as JSON (drivers/dut.py DutSpec, drivers/plugs.py SupervisorSpec)"
+    )
+    prt.set_defaults(func=_part)
 
     est = sub.add_parser("estop", help="operator e-stop (or --reset) to the supervisor over zenoh")
     what = est.add_mutually_exclusive_group()

@@ -33,10 +33,11 @@ class _Part(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=Tru
 
 class ControllerPart(_Part, frozen=True):
     where: Where = "embedded"
-    """embedded: a plugin on a thread of the rig's process; spawned: the rig starts `command` (default
-    pure-controller) and stops it after the run; external: the rig waits for one started by someone else."""
+    """embedded: a plug in the rig's process (driven by its tick in lockstep); spawned: the rig starts the
+    same plug in a process of its own (`pure-hil part controller PLUGIN SPEC.json`), or `command`, and stops
+    it after the run; external: the rig waits for one started by someone else."""
     plugin: str = "reference"
-    """embedded: the entry point in `pure_hil.controllers`."""
+    """The entry point in `pure_hil.controllers` (embedded and spawned)."""
     law: Literal["scenario", "hacs", "ihacs"] = "scenario"
     """The reference controller's control law: the scenario's, or this one for every run."""
     config: str = "controller/default.toml"
@@ -44,16 +45,17 @@ class ControllerPart(_Part, frozen=True):
     """The robot file the controller builds its model from (None: the plant's; another file tests model
     mismatch)."""
     command: list[str] = []
-    """spawned: the command line (empty: pure-controller with this bench's bus, zenoh and the scenario's
-    rider, robot and law)."""
+    """spawned: a program of the lab's own to start instead of the plug (empty: the plug)."""
     boot_timeout: Positive | None = None
     """s the rig waits for the controller's boot-up (None: 10 embedded, 30 spawned, 120 external)."""
 
 
 class SupervisorPart(_Part, frozen=True):
     where: Where = "embedded"
-    """embedded: in the rig's tick; spawned: the rig starts `pure-hil supervisor` on this bench; external:
-    one runs elsewhere on the bus."""
+    """embedded: in the rig's tick; spawned: the rig starts the same plug in a process of its own
+    (`pure-hil part supervisor PLUGIN SPEC.json`); external: one runs elsewhere on the bus."""
+    plugin: str = "reference"
+    """The entry point in `pure_hil.supervisors` (drivers/plugs.py)."""
     config: str = "safety/default.toml"
     """Its rules; a scenario's `[safety]` table overrides them for that scenario's runs."""
 

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from drivers.can_bus import open_bus
 from drivers.dut import GROUP
+from drivers.plugs import SUPERVISORS
 from hil.bench.bench import Bench
 
 
@@ -31,18 +32,24 @@ def check(bench: Bench) -> None:
     if not bench.can.in_process:
         open_bus(bench.can).shutdown()  # BusUnavailable says which bus, why, and what to do
     controller = bench.controller
-    if controller.where == "embedded" and controller.plugin not in {
-        e.name for e in entry_points(group=GROUP)
-    }:
-        known = ", ".join(sorted(e.name for e in entry_points(group=GROUP)))
-        raise BenchUnavailable(
-            f"bench {bench.name}: controller.plugin {controller.plugin!r} is not installed "
-            f"(entry points {GROUP}: {known})"
-        )
+    if controller.where != "external" and not controller.command:
+        _check_plug(bench, "controller", GROUP, controller.plugin)
+    if bench.supervisor.where != "external":
+        _check_plug(bench, "supervisor", SUPERVISORS, bench.supervisor.plugin)
     if controller.where == "spawned" and controller.command and shutil.which(controller.command[0]) is None:
         raise BenchUnavailable(f"bench {bench.name}: controller.command {controller.command[0]!r} not found")
     if bench.zenoh.mode == "router":
         _check_router(bench)
+
+
+def _check_plug(bench: Bench, part: str, group: str, plugin: str) -> None:
+    """The part's plug is installed (drivers/plugs.py), embedded or spawned alike."""
+    known = sorted(e.name for e in entry_points(group=group))
+    if plugin not in known:
+        raise BenchUnavailable(
+            f"bench {bench.name}: {part}.plugin {plugin!r} is not installed (entry points {group}: "
+            f"{', '.join(known)})"
+        )
 
 
 def _check_router(bench: Bench) -> None:

@@ -4,7 +4,6 @@ failure included), then the start-up handshake before the first SYNC (docs/contr
 
 from __future__ import annotations
 
-import json
 import math
 import shutil
 import signal
@@ -19,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
+import can
 import msgspec
 import zenoh
 
@@ -26,11 +26,10 @@ from drivers.can_bus import BusConfig, BusRecorder, open_bus, private_channel
 from drivers.can_codec import MessageName
 from drivers.config import load_toml
 from drivers.contract import CONTRACT_VERSION, mismatch
-from drivers.devices import host_node
 from drivers.dut import DutHandle, DutSpec, start_dut
 from drivers.keys import Keys
+from drivers.plugs import SUPERVISORS, SupervisorSpec, find_plug
 from drivers.resources import find
-from drivers.schemas import SafetyState
 from drivers.zenoh_link import ZenohAccess, ZenohLink, lend
 from hil.bench.bench import Bench, RealtimePart
 from hil.bench.rigs import announce
@@ -43,7 +42,7 @@ from hil.run.scenario import Scenario
 from hil.run.trace import ControllerUnavailable
 from plant.ballbot import Plant, RiderIntent
 from plant.params import RiderParams, RobotParams, SimParams
-from safety.config import RobotGeometry, SupervisorConfig
+from safety.config import SupervisorConfig
 from safety.node import SupervisorNode
 
 
@@ -130,31 +129,79 @@ def supervisor_config(bench: Bench, scenario: Scenario) -> SupervisorConfig:
 def build(
     bench: Bench, scenario: Scenario, seed: int, options: RunOptions, out: Path | None, stack: ExitStack
 ) -> Built:
-    """out: the run folder, where the CAN log and the zenoh inputs stream during the run (None: none)."""
-    mcap = None
-    if out is not None and bench.outputs.mcap:  # first: a run that fails to build still leaves its file
-        meta = {"scenario": scenario.name, "seed": str(seed), "bench": bench.name}
-        mcap = stack.enter_context(
-            McapLog(out / "run.mcap", scenario.tick_hz, Keys(bench.zenoh.prefix), meta)
-        )
-    robot_path, rider_path = find(scenario.robot, "robot"), find(scenario.rider, "riders")
-    sim = msgspec.structs.replace(
-        load_toml(find(bench.sim, "sim"), SimParams), tick_hz=scenario.tick_hz, seed=seed
-    )
-    intent = RiderIntent(list(scenario.intent.pitch), list(scenario.intent.roll), list(scenario.intent.twist))
-    pitch_deg, roll_deg = scenario.initial_tilt_deg
-    tilt = (math.radians(pitch_deg), math.radians(roll_deg))
-    plant = Plant(load_toml(robot_path, RobotParams), load_toml(rider_path, RiderParams), sim, intent, tilt)
-    plant.heeds_alert = scenario.intent.heeds_alert
-    if mcap is not None:
-        mcap.clock = lambda: plant.t
-    law, clock = law_of(bench, scenario), clock_of(bench, scenario)
+    """The run's parts in order: the bus and zenoh, the plant, the parts where the bench puts them, then
+    the rig once. out: the run folder, where the CAN log and the zenoh inputs stream (None: none)."""
+    mcap = _mcap(bench, scenario, seed, out, stack)  # first: a run that fails to build still leaves its file
+    clock = clock_of(bench, scenario)
     lockstep = clock == "lockstep"
-    safety = supervisor_config(bench, scenario)
     faults = options.fault_set if options.fault_set is not None else FaultSet(scenario.faults, seed)
     if faults and bench.rider_on_board:
         raise FaultError(f"bench {bench.name} says a person is on the robot (rider_on_board): no faults")
+    wire = _connect(bench, scenario, options, lockstep, stack)
+    plant = _plant(bench, scenario, seed)
+    if mcap is not None:
+        mcap.clock = lambda: plant.t
+    recorder = _recorder(bench, wire.bus_config, out, mcap, stack)  # before the parts: their boot-up too
+    parts = _start_parts(bench, scenario, plant, wire, lockstep, stack)
+    rig = Rig(
+        plant,
+        rig_node(wire.bus, bench.devices, plant.robot.encoder.counts_per_rev, plant.sim.tick_hz),
+        wire.link,
+        tuple(ScStep(scenario.tick_of(e.at), e.mode, e.cap) for e in scenario.sc),
+        supervisor=parts.supervisor,
+        operator=tuple(OperatorStep(scenario.tick_of(e.at), e.action) for e in scenario.operator),
+        faults=faults,
+        bitrate=wire.bus_config.bitrate,
+        agent_link=wire.agent_link,
+        recovery_in_commands=not bench.devices.pure,
+        dut=parts.dut,
+        driven=lockstep,
+        recorder=recorder,
+        inputs=_inputs(out, mcap, stack),
+    )
+    faults.attach(rig)
+    trace = None if out is None else out / "trace.npy"
+    law = law_of(bench, scenario)
+    return Built(
+        rig, plant, wire.bus_config, law, clock, scenario.duration, parts.dut, trace, bench.realtime, mcap
+    )
 
+
+@dataclass(frozen=True, slots=True)
+class Wiring:
+    """How the run's parts meet: the bus and zenoh, as the rig opened them."""
+
+    bus_config: BusConfig
+    """The bench's bus, with the run's private channel on an in-process one."""
+    bus: can.BusABC
+    access: ZenohAccess
+    """The bench's zenoh with the hub's endpoint as opened."""
+    link: ZenohLink
+    agent_link: AgentLinks | None
+    puts: Counter[str]
+    """Every put of this process, whatever its session: the lockstep fence counts them."""
+
+
+@dataclass(frozen=True, slots=True)
+class Parts:
+    supervisor: SupervisorNode | None
+    """The supervisor the rig updates in its tick (None: in another process)."""
+    dut: DutHandle | None
+    """The embedded controller's handle (process faults stop or pause it); None: in another process."""
+
+
+def _mcap(bench: Bench, scenario: Scenario, seed: int, out: Path | None, stack: ExitStack) -> McapLog | None:
+    if out is None or not bench.outputs.mcap:
+        return None
+    meta = {"scenario": scenario.name, "seed": str(seed), "bench": bench.name}
+    return stack.enter_context(McapLog(out / "run.mcap", scenario.tick_hz, Keys(bench.zenoh.prefix), meta))
+
+
+def _connect(
+    bench: Bench, scenario: Scenario, options: RunOptions, lockstep: bool, stack: ExitStack
+) -> Wiring:
+    """The bus (a private channel on an in-process one) and the rig's zenoh: the caller's session or the
+    bench's, announced to the machine's clients and lent to the parts of this process on loopback."""
     bus_config = (
         bench.can if bench.can.channel else msgspec.structs.replace(bench.can, channel=private_channel())
     )
@@ -162,108 +209,126 @@ def build(
     stack.callback(bus.shutdown)
     keys = Keys(bench.zenoh.prefix)
     if options.session is not None:
-        session, zenoh_access = options.session, bench.zenoh
+        session, access = options.session, bench.zenoh
     else:
-        session, zenoh_access = bench.zenoh.open_rig(fallback=bench.self_contained)
+        session, access = bench.zenoh.open_rig(fallback=bench.self_contained)
         stack.callback(session.close)
-        if zenoh_access.mode == "loopback":  # operators' clients find it (hil/bench/rigs.py)
-            where = zenoh_access.hub_endpoint()
+        if access.mode == "loopback":  # operators' clients find it (hil/bench/rigs.py)
+            where = access.hub_endpoint()
             stack.enter_context(announce(session, keys.prefix, bench.name, where, f"run {scenario.name}"))
-    if zenoh_access.mode == "loopback":
-        stack.enter_context(lend(session, zenoh_access.endpoint))  # the embedded controller joins it
-    puts: Counter[str] = Counter()  # every put of this process, whatever its session: the fence counts them
+    if access.mode == "loopback":
+        stack.enter_context(lend(session, access.endpoint))  # the embedded controller joins it
+    puts: Counter[str] = Counter()
     link = ZenohLink(session, keys, lossless=lockstep, puts=puts)
     stack.callback(link.close)
-    agent_link = _agent_link(zenoh_access, keys, lockstep, puts, stack)
-    recorder = None
-    if out is not None and (bench.outputs.can_log or mcap is not None):
-        can_log = out / "can.log" if bench.outputs.can_log else None
-        recorder = BusRecorder(bus_config, can_log, [mcap] if mcap is not None else [])
-        stack.callback(recorder.stop)
+    agent_link = _agent_link(access, keys, lockstep, puts, stack)
+    return Wiring(bus_config, bus, access, link, agent_link, puts)
 
-    supervisor = None
-    if bench.supervisor.where == "embedded":
-        supervisor_bus = open_bus(bus_config)
-        stack.callback(supervisor_bus.shutdown)
-        supervisor_link = link
-        if zenoh_access.mode == "router":  # its own certificate: the rig may not put the supervisor's keys
-            supervisor_session = zenoh_access.open("supervisor")
-            stack.callback(supervisor_session.close)
-            supervisor_link = ZenohLink(supervisor_session, keys, lossless=lockstep, puts=puts)
-            stack.callback(supervisor_link.close)
-        geometry = load_toml(robot_path, RobotGeometry)
-        supervisor = SupervisorNode(
-            host_node(supervisor_bus, bench.devices, geometry.encoder.counts_per_rev, "supervisor"),
-            supervisor_link,
-            safety,
-            geometry,
-            tick_hz=sim.tick_hz,
-        )
-    rig = Rig(
-        plant,
-        rig_node(bus, bench.devices, plant.robot.encoder.counts_per_rev, sim.tick_hz),
-        link,
-        tuple(ScStep(scenario.tick_of(e.at), e.mode, e.cap) for e in scenario.sc),
-        supervisor=supervisor,
-        operator=tuple(OperatorStep(scenario.tick_of(e.at), e.action) for e in scenario.operator),
-        faults=faults,
-        bitrate=bus_config.bitrate,
-        agent_link=agent_link,
-        recovery_in_commands=not bench.devices.pure,
+
+def _plant(bench: Bench, scenario: Scenario, seed: int) -> Plant:
+    sim = msgspec.structs.replace(
+        load_toml(find(bench.sim, "sim"), SimParams), tick_hz=scenario.tick_hz, seed=seed
     )
-    if supervisor is None:  # a supervisor in another process: its transitions as it announces them
-        rig.safety_states = link.subscribe(keys.safety_state, SafetyState, capacity=1 << 14)
+    intent = RiderIntent(list(scenario.intent.pitch), list(scenario.intent.roll), list(scenario.intent.twist))
+    pitch_deg, roll_deg = scenario.initial_tilt_deg
+    tilt = (math.radians(pitch_deg), math.radians(roll_deg))
+    robot = load_toml(find(scenario.robot, "robot"), RobotParams)
+    plant = Plant(robot, load_toml(find(scenario.rider, "riders"), RiderParams), sim, intent, tilt)
+    plant.heeds_alert = scenario.intent.heeds_alert
+    return plant
 
+
+def _start_parts(
+    bench: Bench, scenario: Scenario, plant: Plant, wire: Wiring, lockstep: bool, stack: ExitStack
+) -> Parts:
+    """The supervisor and the controller as the bench places them (drivers/plugs.py): a plug in this
+    process (embedded), the same plug in a child process from its spec (spawned), or nobody (external)."""
     work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="pure-hil-run-")))
-    effective = msgspec.structs.replace(bench, can=bus_config, zenoh=zenoh_access)
-    if bench.supervisor.where == "spawned":
-        command = [*_pure_hil(), "supervisor", "--bench", str(write_bench(effective, work / "bench.json"))]
-        command += ["--robot", str(robot_path), "--tick-hz", f"{sim.tick_hz:g}"]
-        command += ["--clock", clock, "--safety", json.dumps(scenario.safety)]
-        _spawn(command, "supervisor", stack)
+    robot = str(find(scenario.robot, "robot"))
+    supervisor = None
+    part = bench.supervisor
+    if part.where != "external":
+        rules = msgspec.to_builtins(supervisor_config(bench, scenario))
+        spec = SupervisorSpec(
+            can=wire.bus_config,
+            zenoh=wire.access,
+            devices=bench.devices,
+            robot=robot,
+            rules=rules,
+            tick_hz=plant.sim.tick_hz,
+            lockstep=lockstep,
+            driven=part.where == "embedded",
+        )
+        if part.where == "embedded":
+            handle = find_plug(SUPERVISORS, part.plugin, "supervisor")(
+                spec, link=_supervisor_link(wire, lockstep, stack)
+            )
+            stack.callback(handle.stop)
+            supervisor = handle.node
+        else:
+            _spawn_part("supervisor", part.plugin, msgspec.json.encode(spec), work, stack)
     dut = None
     controller = bench.controller
-    if controller.where == "embedded":
-        dut = start_dut(
-            controller.plugin,
-            DutSpec(
-                can=bus_config,
-                zenoh=zenoh_access,
-                mode=reference_law(bench, scenario),
-                robot=str(find(controller.robot or robot_path, "robot")),
-                rider=str(rider_path),
-                devices=bench.devices,
-                controller_config=str(find(controller.config, "controller")),
-                lockstep=lockstep,
-                tick_hz=sim.tick_hz,
-                driven=lockstep,
-            ),
+    if controller.where != "external":
+        dut_spec = DutSpec(
+            can=wire.bus_config,
+            zenoh=wire.access,
+            mode=reference_law(bench, scenario),
+            robot=str(find(controller.robot or robot, "robot")),
+            rider=str(find(scenario.rider, "riders")),
+            devices=bench.devices,
+            controller_config=str(find(controller.config, "controller")),
+            lockstep=lockstep,
+            tick_hz=plant.sim.tick_hz,
+            driven=lockstep and controller.where == "embedded",
         )
-        stack.callback(dut.stop)
-    elif controller.where == "spawned":
-        command = list(controller.command) or [
-            *_pure_hil(),
-            "controller",
-            "--bench",
-            str(write_bench(effective, work / "bench.json")),
-            "--rider",
-            str(rider_path),
-            "--robot",
-            str(find(controller.robot or robot_path, "robot")),
-            "--law",
-            law,
-            *(["--lockstep"] if lockstep else []),
-        ]
-        _spawn(command, "controller", stack)
-    if out is not None:
-        rig.inputs = InputsLog(out / "zenoh_inputs.msgpack", mcap.zenoh if mcap is not None else None)
-        stack.callback(rig.inputs.close)
-    rig.dut = dut
-    rig.recorder = recorder
-    rig.poll_dut = getattr(dut, "poll", None) if lockstep else None
-    faults.attach(rig)
-    trace = None if out is None else out / "trace.npy"
-    return Built(rig, plant, bus_config, law, clock, scenario.duration, dut, trace, bench.realtime, mcap)
+        if controller.where == "embedded":
+            dut = start_dut(controller.plugin, dut_spec)
+            stack.callback(dut.stop)
+        elif controller.command:  # a program of the lab's own, started as the bench file says
+            _spawn(list(controller.command), "controller", stack)
+        else:
+            _spawn_part("controller", controller.plugin, msgspec.json.encode(dut_spec), work, stack)
+    return Parts(supervisor, dut)
+
+
+def _supervisor_link(wire: Wiring, lockstep: bool, stack: ExitStack) -> ZenohLink:
+    """The embedded supervisor's zenoh: the rig's link on loopback; on the secured bench a session under
+    its own certificate (the rig may not put the supervisor's keys), its puts counted with the rig's."""
+    if wire.access.mode != "router":
+        return wire.link
+    session = wire.access.open("supervisor")
+    stack.callback(session.close)
+    link = ZenohLink(session, wire.link.keys, lossless=lockstep, puts=wire.puts)
+    stack.callback(link.close)
+    return link
+
+
+def _spawn_part(kind: str, plugin: str, spec: bytes, work: Path, stack: ExitStack) -> None:
+    """`pure-hil part KIND PLUGIN SPEC.json`: the plug in a child process, stopped with the run."""
+    path = work / f"{kind}.json"
+    path.write_bytes(spec)
+    _spawn([*_pure_hil(), "part", kind, plugin, str(path)], kind, stack)
+
+
+def _recorder(
+    bench: Bench, bus_config: BusConfig, out: Path | None, mcap: McapLog | None, stack: ExitStack
+) -> BusRecorder | None:
+    if out is None or not (bench.outputs.can_log or mcap is not None):
+        return None
+    recorder = BusRecorder(
+        bus_config, out / "can.log" if bench.outputs.can_log else None, [mcap] if mcap else []
+    )
+    stack.callback(recorder.stop)
+    return recorder
+
+
+def _inputs(out: Path | None, mcap: McapLog | None, stack: ExitStack) -> InputsLog:
+    if out is None:
+        return InputsLog()
+    inputs = InputsLog(out / "zenoh_inputs.msgpack", mcap.zenoh if mcap is not None else None)
+    stack.callback(inputs.close)
+    return inputs
 
 
 def _agent_link(
@@ -280,13 +345,6 @@ def _agent_link(
         links[role] = ZenohLink(session, keys, lossless=lockstep, puts=puts)
         stack.callback(links[role].close)
     return AgentLinks(links["sc-agent"], links["operator"])
-
-
-def write_bench(bench: Bench, path: Path) -> Path:
-    """The bench as the rig runs it (its overrides applied), for the processes it spawns."""
-    if not path.exists():
-        path.write_bytes(msgspec.json.encode(bench))
-    return path
 
 
 def _pure_hil() -> list[str]:

@@ -131,11 +131,18 @@ class Rig:
         bitrate: int = 1_000_000,
         agent_link: AgentLinks | None = None,
         recovery_in_commands: bool = False,
+        dut: DutHandle | None = None,
+        driven: bool = False,
+        recorder: BusRecorder | None = None,
+        inputs: InputsLog | None = None,
     ) -> None:
         """agent_link: where the scenario's SC requests and operator actions go out (`sc_agent`, `operator`
         links under those roles' certificates on a secured bench); None: the rig's own link.
         recovery_in_commands: the supervisor's takeover reaches the drives in their own command frames (a
-        device profile: docs/devices.md) rather than in SUPERVISOR_RECOVERY."""
+        device profile: docs/devices.md) rather than in SUPERVISOR_RECOVERY.
+        dut, driven: the in-process controller's handle, and whether the rig drives it from its tick
+        (lockstep: its `poll()` right after SYNC). recorder: the CAN log. inputs: where the controller's
+        zenoh inputs stream (None: kept in memory)."""
         self.plant, self.can, self.link = plant, can, link
         self.sc_link = link if agent_link is None else agent_link.sc_agent
         self.operator_link = link if agent_link is None else agent_link.operator
@@ -145,13 +152,13 @@ class Rig:
         self.command_guard = command_guard
         self.supervisor = supervisor
         """In-process supervisor, updated every tick; None: a supervisor elsewhere on the bus."""
-        self.dut: DutHandle | None = None
+        self.dut = dut
         """The in-process controller's handle (process faults stop or pause it); None: external."""
         self.controller_contract: int | None = None
         """CONTROLLER_HEARTBEAT.Contract of the controller's boot-up (docs/contract.md, Versions)."""
-        self.recorder: BusRecorder | None = None
+        self.recorder = recorder
         """The CAN log, written at the end of every tick (polled: no thread woken for every frame)."""
-        self.poll_dut: Callable[[], None] | None = None
+        self.poll_dut: Callable[[], None] | None = getattr(dut, "poll", None) if driven else None
         """A driven in-process controller (drivers/dut.py, DutSpec.driven): called right after SYNC, it
         answers from this thread."""
         self.faults = faults if faults is not None else FaultSet()
@@ -192,14 +199,18 @@ class Rig:
         """Tick tag of the last SUPERVISOR_RECOVERY the drives followed."""
         self.safety_state = -1
         """SUPERVISOR_ESTOP.State of the last trusted frame (-1: none yet)."""
-        self.safety_states: Subscription[SafetyState] | None = None
-        """With an external supervisor: its pure/safety/state announcements (a Subscription)."""
+        self.safety_states: Subscription[SafetyState] | None = (
+            None
+            if supervisor is not None
+            else link.subscribe(keys.safety_state, SafetyState, capacity=1 << 14)
+        )
+        """With a supervisor in another process: its transitions as it announces them."""
         self._permitted = False
         plant.drives.set_permission(False)  # both paths open until the supervisor's first frame
         plant.drives.set_contactor(False)
-        self.inputs = InputsLog()
+        self.inputs = inputs if inputs is not None else InputsLog()
         """Every (tick, key, payload) the controller was sent on zenoh, in the order it could see them
-        (what `pure-hil replay` replays); build() streams it to the run folder."""
+        (what `pure-hil replay` replays)."""
         if supervisor is not None:
             # What it puts at the end of tick k reaches the controller for tick k + 1.
             supervisor.on_put = lambda key, data: self._record(self.plant.tick + 1, key, data)

@@ -9,7 +9,7 @@ import numpy as np
 
 from drivers.can_bus import BusConfigError
 from drivers.config import ConfigError
-from drivers.dut import DutNotFound
+from drivers.plugs import PlugNotFound
 from drivers.zenoh_link import ZenohConfigError
 from hil.faults import FaultError, FaultEvent, FaultSpec
 from hil.run.clock import TimingStats
@@ -21,7 +21,7 @@ class ControllerUnavailable(RuntimeError):
     """The controller under test (or the supervisor) never showed up."""
 
 
-CONFIG_ERRORS = (FaultError, DutNotFound, BusConfigError, ConfigError, ZenohConfigError)
+CONFIG_ERRORS = (FaultError, PlugNotFound, BusConfigError, ConfigError, ZenohConfigError)
 """What the user fixes in a file or an option (a command exits 2 for them)."""
 
 

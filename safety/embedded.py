@@ -1,0 +1,59 @@
+"""The reference supervisor as a plug (`pure_hil.supervisors`: reference), started from a SupervisorSpec:
+in the rig's process, driven by the rig's tick (`spec.driven`), or on a thread of its own, in the process
+`pure-hil part supervisor reference SPEC.json` runs."""
+
+from __future__ import annotations
+
+import msgspec
+
+from drivers.can_bus import open_bus
+from drivers.config import load_toml
+from drivers.devices import host_node
+from drivers.keys import Keys
+from drivers.plugs import SupervisorSpec
+from drivers.zenoh_link import ZenohLink
+from safety.config import RobotGeometry, SupervisorConfig
+from safety.node import SupervisorNode, SupervisorThread
+
+
+class EmbeddedSupervisor:
+    """A SupervisorNode with its bus and zenoh; `node` is what the rig updates when it drives it."""
+
+    def __init__(self, spec: SupervisorSpec, link: ZenohLink | None = None):
+        """link: the rig's, for a driven supervisor (its puts are counted in the lockstep fence); None: a
+        session and link of its own, as the bench's supervisor role."""
+        self.bus = open_bus(spec.can)
+        self.session = None
+        try:
+            if link is None:
+                self.session = spec.zenoh.open("supervisor")
+                link = ZenohLink(self.session, Keys(spec.zenoh.prefix), lossless=spec.lockstep)
+            self.link = link
+            robot = load_toml(spec.robot, RobotGeometry)
+            rules = msgspec.convert(spec.rules, SupervisorConfig)
+            can = host_node(self.bus, spec.devices, robot.encoder.counts_per_rev, "supervisor")
+            self.node = SupervisorNode(can, link, rules, robot, tick_hz=spec.tick_hz)
+        except BaseException:
+            self._close()
+            raise
+        self.thread = None if spec.driven else SupervisorThread(self.node, sync=spec.lockstep).start()
+        self._stopped = False
+
+    def stop(self) -> None:
+        if self._stopped:
+            return
+        self._stopped = True
+        if self.thread is not None:
+            self.thread.stop()
+        self._close()
+
+    def _close(self) -> None:
+        if self.session is not None:  # its own link and session; a lent link stays its owner's
+            if hasattr(self, "link"):
+                self.link.close()
+            self.session.close()
+        self.bus.shutdown()
+
+
+def start(spec: SupervisorSpec, link: ZenohLink | None = None) -> EmbeddedSupervisor:
+    return EmbeddedSupervisor(spec, link)

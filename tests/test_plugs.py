@@ -1,0 +1,81 @@
+"""Bench parts as plugs (drivers/plugs.py): found by entry point, refused by name when missing, and run from
+a serialised spec by `pure-hil part` (the rig's spawned parts; tests/test_netns.py runs a whole bench of
+spawned parts over multicast)."""
+
+from __future__ import annotations
+
+import msgspec
+import pytest
+
+from drivers.can_bus import BusConfig, private_channel
+from drivers.plugs import SUPERVISORS, PlugNotFound, SupervisorSpec, find_plug
+from hil.bench.parts import BenchUnavailable, check
+from hil.cli import main
+from tests.zenoh_helpers import private_bench
+
+
+def test_an_unknown_plug_is_refused_naming_the_group_and_what_is_there():
+    with pytest.raises(
+        PlugNotFound, match=r"no supervisor 'nope' in entry points 'pure_hil.supervisors' \(have: "
+    ):
+        find_plug(SUPERVISORS, "nope", "supervisor")
+    assert find_plug(SUPERVISORS, "reference", "supervisor")  # the positive control
+
+
+def test_a_bench_whose_supervisor_plug_is_not_installed_fails_before_the_run(tmp_path):
+    path = tmp_path / "bench.toml"
+    path.write_text('name = "x"\n[supervisor]\nplugin = "nope"\n')
+    from hil.bench.bench import load_bench
+
+    with pytest.raises(BenchUnavailable, match=r"supervisor\.plugin 'nope' is not installed"):
+        check(load_bench(path))
+    check(load_bench("embedded"))
+
+
+def test_part_refuses_a_bad_spec_in_one_line(tmp_path, capsys):
+    spec = tmp_path / "spec.json"
+    spec.write_text('{"can": {"interface": "pure_shared"}}')
+    assert main(["part", "supervisor", "reference", str(spec)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("pure-hil part: ") and "robot" in err and "\n" not in err
+    assert main(["part", "supervisor", "reference", str(tmp_path / "missing.json")]) == 2
+    assert "cannot read" in capsys.readouterr().err
+    driven = SupervisorSpec(can=BusConfig(channel=private_channel()), robot="x", driven=True)
+    spec.write_bytes(msgspec.json.encode(driven))
+    assert main(["part", "supervisor", "reference", str(spec)]) == 2
+    assert "driven = true is for a part in the rig's own process" in capsys.readouterr().err
+
+
+STARTED: list[SupervisorSpec] = []
+
+
+def spy_start(spec, **context):
+    """A supervisor plug that records its spec and starts the reference one."""
+    from safety.embedded import start
+
+    STARTED.append(spec)
+    return start(spec, **context)
+
+
+def test_the_rig_starts_the_supervisor_the_bench_names_through_its_plug(monkeypatch):
+    from importlib.metadata import EntryPoint
+
+    import drivers.plugs
+    from hil.pipeline import load_scenario, run
+
+    spy = EntryPoint(name="spy", value=f"{__name__}:spy_start", group=SUPERVISORS)
+    real = drivers.plugs.entry_points
+    monkeypatch.setattr(
+        drivers.plugs,
+        "entry_points",
+        lambda group: [*real(group=group), *([spy] if group == SUPERVISORS else [])],
+    )
+    bench = private_bench("odrive")
+    bench = msgspec.structs.replace(bench, supervisor=msgspec.structs.replace(bench.supervisor, plugin="spy"))
+    scenario = msgspec.structs.replace(load_scenario("balance"), duration=0.5)
+    STARTED.clear()
+    result = run(scenario, bench)
+    assert result.trace.failure is None and result.trace.stats.ticks == 200
+    [spec] = STARTED
+    assert spec.driven and spec.lockstep and spec.devices.drives == "odrive" and spec.tick_hz == 400.0
+    assert spec.rules["speed"]["absolute_cap"] > 0, "the bench's rules with the scenario's overrides"
