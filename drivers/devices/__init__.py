@@ -83,8 +83,8 @@ class XsensOptions(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     """Output rate of the data group (every tick at 400 Hz); rounded to whole ticks."""
 
     def __post_init__(self) -> None:
-        if not 0 <= self.base_id <= 0x7FF - max(XSENS_XCIDS):
-            raise ValueError(f"base_id: 0..0x{0x7FF - max(XSENS_XCIDS):03X} (11-bit ids)")
+        if not 0 <= self.base_id <= 0x7FF - max(XSENS_XCIDS.values()):
+            raise ValueError(f"base_id: 0..0x{0x7FF - max(XSENS_XCIDS.values()):03X} (11-bit ids)")
         if self.rate_hz <= 0:
             raise ValueError("rate_hz: > 0")
 
