@@ -114,7 +114,9 @@ def test_a_frame_of_the_family_that_does_not_decode_is_counted_not_raised():
     bus = can.Bus(interface="virtual", channel="xsens-malformed", receive_own_messages=False)
     node = ProfileNode(bus, [XsensHost(DEVICES, 8192, "controller")], name="controller")
     try:
-        bad = can.Message(arbitration_id=BASE + XSENS_XCIDS["EulerAngles"], data=b"\x00\x01", is_extended_id=False)
+        bad = can.Message(
+            arbitration_id=BASE + XSENS_XCIDS["EulerAngles"], data=b"\x00\x01", is_extended_id=False
+        )
         assert node.decode(bad) is None
         assert node.stats.malformed["malformed_device_frame"] == 1
     finally:

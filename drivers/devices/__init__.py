@@ -269,7 +269,8 @@ HOSTS: dict[str, str] = {
     "cia402": "drivers.devices.cia402:host",
     "xsens": "drivers.devices.xsens:host",
 }
-"""Host-side translators by device profile (the drives' and the IMU's), imported only when a bench names one."""
+"""Host-side translators by device profile (the drives' and the IMU's), imported only when a bench names one.
+"""
 
 
 def _load(ref: str) -> Callable[..., Translator]:

@@ -38,7 +38,11 @@ if TYPE_CHECKING:
 DBC_NAME = "xsens_mti.dbc"
 TIME_TICKS_PER_S = 10_000
 """SampleTime counts a 10 kHz clock."""
-DATA = {"EulerAngles": MessageName.IMU_ATTITUDE, "RateOfTurn": MessageName.IMU_RATE, "Acceleration": MessageName.IMU_ACCEL}
+DATA = {
+    "EulerAngles": MessageName.IMU_ATTITUDE,
+    "RateOfTurn": MessageName.IMU_RATE,
+    "Acceleration": MessageName.IMU_ACCEL,
+}
 """The Xsens data message that carries each logical IMU message."""
 
 
@@ -99,7 +103,7 @@ class XsensWire:
         """`value` in raw counts of `signal`, saturated at the signal's range (the device clips)."""
         sig = self._messages[XSENS_XCIDS[name]].get_signal_by_name(signal)
         lo, hi = -(1 << (sig.length - 1)), (1 << (sig.length - 1)) - 1
-        return min(hi, max(lo, round(value / sig.scale)))
+        return int(min(hi, max(lo, round(value / sig.scale))))
 
     def scale(self, name: str, signal: str) -> float:
         return float(self._messages[XSENS_XCIDS[name]].get_signal_by_name(signal).scale)
@@ -140,7 +144,7 @@ class Group:
 
 
 class XsensHost:
-    """The host side of an Xsens MTi on CAN for a controller or a supervisor (`drivers.devices.Translator`)."""
+    """The host side of an Xsens MTi on CAN, for a controller or a supervisor (a `Translator`)."""
 
     def __init__(self, devices: Devices, counts_per_rev: int, role: Role):
         self.options, self.role = devices.xsens, role

@@ -22,7 +22,7 @@ from drivers.can_codec import MessageName
 from drivers.devices import Devices, ProfileNode
 from drivers.devices.xsens import TIME_TICKS_PER_S, Status, XsensWire
 
-FIELDS = {
+FIELDS: dict[str, tuple[str, tuple[tuple[str, str], ...]]] = {
     MessageName.IMU_ATTITUDE: ("EulerAngles", (("Roll", "Roll"), ("Pitch", "Pitch"), ("Yaw", "Yaw"))),
     MessageName.IMU_RATE: ("RateOfTurn", (("gyrX", "RateX"), ("gyrY", "RateY"), ("gyrZ", "RateZ"))),
     MessageName.IMU_ACCEL: ("Acceleration", (("accX", "AccX"), ("accY", "AccY"), ("accZ", "AccZ"))),

@@ -110,4 +110,9 @@ class XsensSampleCounterFrozen(DeviceFault, frozen=True, tag="xsens.sample_count
         self.imu(rig).sample_counter_frozen(False)
 
 
-FAULTS: tuple[type[FaultSpec], ...] = (OdriveAxisError, OdriveHeartbeatLoss, OdriveDisarm, XsensSampleCounterFrozen)
+FAULTS: tuple[type[FaultSpec], ...] = (
+    OdriveAxisError,
+    OdriveHeartbeatLoss,
+    OdriveDisarm,
+    XsensSampleCounterFrozen,
+)
