@@ -27,7 +27,8 @@ from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, Catal
 Role = Literal["controller", "supervisor"]
 DRIVE_PROFILES = ("pure", "odrive", "cia402")
 """Drive profiles the host side speaks (docs/devices.md)."""
-IMU_PROFILES = ("pure",)
+IMU_PROFILES = ("pure", "xsens")
+"""IMU profiles the host side speaks (docs/devices.md)."""
 
 
 class OdriveOptions(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -71,6 +72,34 @@ class Cia402Options(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
             raise ValueError("heartbeat_ms: 0..65535 (0: no heartbeat)")
 
 
+class XsensOptions(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """An Xsens MTi 600-series IMU on its CAN output (configs/devices/xsens_mti.dbc)."""
+
+    base_id: int = 0x100
+    """Added to each message's XCID to make its 11-bit frame id (the device's own default is 0: the XCIDs
+    themselves, where StatusWord 0x011 would be the contract's OPERATOR_ESTOP and EulerAngles 0x022 an
+    ODrive node 1 id). No id may be a contract frame that stays on the bus or a drive profile's frame."""
+    rate_hz: float = 400.0
+    """Output rate of the data group (every tick at 400 Hz); rounded to whole ticks."""
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.base_id <= 0x7FF - max(XSENS_XCIDS.values()):
+            raise ValueError(f"base_id: 0..0x{0x7FF - max(XSENS_XCIDS.values()):03X} (11-bit ids)")
+        if self.rate_hz <= 0:
+            raise ValueError("rate_hz: > 0")
+
+
+XSENS_XCIDS = {
+    "Error": 0x001,
+    "SampleTime": 0x005,
+    "GroupCounter": 0x006,
+    "StatusWord": 0x011,
+    "EulerAngles": 0x022,
+    "RateOfTurn": 0x032,
+    "Acceleration": 0x034,
+}
+"""The Xsens CAN messages the xsens profile puts on the wire, by XCID (configs/devices/xsens_mti.dbc)."""
+
 CANOPEN_FUNCTIONS = (0x080, 0x180, 0x200, 0x280, 0x300, 0x380, 0x400, 0x480, 0x500, 0x580, 0x600, 0x700)
 """CiA 301's predefined connection set: a node's COB-IDs are these + node id."""
 
@@ -79,9 +108,10 @@ class Devices(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=T
     """Which device profile the drives and the IMU speak (a bench's `[devices]`)."""
 
     drives: Literal["pure", "odrive", "cia402"] = "pure"
-    imu: Literal["pure"] = "pure"
+    imu: Literal["pure", "xsens"] = "pure"
     odrive: OdriveOptions = OdriveOptions()
     cia402: Cia402Options = Cia402Options()
+    xsens: XsensOptions = XsensOptions()
 
     def __post_init__(self) -> None:
         if self.drives == "odrive":
@@ -104,6 +134,28 @@ class Devices(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=T
                         f"cia402.node_ids: node {node}'s CANopen COB-IDs include the contract's "
                         f"{', '.join(clash)}: pick another node id"
                     )
+        if self.imu == "xsens":
+            self._check_xsens()
+
+    def _check_xsens(self) -> None:
+        """The Xsens ids own no contract frame that stays on the bus and no frame of the drives' profile."""
+        owner = {i: name for name, i in _contract_ids(drives=self.drives == "pure", imu=False).items()}
+        if self.drives == "odrive":
+            for node in self.odrive.node_ids:
+                owner.update({(node << 5) + c: f"ODrive node {node}'s frames" for c in range(32)})
+        if self.drives == "cia402":
+            for node in self.cia402.node_ids:
+                owner.update({f + node: f"CANopen node {node}'s COB-IDs" for f in CANOPEN_FUNCTIONS})
+        base = self.xsens.base_id
+        clash = sorted(
+            f"{name} 0x{base + xcid:03X} on {owner[base + xcid]}"
+            for name, xcid in XSENS_XCIDS.items()
+            if base + xcid in owner
+        )
+        if clash:
+            raise ValueError(
+                f"xsens.base_id: 0x{base:03X} puts the Xsens {', '.join(clash)}: pick another base_id"
+            )
 
     @property
     def profiles(self) -> tuple[str, ...]:
@@ -212,8 +264,13 @@ class ProfileNode(CanNode):
         return rx
 
 
-HOSTS: dict[str, str] = {"odrive": "drivers.devices.odrive:host", "cia402": "drivers.devices.cia402:host"}
-"""Host-side translators by drive profile, imported only when a bench names one."""
+HOSTS: dict[str, str] = {
+    "odrive": "drivers.devices.odrive:host",
+    "cia402": "drivers.devices.cia402:host",
+    "xsens": "drivers.devices.xsens:host",
+}
+"""Host-side translators by device profile (the drives' and the IMU's), imported only when a bench names one.
+"""
 
 
 def _load(ref: str) -> Callable[..., Translator]:

@@ -11,6 +11,7 @@ from typing import Annotated, ClassVar, Protocol, cast
 
 import msgspec
 
+from drivers.devices import IMU_PROFILES
 from hil.faults.base import FaultError, FaultSpec, FaultState, FaultTarget
 
 Motor = Annotated[int, msgspec.Meta(ge=1, le=3)]
@@ -24,13 +25,18 @@ class OdriveAxes(Protocol):
     def disarm(self, motor: int) -> None: ...
 
 
+class XsensImu(Protocol):
+    """What the xsens faults ask of the emulated IMU (hil/devices/xsens.py)."""
+
+    def sample_counter_frozen(self, frozen: bool) -> None: ...
+
+
 class DeviceFault(FaultSpec, frozen=True, kw_only=True):
-    """A fault of drive `motor` in its device profile's protocol: the supervisor must see it within 50 ms
-    of its effect on the wire."""
+    """A fault of a device in its device profile's protocol: the supervisor must see it within 100 ms of
+    its effect on the wire."""
 
     family: ClassVar[str] = "devices"
     profile: ClassVar[str] = ""
-    motor: Motor = 1
     detect_within: ClassVar[float] = 0.1
 
     def validate(self, rig: FaultTarget) -> None:
@@ -40,14 +46,19 @@ class DeviceFault(FaultSpec, frozen=True, kw_only=True):
         for translator in getattr(rig.can, "translators", ()):
             if getattr(translator, "profile", "") == self.profile:
                 return translator
+        device = "IMU" if self.profile in IMU_PROFILES else "drives"
+        key = "imu" if device == "IMU" else "drives"
         raise FaultError(
-            f"{self.kind}: needs a bench whose drives speak {self.profile!r} ([devices] drives = "
+            f"{self.kind}: needs a bench whose {device} speak {self.profile!r} ([devices] {key} = "
             f'"{self.profile}", docs/devices.md)'
         )
 
 
 class OdriveFault(DeviceFault, frozen=True, kw_only=True):
+    """A fault of drive `motor`'s ODrive axis."""
+
     profile: ClassVar[str] = "odrive"
+    motor: Motor = 1
 
     def axes(self, rig: FaultTarget) -> OdriveAxes:
         return cast(OdriveAxes, self.emulation(rig))
@@ -83,4 +94,25 @@ class OdriveDisarm(OdriveFault, frozen=True, tag="odrive.disarm"):
         self.axes(rig).disarm(self.motor - 1)
 
 
-FAULTS: tuple[type[FaultSpec], ...] = (OdriveAxisError, OdriveHeartbeatLoss, OdriveDisarm)
+class XsensSampleCounterFrozen(DeviceFault, frozen=True, tag="xsens.sample_counter_frozen"):
+    """The Xsens IMU's SampleTime and GroupCounter stop while its values go on (a stuck firmware pipeline
+    repeating its group header); without E2E on the IMU, a host sees it as groups that do not advance."""
+
+    profile: ClassVar[str] = "xsens"
+
+    def imu(self, rig: FaultTarget) -> XsensImu:
+        return cast(XsensImu, self.emulation(rig))
+
+    def start(self, rig: FaultTarget, state: FaultState) -> None:
+        self.imu(rig).sample_counter_frozen(True)
+
+    def stop(self, rig: FaultTarget, state: FaultState) -> None:
+        self.imu(rig).sample_counter_frozen(False)
+
+
+FAULTS: tuple[type[FaultSpec], ...] = (
+    OdriveAxisError,
+    OdriveHeartbeatLoss,
+    OdriveDisarm,
+    XsensSampleCounterFrozen,
+)
