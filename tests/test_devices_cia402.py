@@ -95,6 +95,11 @@ def master():
     nodes = {n: canopen.BaseNode402(n, str(eds_path())) for n in NODES}
     for node in nodes.values():
         network.add_node(node)
+        # python-canopen's own waits are tuned for a real drive on a quiet host (0.2-0.8 s); a loaded
+        # machine can starve the emulation's thread longer (a CI run here timed out on a statusword).
+        for name in ("TIMEOUT_RESET_FAULT", "TIMEOUT_SWITCH_OP_MODE", "TIMEOUT_CHECK_TPDO"):
+            setattr(node, name, 5.0)
+        node.TIMEOUT_SWITCH_STATE_SINGLE, node.TIMEOUT_SWITCH_STATE_FINAL = 5.0, 10.0
     bench = DrivesOnABench(channel)
     yield bench, network, nodes
     bench.close()
