@@ -68,13 +68,14 @@ def run_bench(
     actions=(),
     spawn: bool = False,
     controller: list[str] | None = None,
-    devices: str = "",
+    tables: str = "",
 ) -> BenchRun:
     """candump, supervisor (--clock lockstep), controller (--lockstep; `controller`: another command) and the
     rig (--bench vcan --controller external --supervisor external) as separate processes on vcan0; `spawn`:
     the rig starts the controller itself (--controller spawned). `actions`: (sim tick, name,
-    callable(procs)) fired once the rig's SYNC reaches that tick. `devices`: a `[devices]` table added to the
-    vcan bench, which all three processes then read (the controller through `pure-hil controller --bench`)."""
+    callable(procs)) fired once the rig's SYNC reaches that tick. `tables`: TOML tables added to the vcan
+    bench (`[devices]`, say), which all three processes then read (the controller through `pure-hil
+    controller`)."""
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
     out, capture = tmp_path / "run", tmp_path / "candump.log"
     logs = {name: tmp_path / f"{name}.log" for name in ("supervisor", "controller", "rig")}
@@ -106,18 +107,18 @@ def run_bench(
     bench = tmp_path / "vcan.toml"
     bench.write_text(
         VCAN_BENCH.read_text().replace("[controller]\n", "[controller]\nboot_timeout = 120\n")
-        + (f"\n{devices}" if devices else "")
+        + (f"\n{tables}" if tables else "")
     )
     try:
         start("candump", ["stdbuf", "-oL", _tool("candump"), "-L", "vcan0"], stdout=capture.open("w"))
-        supervisor_bench = str(bench) if devices else "vcan"
+        supervisor_bench = str(bench) if tables else "vcan"
         start(
             "supervisor",
             [str(BIN / "pure-hil"), "supervisor", "--bench", supervisor_bench, "--clock", "lockstep"],
         )
         if not spawn:
             reference = [str(BIN / "pure-controller"), "--can", "socketcan:vcan0", "--rider", RIDER]
-            if devices:  # the bench's devices reach pure-controller as --devices JSON
+            if tables:  # the bench's devices reach pure-controller as --devices JSON
                 reference = [str(BIN / "pure-hil"), "controller", "--bench", str(bench), "--rider", RIDER]
             start("controller", controller or [*reference, "--law", "hacs", "--lockstep"])
         watcher = threading.Thread(target=watch, daemon=True)
@@ -342,6 +343,8 @@ KEPT = {c.frame_id for c in Catalog() if c.frame_id not in CONTRACT_DRIVES}
 ODRIVE = {"heartbeat": 0x01, "set_axis_state": 0x07, "encoder_estimates": 0x09, "set_input_torque": 0x0E}
 OPERATION_ENABLED = 0x27
 """CiA 402 statusword bits 0-3, 5, 6 (mask 0x6F) in OPERATION ENABLED."""
+NO_EXTRA_OUTPUTS = "\n[outputs]\nplots = false\nrecording = false\nmcap = false\n"
+"""summary.json and can.log only: matplotlib, rerun and MCAP cost ~30 s per run under the VM's emulation."""
 STATS = re.compile(r"bus: lost (\{.*?\}), E2E (\{.*?\}), malformed (\{.*?\})")
 
 
@@ -372,7 +375,7 @@ def _assert_sane(who: str, ticks: int, lost: dict, e2e: dict, malformed: dict) -
 def test_a_device_profile_runs_with_controller_and_supervisor_as_processes(tmp_path, profile):
     table, devices = _shipped_devices(profile)
     # bench_smoke cut to 1 s (the robot has caught its 3 deg tilt by then): the VM suite's time is short.
-    run = run_bench(tmp_path, _scenario(tmp_path, 1.0), devices=table)
+    run = run_bench(tmp_path, _scenario(tmp_path, 1.0), tables=table + NO_EXTRA_OUTPUTS)
     assert run.rig_exit == 0, run.logs["rig"] + run.logs.get("controller", "")
     s = run.summary
     print(f"\n{profile} bench_smoke (1 s) on vcan0: {s['timing']['wall_time']} s wall, {s['rig']}")
