@@ -111,7 +111,16 @@ def main(argv: list[str] | None = None) -> int:
         link.close()
         session.close()
         bus.shutdown()
-    logging.info("pure-controller: stopped")
+    # What it missed on the bus, as `pure-hil supervisor` says it (a reader that falls behind loses frames
+    # silently on vcan: docs/bench.md).
+    stats = can.stats.as_dict()
+    logging.info(
+        "pure-controller: stopped; bus: lost %s, E2E %s, malformed %s, send errors %s",
+        stats["lost_frames"],
+        stats["e2e"],
+        stats["malformed"],
+        stats["send_errors"],
+    )
     return 0
 
 
