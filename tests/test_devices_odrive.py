@@ -369,3 +369,28 @@ def test_a_fault_of_a_profile_the_bench_does_not_speak_is_refused_before_the_run
     trace = run(scenario, private_bench()).trace
     assert trace.failure is not None and trace.failure.config
     assert "needs a bench whose drives speak 'odrive'" in trace.failure.error
+
+
+@pytest.mark.parametrize(("torque", "enabled"), [(0.3, 1), (-0.3, 1), (0.01, 0), (0.0, 0)])
+def test_an_idle_axis_that_makes_torque_is_reported_powered(torque, enabled):
+    """A power stage that will not turn off (plant.drive_stuck_enabled) leaves the firmware saying IDLE: only
+    its current shows it. The host reports such an axis Enabled once its measured torque is above 0.05 Nm
+    (10x the torque sensor's noise), so the supervisor's "confirmed off" check sees it; a held torque below
+    that (0.01 Nm at rest, found by the diagnostics campaign on odrive) stays unseen."""
+
+    from drivers.devices.odrive import Cmd, OdriveHost
+
+    host = OdriveHost(Devices(drives="odrive"), 8192, "supervisor")
+    wire, node = OdriveWire(), NODES[0]
+    heartbeat = {
+        "Axis_Error": 0,
+        "Axis_State": AxisState.IDLE,
+        "Procedure_Result": 0,
+        "Trajectory_Done_Flag": 1,
+    }
+    assert host.incoming(wire.frame(node, Cmd.HEARTBEAT, heartbeat)) is None
+    assert host.incoming(wire.frame(node, Cmd.GET_TORQUES, {"Torque_Target": 0.0, "Torque_Estimate": torque}))
+    rx = host.incoming(
+        wire.frame(node, Cmd.GET_ENCODER_ESTIMATES, {"Pos_Estimate": 1.0, "Vel_Estimate": 0.0})
+    )
+    assert isinstance(rx, tuple) and rx.name == DRIVE_FEEDBACK[0] and rx.signals["Enabled"] == enabled

@@ -29,6 +29,9 @@ if TYPE_CHECKING:
 
 DBC_NAME = "odrive-cansimple-0.6.10.dbc"
 REQUESTED = "Axis_Requested_State"
+POWERED_TORQUE = 0.05
+"""Nm: an axis whose measured torque is above this has its power stage on, whatever its state says (a
+stage that will not turn off reports IDLE: only its current shows it). 10x the torque sensor's noise."""
 HEARTBEATS_MISSED = 3
 """Heartbeat periods without one before a host stops passing the axis's estimates on."""
 
@@ -144,6 +147,8 @@ class HostAxis:
     last Set_Axis_State it saw)."""
     rearm: bool = False
     """A heartbeat showed the axis disarmed while this host wants it armed: clear and re-arm it once."""
+    torque: float = 0.0
+    """Get_Torques.Torque_Estimate of the last frame, Nm."""
     since_heartbeat: int = 0
     """Encoder estimates since its last heartbeat (the host's clock for the heartbeat's timeout)."""
 
@@ -255,14 +260,17 @@ class OdriveHost:
             signals: dict[str, float | int] = {
                 "Position": round(s["Pos_Estimate"] * self.counts_per_rev),
                 "Velocity": s["Vel_Estimate"] * 2.0 * math.pi,
-                "Enabled": int(axis.state == AxisState.CLOSED_LOOP_CONTROL),
+                "Enabled": int(
+                    axis.state == AxisState.CLOSED_LOOP_CONTROL or abs(axis.torque) > POWERED_TORQUE
+                ),
                 "WatchdogTripped": int(bool(error & AxisError.WATCHDOG_TIMER_EXPIRED)),
                 "Fault": int(bool(error & AxisError.DRV_FAULT)),
                 "BusPowered": int(not error & AxisError.DC_BUS_UNDER_VOLTAGE),
             }
             return Received(DRIVE_FEEDBACK[i], signals, msg.timestamp, None)
         if cmd == Cmd.GET_TORQUES:
-            return Received(DRIVE_TORQUE[i], {"Torque": s["Torque_Estimate"]}, msg.timestamp, None)
+            axis.torque = float(s["Torque_Estimate"])
+            return Received(DRIVE_TORQUE[i], {"Torque": axis.torque}, msg.timestamp, None)
         if cmd == Cmd.SET_AXIS_STATE:
             axis.want = int(s["Axis_Requested_State"]) == AxisState.CLOSED_LOOP_CONTROL
             return None
