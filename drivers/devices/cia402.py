@@ -204,6 +204,7 @@ class Cia402Host:
             self.names = frozenset({MessageName.SUPERVISOR_ESTOP, MessageName.SUPERVISOR_RECOVERY})
         else:
             self.names = frozenset(DRIVE_COMMAND)
+            reads.append(RPDO1)  # the supervisor's own (its takeover, its quick stop): seen, not used
         for i, n in enumerate(nodes):
             for f in reads:
                 self._drive_of[f + n] = (i, f)
@@ -279,8 +280,8 @@ class Cia402Host:
         if msg.is_remote_frame or msg.arbitration_id == NMT:
             return None  # the controller's NMT start, as the supervisor sees it
         i, function = self._drive_of[msg.arbitration_id]
-        if function in (SDO_TX, SDO_RX):
-            return None  # a master configuring its drives (examples/cia402_controller.py): seen, not used
+        if function in (SDO_TX, SDO_RX) or (function == RPDO1 and self.role == "controller"):
+            return None  # another master's traffic (examples/cia402_controller.py's SDO, the supervisor's)
         drive = self.drives[i]
         if function == HEARTBEAT:
             if not msg.data:
