@@ -254,7 +254,8 @@ class Drive:
         if self.state is State.FAULT:
             return
         self.state, self.error = State.FAULT, code
-        self.node.emcy.send(int(code), error_register(code))
+        if self.nmt != STOPPED:  # a stopped node sends no EMCY (CiA 301): 0x603F still holds the code
+            self.node.emcy.send(int(code), error_register(code))
 
     @property
     def makes_torque(self) -> bool:
