@@ -393,3 +393,141 @@ def test_a_controller_on_python_canopens_basenode402_master_balances_the_robot(t
     assert result.passed, [v for v in result.verdicts if not v.passed]
     assert result.trace.stats.missing_commands == 0
     assert not thread.is_alive()
+
+
+# ----------------------------------------------------------------------------------- protocol faults
+def test_a_held_fault_refuses_fault_reset_and_an_sdo_abort_answers_every_request_until_they_end(master):
+    """The emulation's side of cia402.fault and cia402.sdo_abort, through python-canopen's master: EMCY with
+    the fault's code, a fault reset refused while the fault lasts and taken once it ends; every SDO request
+    aborted with the fault's code, the same request served before and after (the positive control)."""
+    from canopen.sdo.exceptions import SdoAbortedError
+
+    bench, network, nodes = master
+    node = nodes[2]
+    emcys = []
+    node.emcy.add_callback(emcys.append)
+    _up(network, node)
+    assert node.sdo[0x6502].raw & 0x200  # served before the fault
+    with bench.lock:
+        bench.emulation.sdo_abort(1, 0x08000022)
+    with pytest.raises(SdoAbortedError) as aborted:
+        node.sdo[0x6502].raw  # noqa: B018  # an upload
+    assert aborted.value.code == 0x08000022
+    with pytest.raises(SdoAbortedError):
+        node.sdo[0x6060].raw = 10  # a download
+    with bench.lock:
+        bench.emulation.sdo_abort(1, 0)
+    assert node.sdo[0x6502].raw & 0x200  # served again
+    with bench.lock:
+        bench.emulation.fault(1, 0xFF02)
+    _until(lambda: any(e.code == 0xFF02 for e in emcys))
+    assert next(e for e in emcys if e.code == 0xFF02).register == 0x81  # generic + manufacturer
+    _until(lambda: node.is_faulted())
+    node.controlword = 0x00
+    time.sleep(0.05)
+    node.controlword = 0x80  # fault reset (rising edge): refused while the fault lasts
+    time.sleep(0.1)
+    assert node.is_faulted() and node.sdo[0x603F].raw == 0xFF02
+    with bench.lock:
+        bench.emulation.fault(1, 0)
+    node.controlword = 0x00
+    time.sleep(0.05)
+    node.controlword = 0x80
+    _until(lambda: not node.is_faulted())
+    _until(lambda: any(e.code == 0 for e in emcys))  # EMCY error reset
+    assert node.sdo[0x603F].raw == 0
+
+
+def test_a_drive_that_lost_sync_sends_no_tpdo_but_acts_on_its_rpdos_and_a_stopped_one_on_neither(master):
+    """cia402.sync_lost and cia402.nmt_stop at the emulation: with SYNC lost the TPDOs stop while the
+    heartbeat goes on and RPDO1 (type 255) still reaches the power stage; NMT STOPPED by the fault says so
+    in its heartbeat and takes no RPDO (the plant drive gets no command)."""
+    bench, network, nodes = master
+    node, motor = nodes[3], bench.drives.motors[2]
+    _up(network, node)
+    node.state = "READY TO SWITCH ON"
+    with bench.lock:
+        bench.emulation.sync_lost(2, True)
+    time.sleep(0.05)
+    node.tpdo[1].is_received = node.tpdo[2].is_received = False
+    beats = node.nmt.timestamp
+    node.rpdo[1][0x6040].raw, node.rpdo[1][0x6071].raw = 0x0F, 200  # enable operation, 0.2 Nm
+    node.rpdo[1].transmit()
+    _until(lambda: motor.command == pytest.approx(0.2))  # the RPDO acted
+    time.sleep(0.1)
+    assert not node.tpdo[1].is_received and not node.tpdo[2].is_received, "TPDOs without SYNC"
+    assert node.nmt.timestamp != beats and node.nmt.state == "OPERATIONAL", "the heartbeat goes on"
+    node.rpdo[1][0x6040].raw, node.rpdo[1][0x6071].raw = 0x00, 0
+    node.rpdo[1].transmit()
+    with bench.lock:
+        bench.emulation.sync_lost(2, False)
+    _until(lambda: node.tpdo[1].is_received)  # the positive control: SYNC back, TPDOs back
+    with bench.lock:
+        bench.emulation.nmt_stop(2)
+    _until(lambda: node.nmt.state == "STOPPED")
+    node.rpdo[1][0x6040].raw, node.rpdo[1][0x6071].raw = 0x0F, 300
+    node.rpdo[1].transmit()
+    time.sleep(0.1)
+    assert motor.command != pytest.approx(0.3), "an RPDO in STOPPED"
+    node.nmt.state = "OPERATIONAL"  # a master's NMT start brings it back
+    _until(lambda: node.tpdo[1].is_received and node.nmt.state == "OPERATIONAL")
+
+
+@pytest.mark.parametrize(
+    ("fault", "cause", "within"),
+    [
+        # TPDO1 of the same SYNC says FAULT while the controller keeps telling it to enable: "off although
+        # permitted and told to enable" at once (the enable has stood for longer than the 20 ms confirm).
+        ({"kind": "cia402.fault"}, "DRIVE_FAULT", 0.0),
+        ({"kind": "cia402.fault", "code": 0x3220}, "DRIVE_FAULT", 0.0),  # DC link: BusPowered 0 as well
+        # No TPDO2 from the drive: the supervisor's drive stream timeout (25 ms) runs out.
+        ({"kind": "cia402.nmt_stop"}, "DRIVES_SILENT", 0.03),
+        ({"kind": "cia402.sync_lost"}, "DRIVES_SILENT", 0.03),
+    ],
+)
+def test_a_cia402_protocol_fault_is_seen_and_ridden_out_by_the_supervisor(fault, cause, within):
+    """Positive control of the held fault: before the supervisor's host took fault reset (0x80) as a step of
+    the walk, it read it as disable voltage (bit 1 clear), and a faulted drive with a manufacturer code was
+    never seen (no transition in 2 s)."""
+    from hil.faults import parse_fault
+    from hil.pipeline import load_scenario, run
+
+    at = 1.0
+    scenario = msgspec_replace(load_scenario("balance"), parse_fault({**fault, "motor": 2, "at": at}))
+    trace = run(scenario, private_bench(BENCH)).trace
+    assert trace.failure is None and trace.fallen is None
+    first = next(e for e in trace.safety_events if e.kind == "transition")
+    assert (first.to_state, first.cause) == ("RECOVERY", cause)
+    assert at <= first.t <= at + within + 1e-9
+
+
+def test_an_sdo_abort_is_nothing_to_a_controller_that_uses_no_sdo():
+    """The reference controller configures nothing over SDO: drive 2 aborting every SDO request for the
+    whole run changes nothing (no transition, no fall). The same run's fault log shows the fault active (it
+    was injected, not refused), and the test above is the harness's positive control."""
+    from hil.faults import parse_fault
+    from hil.pipeline import load_scenario, run
+
+    scenario = msgspec_replace(
+        load_scenario("balance"), parse_fault({"kind": "cia402.sdo_abort", "motor": 2, "at": 0.0})
+    )
+    trace = run(scenario, private_bench(BENCH)).trace
+    assert trace.failure is None and trace.fallen is None
+    assert [(e.kind, e.action) for e in trace.fault_events][:1] == [("cia402.sdo_abort", "start")]
+    assert not [e for e in trace.safety_events if e.kind == "transition"]
+
+
+def test_a_cia402_fault_on_a_bench_of_another_profile_is_refused_before_the_run():
+    from hil.faults import parse_fault
+    from hil.pipeline import load_scenario, run
+
+    scenario = msgspec_replace(load_scenario("balance"), parse_fault({"kind": "cia402.nmt_stop", "at": 0.5}))
+    trace = run(scenario, private_bench()).trace
+    assert trace.failure is not None and trace.failure.config
+    assert "needs a bench whose drives speak 'cia402'" in trace.failure.error
+
+
+def msgspec_replace(scenario, fault, duration: float = 2.0):
+    import msgspec
+
+    return msgspec.structs.replace(scenario, duration=duration, faults=[fault])

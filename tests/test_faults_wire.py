@@ -54,9 +54,10 @@ def imu_fault(kind, **params):
 
 
 def test_every_fault_of_the_catalog_has_a_family_and_a_doc():
-    assert len(CATALOG) == sum(len(f) for f in FAMILIES.values()) == 40
+    assert len(CATALOG) == sum(len(f) for f in FAMILIES.values()) == 44
     for kind, cls in CATALOG.items():
-        assert kind.split(".")[0] in ("sensor", "can", "zenoh", "plant", "process", "odrive", "xsens")
+        families = ("sensor", "can", "zenoh", "plant", "process", "odrive", "cia402", "xsens")
+        assert kind.split(".")[0] in families
         assert cls.__doc__ and len(cls.__doc__.split()) >= 5, kind
 
 

@@ -312,6 +312,8 @@ class Cia402Host:
             return Received(DRIVE_TORQUE[i], {"Torque": torque * RATED_MNM * 1e-6}, msg.timestamp, None)
         # RPDO1, as the supervisor sees the controller's command: a step of the walk is no command.
         controlword, torque = _unpack(RPDO1_FMT, msg, "RPDO1")
+        if controlword & Cw.FAULT_RESET:
+            return None  # fault reset (its other bits clear: not a disable voltage), a step of the walk
         if controlword & 0x8F == Cw.ENABLE_OPERATION:
             enable = True
         elif controlword & 0x02 == 0 or controlword & 0x06 == Cw.QUICK_STOP:

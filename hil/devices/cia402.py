@@ -37,6 +37,7 @@ from drivers.devices.cia402 import (
     RPDO1,
     RPDO2,
     SDO_RX,
+    SDO_TX,
     STATUS_BITS,
     TPDO1,
     TPDO2,
@@ -50,6 +51,24 @@ from drivers.devices.cia402 import (
 log = logging.getLogger(__name__)
 
 OPERATIONAL, STOPPED = "OPERATIONAL", "STOPPED"
+SDO_ABORT = 0x80
+"""An SDO abort's command specifier (CiA 301): 0x80, index, subindex, abort code (U32)."""
+STOP = 0x02
+"""NMT stop remote node."""
+
+
+def error_register(code: int) -> int:
+    """0x1001 for an error code: the emulation's own (ERROR_REGISTER), else CiA 301's bits of the code's class
+    (generic, current 0x2xxx, voltage 0x3xxx, temperature 0x4xxx, communication 0x81xx, device profile
+    0x6xxx-0x7xxx, manufacturer 0xFFxx)."""
+    if code in ERROR_REGISTER:
+        return ERROR_REGISTER[ErrorCode(code)]
+    if not code:
+        return 0x00
+    bit = {0x2: 0x02, 0x3: 0x04, 0x4: 0x08, 0x6: 0x20, 0x7: 0x20, 0xF: 0x80}.get(code >> 12, 0)
+    if code >> 8 == 0x81:
+        bit = 0x10
+    return 0x01 | bit
 
 
 class _TickTask:
@@ -106,7 +125,7 @@ class Drive:
         self.network = network
         self.heartbeat_ms = heartbeat_ms
         self.state = State.SWITCH_ON_DISABLED
-        self.error = ErrorCode.NONE
+        self.error: int = ErrorCode.NONE
         self.controlword = 0
         mode = self.node.object_dictionary[0x6060]
         assert isinstance(mode, canopen.objectdictionary.ODVariable)
@@ -116,6 +135,14 @@ class Drive:
         self.position = self.velocity = self.torque_actual = 0
         self.powered = True
         self.booted = False
+        self.forced_error = 0
+        """An error a fault holds active (hil/faults/devices.py): FAULT with it, no fault reset, until 0."""
+        self.stop_pending = False
+        """A fault stops the node (NMT STOPPED) at its next tick."""
+        self.sync_lost = False
+        """A fault keeps SYNC from the drive: no SYNC-triggered TPDO (its RPDOs, type 255, still act)."""
+        self.sdo_abort = 0
+        """A fault's SDO abort code: every SDO request is answered with it (0: served)."""
         self.node.add_read_callback(self._read)
         self.node.add_write_callback(self._write)
         self.node.tpdo.read(from_od=True)
@@ -172,7 +199,7 @@ class Drive:
         return {
             0x6041: self.statusword,
             0x603F: lambda: int(self.error),
-            0x1001: lambda: ERROR_REGISTER[self.error],
+            0x1001: lambda: error_register(self.error),
             0x6040: lambda: self.controlword,
             0x6060: lambda: self.mode,
             0x6061: lambda: self.mode,
@@ -197,7 +224,7 @@ class Drive:
         self.controlword = cw
         s = self.state
         if s in (State.FAULT, State.FAULT_REACTION_ACTIVE):
-            if rising_reset and self.powered:
+            if rising_reset and self.powered and not self.forced_error:
                 self.state, self.error = State.SWITCH_ON_DISABLED, ErrorCode.NONE
                 self.node.emcy.send(0x0000, 0x00)  # error reset
             return
@@ -223,11 +250,12 @@ class Drive:
                 State.OPERATION_ENABLED
             )  # switch on + enable operation (3+4), enable operation (4, 16)
 
-    def fault(self, code: ErrorCode) -> None:
+    def fault(self, code: int) -> None:
         if self.state is State.FAULT:
             return
         self.state, self.error = State.FAULT, code
-        self.node.emcy.send(int(code), ERROR_REGISTER[code])
+        if self.nmt != STOPPED:  # a stopped node sends no EMCY (CiA 301): 0x603F still holds the code
+            self.node.emcy.send(int(code), error_register(code))
 
     @property
     def makes_torque(self) -> bool:
@@ -250,7 +278,9 @@ class Drive:
         self.position = int(s["Position"])
         self.velocity = round(s["Velocity"] * counts_per_rev / (2.0 * math.pi))
         self.powered = bool(s["BusPowered"])
-        if not self.powered:
+        if self.forced_error:
+            self.fault(self.forced_error)
+        elif not self.powered:
             self.fault(ErrorCode.DC_LINK_UNDER_VOLTAGE)
         elif s["WatchdogTripped"]:
             self.fault(ErrorCode.COMMUNICATION)
@@ -261,11 +291,24 @@ class Drive:
 
     def tpdos(self, functions: tuple[int, ...]) -> None:
         """The TPDOs of this SYNC (only in OPERATIONAL), into the network's out."""
-        if self.nmt != OPERATIONAL:
+        if self.nmt != OPERATIONAL or self.sync_lost:
             return
         for function, cob_id, codec, getters in self._tpdo_codecs:
             if function in functions:
                 self.network.send_message(cob_id, codec.pack(*(get() for get in getters)))
+
+    def abort(self, request: bytes) -> bytes | None:
+        """The SDO abort for a request: the request's multiplexer when it has one (an initiate), else the
+        transfer's under way (a segment)."""
+        ccs = request[0] >> 5 if request else 0
+        if ccs == 4:  # the client's own abort: not answered
+            return None
+        if ccs in (1, 2, 5, 6) and len(request) >= 4:
+            index, subindex = int.from_bytes(request[1:3], "little"), request[3]
+        else:
+            sdo = self.node.sdo
+            index, subindex = int(getattr(sdo, "_index", 0) or 0), int(getattr(sdo, "_subindex", 0) or 0)
+        return struct.pack("<BHBI", SDO_ABORT, index, subindex, self.sdo_abort)
 
     def heartbeat(self) -> None:
         for task in self.network.tasks:
@@ -317,6 +360,9 @@ class Cia402Drives:
         drive = self.drives[DRIVE_FEEDBACK.index(name)]
         if not drive.booted:
             drive.boot()
+        if drive.stop_pending:
+            drive.stop_pending = False
+            drive.node.nmt.send_command(STOP)  # as a master's NMT stop: the heartbeat says STOPPED
         drive.follow_plant(values, self.counts_per_rev)
         drive.heartbeat()
         drive.tpdos((TPDO1, TPDO2))  # transmission type 1: each SYNC (the rig's tick)
@@ -340,7 +386,10 @@ class Cia402Drives:
         drive = self._drive_of[cob & 0x7F]
         function = cob - drive.node_id
         if function == SDO_RX:
-            if drive.nmt != STOPPED:  # a stopped node answers NMT only
+            if drive.nmt != STOPPED and drive.sdo_abort:
+                if (abort := drive.abort(bytes(msg.data))) is not None:
+                    self.network.send_message(SDO_TX + drive.node_id, abort)
+            elif drive.nmt != STOPPED:  # a stopped node answers NMT only
                 self.network.notify(cob, bytearray(msg.data), msg.timestamp)
             self._flush(drive.index)
             return None
@@ -359,6 +408,28 @@ class Cia402Drives:
         torque, enable = drive.rpdo_result
         signals = {"Torque": torque, "Tick": self.tick, "Enable": int(enable)}
         return Received(DRIVE_COMMAND[drive.index], signals, msg.timestamp, None)
+
+    # ------------------------------------------------------------------ protocol faults (hil/faults)
+    profile = "cia402"
+
+    def fault(self, motor: int, code: int) -> None:
+        """Drive `motor` enters FAULT with EMCY `code` at its next tick and stays there, whatever fault reset
+        says, until `code` is 0 (then a fault reset clears it)."""
+        self.drives[motor].forced_error = code
+
+    def nmt_stop(self, motor: int) -> None:
+        """Drive `motor` goes to NMT STOPPED at its next tick, as if a master had stopped it (an NMT start
+        takes it back to OPERATIONAL)."""
+        self.drives[motor].stop_pending = True
+
+    def sync_lost(self, motor: int, lost: bool) -> None:
+        """Drive `motor` sees no SYNC: its SYNC-triggered TPDOs (all three) stop; its heartbeat (on its own
+        timer) and its RPDOs (transmission type 255: acted on at reception, CiA 301) go on."""
+        self.drives[motor].sync_lost = lost
+
+    def sdo_abort(self, motor: int, code: int) -> None:
+        """Drive `motor` answers every SDO request with abort `code` (0: its SDO server again)."""
+        self.drives[motor].sdo_abort = code
 
     def _flush(self, index: int) -> None:
         """What the Network sent while handling a frame (SDO responses, EMCY): out at once."""

@@ -25,6 +25,15 @@ class OdriveAxes(Protocol):
     def disarm(self, motor: int) -> None: ...
 
 
+class Cia402Drives(Protocol):
+    """What the cia402 faults ask of the emulated drives (hil/devices/cia402.py)."""
+
+    def fault(self, motor: int, code: int) -> None: ...
+    def nmt_stop(self, motor: int) -> None: ...
+    def sync_lost(self, motor: int, lost: bool) -> None: ...
+    def sdo_abort(self, motor: int, code: int) -> None: ...
+
+
 class XsensImu(Protocol):
     """What the xsens faults ask of the emulated IMU (hil/devices/xsens.py)."""
 
@@ -94,6 +103,62 @@ class OdriveDisarm(OdriveFault, frozen=True, tag="odrive.disarm"):
         self.axes(rig).disarm(self.motor - 1)
 
 
+class Cia402Fault(DeviceFault, frozen=True, kw_only=True):
+    """A fault of drive `motor`, a CiA 402 drive on CANopen."""
+
+    profile: ClassVar[str] = "cia402"
+    motor: Motor = 1
+
+    def drives(self, rig: FaultTarget) -> Cia402Drives:
+        return cast(Cia402Drives, self.emulation(rig))
+
+
+class Cia402DriveFault(Cia402Fault, frozen=True, tag="cia402.fault"):
+    """Drive `motor` enters FAULT with EMCY `code` (0x603F; default 0xFF02, manufacturer specific: a
+    drive-internal fault; 0x3220 is a DC-link under-voltage) and holds it while the fault lasts: a fault
+    reset does not clear it until the fault ends."""
+
+    code: Annotated[int, msgspec.Meta(gt=0, le=0xFFFF)] = 0xFF02
+
+    def start(self, rig: FaultTarget, state: FaultState) -> None:
+        self.drives(rig).fault(self.motor - 1, self.code)
+
+    def stop(self, rig: FaultTarget, state: FaultState) -> None:
+        self.drives(rig).fault(self.motor - 1, 0)
+
+
+class Cia402NmtStop(Cia402Fault, frozen=True, tag="cia402.nmt_stop"):
+    """Drive `motor` goes to NMT STOPPED unasked, as if a master had stopped it: no PDO, no SDO, its
+    heartbeat says STOPPED (an NMT start brings it back)."""
+
+    def start(self, rig: FaultTarget, state: FaultState) -> None:
+        self.drives(rig).nmt_stop(self.motor - 1)
+
+
+class Cia402SyncLost(Cia402Fault, frozen=True, tag="cia402.sync_lost"):
+    """Drive `motor` stops seeing SYNC: its SYNC-triggered TPDOs stop while its heartbeat goes on and its
+    RPDOs (transmission type 255, acted on at reception per CiA 301) still act."""
+
+    def start(self, rig: FaultTarget, state: FaultState) -> None:
+        self.drives(rig).sync_lost(self.motor - 1, True)
+
+    def stop(self, rig: FaultTarget, state: FaultState) -> None:
+        self.drives(rig).sync_lost(self.motor - 1, False)
+
+
+class Cia402SdoAbort(Cia402Fault, frozen=True, tag="cia402.sdo_abort"):
+    """Drive `motor` answers every SDO request with abort `code` (default 0x08000022: not in the present
+    device state) while the fault lasts; its PDOs go on."""
+
+    code: Annotated[int, msgspec.Meta(gt=0, lt=1 << 32)] = 0x08000022
+
+    def start(self, rig: FaultTarget, state: FaultState) -> None:
+        self.drives(rig).sdo_abort(self.motor - 1, self.code)
+
+    def stop(self, rig: FaultTarget, state: FaultState) -> None:
+        self.drives(rig).sdo_abort(self.motor - 1, 0)
+
+
 class XsensSampleCounterFrozen(DeviceFault, frozen=True, tag="xsens.sample_counter_frozen"):
     """The Xsens IMU's SampleTime and GroupCounter stop while its values go on (a stuck firmware pipeline
     repeating its group header); without E2E on the IMU, a host sees it as groups that do not advance."""
@@ -114,5 +179,9 @@ FAULTS: tuple[type[FaultSpec], ...] = (
     OdriveAxisError,
     OdriveHeartbeatLoss,
     OdriveDisarm,
+    Cia402DriveFault,
+    Cia402NmtStop,
+    Cia402SyncLost,
+    Cia402SdoAbort,
     XsensSampleCounterFrozen,
 )
