@@ -531,3 +531,19 @@ def msgspec_replace(scenario, fault, duration: float = 2.0):
     import msgspec
 
     return msgspec.structs.replace(scenario, duration=duration, faults=[fault])
+
+
+def test_a_drive_stopped_unasked_in_motion_is_started_again_by_the_supervisor_and_the_robot_stays_up():
+    """cia402.nmt_stop at 0.5 m/s: the supervisor takes the drives (DRIVES_SILENT) and, seeing the drive's
+    heartbeat say STOPPED, sends it NMT start with its recovery torques. Before it did, the robot fell here
+    on two wheels (the campaign configs/campaigns/cia402.toml: speed_limiting and slalom)."""
+    from hil.faults import parse_fault
+    from hil.pipeline import load_scenario, run
+
+    fault = parse_fault({"kind": "cia402.nmt_stop", "motor": 2, "at": 3.0})
+    trace = run(
+        msgspec_replace(load_scenario("speed_limiting"), fault, duration=6.0), private_bench(BENCH)
+    ).trace
+    assert trace.failure is None and trace.fallen is None
+    first = next(e for e in trace.safety_events if e.kind == "transition")
+    assert (first.to_state, first.cause) == ("RECOVERY", "DRIVES_SILENT")

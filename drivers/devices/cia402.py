@@ -180,6 +180,9 @@ class HostDrive:
     """NMT state of the last heartbeat or boot-up (-1: none yet)."""
     start: bool = False
     """A boot-up or a pre-operational heartbeat was seen: send NMT start (controller) with the next burst."""
+    restart: bool = False
+    """A STOPPED heartbeat was seen: the supervisor under its takeover starts it again (the recovery law
+    needs every wheel; nobody else asked it to stop)."""
     want: bool = False
     """This host has asked for OPERATION ENABLED (a controller: its last Enable; a supervisor: the last
     controlword it saw)."""
@@ -234,7 +237,13 @@ class Cia402Host:
             return self._estop_frames(values)
         if name == MessageName.SUPERVISOR_RECOVERY:
             torques = (values["Torque1"], values["Torque2"], values["Torque3"])
-            return [m for d, tq in zip(self.drives, torques, strict=True) for m in self._command(d, tq, True)]
+            frames = []
+            for d, tq in zip(self.drives, torques, strict=True):
+                if d.restart:  # once per STOPPED heartbeat
+                    frames.append(nmt(NMT_START, d.node_id))
+                    d.restart = False
+                frames += self._command(d, tq, True)
+            return frames
         if self.takeover:
             return []  # one master at a time (docs/contract.md): the recovery law's torques hold the drives
         drive = self.drives[DRIVE_COMMAND.index(name)]
@@ -288,6 +297,7 @@ class Cia402Host:
                 raise ValueError("heartbeat without its state byte")
             drive.nmt = msg.data[0] & 0x7F
             drive.start = drive.nmt in (Nmt.BOOT_UP, Nmt.PRE_OPERATIONAL)
+            drive.restart = drive.nmt == Nmt.STOPPED and self.role == "supervisor"
             return None
         if function == EMCY:
             return None  # the error code rides in TPDO1 every SYNC as well
