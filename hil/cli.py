@@ -498,15 +498,16 @@ def _serve(args: argparse.Namespace) -> int:
 
 
 def _supervisor(args: argparse.Namespace) -> int:
-    """The supervisor as its own process, on its own timer (what runs beside a real robot)."""
+    """The supervisor as its own process, on its own timer (what runs beside a real robot): the bench's
+    supervisor plug, as the rig starts it (drivers/plugs.py)."""
     from contextlib import ExitStack
 
-    from drivers.can_bus import open_bus
-    from drivers.devices import host_node
+    from drivers.keys import Keys
+    from drivers.plugs import SUPERVISORS, SupervisorSpec, find_plug
     from drivers.zenoh_link import ZenohLink
+    from hil.bench.parts import check
     from hil.bench.rigs import announce
-    from safety.config import RobotGeometry, SupervisorConfig
-    from safety.node import SupervisorNode, SupervisorThread
+    from safety.config import SupervisorConfig
 
     bench = bench_from(args)
     if bench.can.in_process:
@@ -520,33 +521,39 @@ def _supervisor(args: argparse.Namespace) -> int:
         from hil.run.scenario import Scenario
 
         config = Scenario(name="overrides", safety=json.loads(args.safety)).supervisor_config(config)
-    robot = load_toml(find(args.robot, "robot"), RobotGeometry)
-    bus = open_bus(bench.can)
+    spec = SupervisorSpec(
+        can=bench.can,
+        zenoh=bench.zenoh,
+        devices=bench.devices,
+        robot=str(find(args.robot, "robot")),
+        rules=msgspec.to_builtins(config),
+        tick_hz=args.tick_hz,
+        lockstep=args.clock == "lockstep",
+    )
+    check(bench)  # the bus and the plug, before any session: a missing vcan0 is one line and exit 2
+    start = find_plug(SUPERVISORS, bench.supervisor.plugin, "supervisor")
+    hub = bench.zenoh.mode == "loopback" and args.role == "hub"
+    # Its session as this command's role says (the rig's hub, or --identity's certificate), lent to the plug.
+    session = bench.zenoh.open_rig(fallback=False)[0] if hub else bench.zenoh.open(args.identity)
+    link = ZenohLink(session, Keys(bench.zenoh.prefix))
     try:
-        if bench.zenoh.mode == "loopback" and args.role == "hub":
-            session, _ = bench.zenoh.open_rig(fallback=False)
-        else:
-            session = bench.zenoh.open(args.identity)
-    except BaseException:
-        bus.shutdown()
-        raise
-    link = ZenohLink(session)
-    can = host_node(bus, bench.devices, robot.encoder.counts_per_rev, "supervisor")
-    node = SupervisorNode(can, link, config, robot, tick_hz=args.tick_hz)
-    thread = SupervisorThread(node, sync=args.clock == "lockstep").start()
-    with ExitStack() as hub:
-        where = f"zenoh {bench.zenoh.mode}"
-        if bench.zenoh.mode == "loopback" and args.role == "hub":
-            endpoint = bench.zenoh.hub_endpoint()
-            hub.enter_context(announce(session, bench.zenoh.prefix, bench.name, endpoint, "supervisor"))
-            where = f"zenoh hub {endpoint}"
-        _until_interrupted(
-            f"pure-hil supervisor: on {bench.can.interface}:{bench.can.channel}, {where}; Ctrl-C to stop"
-        )
-    thread.stop()
-    link.close()
-    session.close()
-    bus.shutdown()
+        handle = start(spec, link=link)
+        with ExitStack() as announced:
+            where = f"zenoh {bench.zenoh.mode}"
+            if hub:
+                endpoint = bench.zenoh.hub_endpoint()
+                announced.enter_context(
+                    announce(session, bench.zenoh.prefix, bench.name, endpoint, "supervisor")
+                )
+                where = f"zenoh hub {endpoint}"
+            _until_interrupted(
+                f"pure-hil supervisor: on {bench.can.interface}:{bench.can.channel}, {where}; Ctrl-C to stop"
+            )
+        handle.stop()
+    finally:
+        link.close()
+        session.close()
+    node = handle.node
     for e in node.events:
         print(f"  t={e.t:9.3f}  {e.kind:<14} {e.from_state} -> {e.to_state} ({e.cause}) {e.detail}")
     # What it missed on the bus (a reader that falls behind loses frames silently on vcan: docs/bench.md).
