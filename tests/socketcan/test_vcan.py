@@ -216,11 +216,14 @@ def test_a_controller_written_from_the_contract_alone_balances_the_robot(tmp_pat
     assert run.rig_exit == 0, run.logs["rig"] + run.logs.get("controller", "")
     s = run.summary
     assert s["fallen"] is False and s["safety"]["final_state"] == "NORMAL"
-    # Its own frames only: under the VM's emulation the rig may miss one of the supervisor process's frames
-    # (SUPERVISOR_ESTOP:LOST 1 was seen once), which says nothing of the example's E2E.
+    # Its own frames only, and no frame lost on the way: under the VM's emulation a reader that falls
+    # behind loses frames (SUPERVISOR_ESTOP:LOST 1 and, on a loaded host, CONTROLLER_HEARTBEAT:LOST 1 were
+    # seen), which says nothing of the example's E2E; a CRC, a repeat or an order error would.
     sent_by_example = ("DRIVE1_COMMAND", "DRIVE2_COMMAND", "DRIVE3_COMMAND", "CONTROLLER_HEARTBEAT")
-    errors = {k: n for k, n in s["bus"]["e2e"].items() if k.split(":")[0] in sent_by_example}
+    mine = {k: n for k, n in s["bus"]["e2e"].items() if k.split(":")[0] in sent_by_example}
+    errors = {k: n for k, n in mine.items() if not k.endswith(":LOST")}
     assert errors == {}, "every frame the example sent passed the rig's E2E check"
+    assert sum(mine.values()) <= max(2, s["rig"]["ticks"] // 50), f"a few frames lost at most: {mine}"
     assert s["bus"]["received"]["DRIVE1_COMMAND"] > 0, "the filter above keeps the example's frames"
     assert s["metrics_unavailable"]["pitch.rmse"] == "unavailable (no controller telemetry)"
 
