@@ -16,7 +16,7 @@ from __future__ import annotations
 import functools
 import importlib
 from collections.abc import Callable, Iterable, Mapping
-from typing import Literal, Protocol
+from typing import Literal
 
 import can
 import msgspec
@@ -178,32 +178,95 @@ def _contract_ids(drives: bool, imu: bool) -> dict[str, int]:
     return {c.name: c.frame_id for c in Catalog() if c.name not in devices}
 
 
-class Translator(Protocol):
-    """Between logical messages and one device family's frames. A `ProfileNode` calls it."""
+class Translator:
+    """Between logical messages and one device family's frames. A `ProfileNode` calls it; a profile
+    overrides `outgoing` and `incoming`, and keeps what the node tells everyone: the node it works for, the
+    tick of the last SYNC, whether the supervisor's takeover holds the drives."""
 
-    names: frozenset[str]
+    names: frozenset[str] = frozenset()
     """Logical messages it sends in its own frames."""
-    frame_ids: frozenset[int]
+    frame_ids: frozenset[int] = frozenset()
     """Standard frame ids it reads (remote frames included)."""
-    sends: frozenset[int]
+    sends: frozenset[int] = frozenset()
     """Standard frame ids it sends (a replay tells a controller's answer from the rig's frames by them)."""
+
+    def __init__(self) -> None:
+        self.node: ProfileNode | None = None
+        self.tick = 0
+        """SYNC's Tick, sent or read last (a command in a protocol without one is tagged with it)."""
+        self.takeover = False
+        """The last trusted SUPERVISOR_ESTOP says the recovery law holds the drives."""
 
     def bind(self, node: ProfileNode) -> None:
         """The node it works for (to send replies and contract frames with)."""
+        self.node = node
 
     def outgoing(self, name: str, values: Mapping[str, float]) -> Iterable[can.Message]:
         """The frames that carry logical message `name` now (maybe none)."""
-        ...
+        return ()
 
     def incoming(self, msg: can.Message) -> Received | None:
         """A frame of its family -> the logical message it carries, or None (state only, or a reply sent)."""
-        ...
+        return None
 
     def observe(self, rx: Received) -> None:
         """Every contract frame the node read (SYNC, the supervisor's frames)."""
+        if rx.name == MessageName.SYNC:
+            self.tick = int(rx.signals["Tick"])
+        elif rx.name == MessageName.SUPERVISOR_ESTOP and rx.ok:
+            self.takeover = bool(rx.signals["Takeover"])
 
     def on_sync(self, tick: int) -> None:
         """The node sent SYNC(tick)."""
+        self.tick = tick
+
+
+class DriveHost(Translator):
+    """The host side of three drives of one profile, for a controller or a supervisor: the contract's
+    DRIVEn_COMMAND, the supervisor's e-stop and its recovery law's torques, each in the drives' own frames.
+    A profile gives `_command` (one drive's torque and enable) and `_stop` (what an e-stop's rising edge
+    sends one drive)."""
+
+    def __init__(self, role: Role) -> None:
+        super().__init__()
+        self.role = role
+        self.names = (
+            frozenset({MessageName.SUPERVISOR_ESTOP, MessageName.SUPERVISOR_RECOVERY})
+            if role == "supervisor"
+            else frozenset(DRIVE_COMMAND)
+        )
+        self._estop = False
+
+    def outgoing(self, name: str, values: Mapping[str, float]) -> list[can.Message]:
+        if name == MessageName.SUPERVISOR_ESTOP:
+            return self._estop_frames(values)
+        if name == MessageName.SUPERVISOR_RECOVERY:
+            torques = (values["Torque1"], values["Torque2"], values["Torque3"])
+            return [m for i, torque in enumerate(torques) for m in self._recovery(i, torque)]
+        if self.takeover:
+            return []  # one master at a time (docs/contract.md): the recovery law's torques hold the drives
+        return self._command(DRIVE_COMMAND.index(name), float(values["Torque"]), bool(values["Enable"]))
+
+    def _estop_frames(self, values: Mapping[str, float]) -> list[can.Message]:
+        """The contract's SUPERVISOR_ESTOP (the drives' permission line) and, on an e-stop's rising edge, the
+        profile's own stop to every drive."""
+        assert self.node is not None
+        frames = [self.node.contract_frame(MessageName.SUPERVISOR_ESTOP, values)]
+        estop = bool(values["Estop"])
+        if estop and not self._estop:
+            frames += [m for i in range(3) for m in self._stop(i)]
+        self._estop = estop
+        return frames
+
+    def _recovery(self, index: int, torque: float) -> list[can.Message]:
+        """The recovery law's torque for drive `index`."""
+        return self._command(index, torque, True)
+
+    def _command(self, index: int, torque: float, enable: bool) -> list[can.Message]:
+        raise NotImplementedError
+
+    def _stop(self, index: int) -> list[can.Message]:
+        raise NotImplementedError
 
 
 class ProfileNode(CanNode):

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import IntEnum
 from importlib.resources import files
@@ -32,10 +31,11 @@ from typing import TYPE_CHECKING
 import can
 
 from drivers.can_bus import Received
-from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MessageName
+from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE
+from drivers.devices import DriveHost
 
 if TYPE_CHECKING:
-    from drivers.devices import Devices, ProfileNode, Role
+    from drivers.devices import Devices, Role
 
 NMT, EMCY, TPDO1, RPDO1, TPDO2, RPDO2, TPDO3, SDO_TX, SDO_RX, HEARTBEAT = (
     0x000, 0x080, 0x180, 0x200, 0x280, 0x300, 0x380, 0x580, 0x600, 0x700,
@@ -192,68 +192,42 @@ class HostDrive:
         return None if self.statusword < 0 else state_of(self.statusword)
 
 
-class Cia402Host:
-    """The host side of three CiA 402 drives for a controller or a supervisor
-    (`drivers.devices.Translator`)."""
+class Cia402Host(DriveHost):
+    """The host side of three CiA 402 drives for a controller or a supervisor."""
 
     def __init__(self, devices: Devices, counts_per_rev: int, role: Role):
-        self.options, self.role, self.counts_per_rev = devices.cia402, role, counts_per_rev
+        super().__init__(role)
+        self.options, self.counts_per_rev = devices.cia402, counts_per_rev
         nodes = self.options.node_ids
         self.drives = [HostDrive(n) for n in nodes]
         self._drive_of: dict[int, tuple[int, int]] = {}
         reads = [TPDO1, TPDO2, TPDO3, HEARTBEAT, EMCY, SDO_TX, SDO_RX]  # SDO: another master's, not used
         if role == "supervisor":  # it checks the controller's commands against what the drives do
             reads.append(RPDO1)
-            self.names = frozenset({MessageName.SUPERVISOR_ESTOP, MessageName.SUPERVISOR_RECOVERY})
         else:
-            self.names = frozenset(DRIVE_COMMAND)
             reads.append(RPDO1)  # the supervisor's own (its takeover, its quick stop): seen, not used
         for i, n in enumerate(nodes):
             for f in reads:
                 self._drive_of[f + n] = (i, f)
         self.frame_ids = frozenset(self._drive_of) | ({NMT} if role == "supervisor" else frozenset())
         self.sends = frozenset(RPDO1 + n for n in nodes) | ({NMT} if role == "controller" else frozenset())
-        self.tick = 0
-        self.takeover = False
-        """The supervisor's recovery law holds the drives: a controller sends them nothing."""
-        self._estop = False
-        self._node: ProfileNode | None = None
-
-    def bind(self, node: ProfileNode) -> None:
-        self._node = node
-
-    def on_sync(self, tick: int) -> None:
-        self.tick = tick
-
-    def observe(self, rx: Received) -> None:
-        if rx.name == MessageName.SYNC:
-            self.tick = int(rx.signals["Tick"])
-        elif rx.name == MessageName.SUPERVISOR_ESTOP and rx.ok:
-            self.takeover = bool(rx.signals["Takeover"])
 
     # ------------------------------------------------------------------------------------------ out
-    def outgoing(self, name: str, values: Mapping[str, float]) -> list[can.Message]:
-        if name == MessageName.SUPERVISOR_ESTOP:
-            return self._estop_frames(values)
-        if name == MessageName.SUPERVISOR_RECOVERY:
-            torques = (values["Torque1"], values["Torque2"], values["Torque3"])
-            frames = []
-            for d, tq in zip(self.drives, torques, strict=True):
-                if d.restart:  # once per STOPPED heartbeat
-                    frames.append(nmt(NMT_START, d.node_id))
-                    d.restart = False
-                frames += self._command(d, tq, True)
-            return frames
-        if self.takeover:
-            return []  # one master at a time (docs/contract.md): the recovery law's torques hold the drives
-        drive = self.drives[DRIVE_COMMAND.index(name)]
-        frames = []
+    def _command(self, index: int, torque: float, enable: bool) -> list[can.Message]:
+        drive, frames = self.drives[index], []
         if drive.start:  # the master's NMT start, for a drive that booted (or was reset to pre-operational)
             frames.append(nmt(NMT_START, drive.node_id))
             drive.start = False
-        return frames + self._command(drive, float(values["Torque"]), bool(values["Enable"]))
+        return frames + self._walk(drive, torque, enable)
 
-    def _command(self, drive: HostDrive, torque: float, enable: bool) -> list[can.Message]:
+    def _recovery(self, index: int, torque: float) -> list[can.Message]:
+        drive, frames = self.drives[index], []
+        if drive.restart:  # stopped unasked: the recovery law needs every wheel (once per STOPPED heartbeat)
+            frames.append(nmt(NMT_START, drive.node_id))
+            drive.restart = False
+        return frames + self._walk(drive, torque, True)
+
+    def _walk(self, drive: HostDrive, torque: float, enable: bool) -> list[can.Message]:
         n, state = drive.node_id, drive.state
         if not enable:
             drive.want = False
@@ -271,18 +245,11 @@ class Cia402Host:
         frames.append(rpdo1(n, Cw.ENABLE_OPERATION, torque))
         return frames
 
-    def _estop_frames(self, values: Mapping[str, float]) -> list[can.Message]:
-        """The contract's SUPERVISOR_ESTOP (the drives' permission line), and on an e-stop's rising edge the
-        quick stop controlword to every drive (OPERATION ENABLED -> QUICK STOP ACTIVE: no torque)."""
-        assert self._node is not None
-        frames = [self._node.contract_frame(MessageName.SUPERVISOR_ESTOP, values)]
-        estop = bool(values["Estop"])
-        if estop and not self._estop:
-            frames += [rpdo1(d.node_id, Cw.QUICK_STOP, 0.0) for d in self.drives]
-            for d in self.drives:
-                d.want = False
-        self._estop = estop
-        return frames
+    def _stop(self, index: int) -> list[can.Message]:
+        """Quick stop (OPERATION ENABLED -> QUICK STOP ACTIVE: no torque)."""
+        drive = self.drives[index]
+        drive.want = False
+        return [rpdo1(drive.node_id, Cw.QUICK_STOP, 0.0)]
 
     # ------------------------------------------------------------------------------------------- in
     def incoming(self, msg: can.Message) -> Received | None:

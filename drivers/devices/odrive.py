@@ -22,10 +22,11 @@ import can
 import cantools
 
 from drivers.can_bus import Received
-from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MessageName
+from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE
+from drivers.devices import DriveHost
 
 if TYPE_CHECKING:
-    from drivers.devices import Devices, ProfileNode, Role
+    from drivers.devices import Devices, Role
 
 DBC_NAME = "odrive-cansimple-0.6.10.dbc"
 REQUESTED = "Axis_Requested_State"
@@ -153,11 +154,12 @@ class HostAxis:
     """Encoder estimates since its last heartbeat (the host's clock for the heartbeat's timeout)."""
 
 
-class OdriveHost:
-    """The host side of three ODrive axes for a controller or a supervisor (`drivers.devices.Translator`)."""
+class OdriveHost(DriveHost):
+    """The host side of three ODrive axes for a controller or a supervisor."""
 
     def __init__(self, devices: Devices, counts_per_rev: int, role: Role):
-        self.options, self.role, self.counts_per_rev = devices.odrive, role, counts_per_rev
+        super().__init__(role)
+        self.options, self.counts_per_rev = devices.odrive, counts_per_rev
         self.wire = OdriveWire()
         nodes = self.options.node_ids
         self.axes = [HostAxis(n) for n in nodes]
@@ -165,9 +167,7 @@ class OdriveHost:
         reads = [Cmd.HEARTBEAT, Cmd.GET_ENCODER_ESTIMATES, Cmd.GET_TORQUES]
         if role == "supervisor":  # it checks the controller's commands against what the drives do
             reads += [Cmd.SET_INPUT_TORQUE, Cmd.SET_AXIS_STATE, Cmd.ESTOP]
-            self.names = frozenset({MessageName.SUPERVISOR_ESTOP, MessageName.SUPERVISOR_RECOVERY})
         else:
-            self.names = frozenset(DRIVE_COMMAND)
             reads += HOST_SENDS  # the supervisor's own (its takeover, its Estop): seen, not used
         self.frame_ids = self.wire.ids(nodes, reads)
         options = self.options
@@ -179,37 +179,10 @@ class OdriveHost:
         """Encoder estimates without a heartbeat after which the axis's state is unknown and its estimates
         are not passed on (0: no heartbeat to expect)."""
         self.sends = self.wire.ids(nodes, HOST_SENDS)
-        self.tick = 0
-        self.takeover = False
-        """The supervisor's recovery law holds the drives: a controller sends them nothing."""
-        self._estop = False
-        self._node: ProfileNode | None = None
-
-    def bind(self, node: ProfileNode) -> None:
-        self._node = node
-
-    def on_sync(self, tick: int) -> None:
-        self.tick = tick
-
-    def observe(self, rx: Received) -> None:
-        if rx.name == MessageName.SYNC:
-            self.tick = int(rx.signals["Tick"])
-        elif rx.name == MessageName.SUPERVISOR_ESTOP and rx.ok:
-            self.takeover = bool(rx.signals["Takeover"])
 
     # ------------------------------------------------------------------------------------------ out
-    def outgoing(self, name: str, values: Mapping[str, float]) -> list[can.Message]:
-        if name == MessageName.SUPERVISOR_ESTOP:
-            return self._estop_frames(values)
-        if name == MessageName.SUPERVISOR_RECOVERY:
-            torques = (values["Torque1"], values["Torque2"], values["Torque3"])
-            return [m for a, tq in zip(self.axes, torques, strict=True) for m in self._command(a, tq, True)]
-        if self.takeover:
-            return []  # one master at a time (docs/contract.md): the recovery law's torques hold the drives
-        axis = self.axes[DRIVE_COMMAND.index(name)]
-        return self._command(axis, float(values["Torque"]), bool(values["Enable"]))
-
-    def _command(self, axis: HostAxis, torque: float, enable: bool) -> list[can.Message]:
+    def _command(self, index: int, torque: float, enable: bool) -> list[can.Message]:
+        axis = self.axes[index]
         wire, node, frames = self.wire, axis.node_id, []
         if enable and (not axis.want or axis.rearm):
             if axis.error:
@@ -222,16 +195,9 @@ class OdriveHost:
         frames.append(wire.frame(node, Cmd.SET_INPUT_TORQUE, {"Input_Torque": torque if enable else 0.0}))
         return frames
 
-    def _estop_frames(self, values: Mapping[str, float]) -> list[can.Message]:
-        """The contract's SUPERVISOR_ESTOP (the drives' permission line), and on an e-stop's rising edge
-        CAN Simple's Estop to every axis (it disarms them with ESTOP_REQUESTED)."""
-        assert self._node is not None
-        frames = [self._node.contract_frame(MessageName.SUPERVISOR_ESTOP, values)]
-        estop = bool(values["Estop"])
-        if estop and not self._estop:
-            frames += [self.wire.frame(a.node_id, Cmd.ESTOP) for a in self.axes]
-        self._estop = estop
-        return frames
+    def _stop(self, index: int) -> list[can.Message]:
+        """CAN Simple's Estop: it disarms the axis with ESTOP_REQUESTED."""
+        return [self.wire.frame(self.axes[index].node_id, Cmd.ESTOP)]
 
     # ------------------------------------------------------------------------------------------- in
     def incoming(self, msg: can.Message) -> Received | None:

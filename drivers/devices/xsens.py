@@ -17,7 +17,7 @@ IMU going silent.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import IntFlag
 from functools import cache
@@ -30,10 +30,10 @@ import cantools
 
 from drivers.can_bus import Received
 from drivers.can_codec import MessageName
-from drivers.devices import XSENS_XCIDS
+from drivers.devices import XSENS_XCIDS, Translator
 
 if TYPE_CHECKING:
-    from drivers.devices import Devices, ProfileNode, Role
+    from drivers.devices import Devices, Role
 
 DBC_NAME = "xsens_mti.dbc"
 TIME_TICKS_PER_S = 10_000
@@ -143,31 +143,18 @@ class Group:
     """Data message -> the (sample time, counter) of the group it was last passed on with."""
 
 
-class XsensHost:
-    """The host side of an Xsens MTi on CAN, for a controller or a supervisor (a `Translator`)."""
+class XsensHost(Translator):
+    """The host side of an Xsens MTi on CAN, for a controller or a supervisor."""
 
     def __init__(self, devices: Devices, counts_per_rev: int, role: Role):
+        super().__init__()
         self.options, self.role = devices.xsens, role
         self.wire = XsensWire(self.options.base_id)
-        self.names: frozenset[str] = frozenset()
         self.frame_ids = frozenset(self.wire.ids.values())
-        self.sends: frozenset[int] = frozenset()
         self.group = Group()
         self.stale = 0
         """Data frames held back as not valid because the group's counter or time had not advanced."""
         self.error_codes: list[int] = []
-
-    def bind(self, node: ProfileNode) -> None:
-        pass
-
-    def on_sync(self, tick: int) -> None:
-        pass
-
-    def observe(self, rx: Received) -> None:
-        pass
-
-    def outgoing(self, name: str, values: Mapping[str, float]) -> Iterable[can.Message]:
-        return ()
 
     def incoming(self, msg: can.Message) -> Received | None:
         if msg.is_remote_frame:

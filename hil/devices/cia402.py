@@ -25,7 +25,7 @@ from canopen.pdo.base import PdoBase, PdoMaps
 
 from drivers.can_bus import Received
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE
-from drivers.devices import Devices, ProfileNode
+from drivers.devices import Devices, Translator
 from drivers.devices.cia402 import (
     CST,
     EMCY,
@@ -318,10 +318,11 @@ class Drive:
                 task.count += 1
 
 
-class Cia402Drives:
-    """The device side of three CiA 402 drives (`drivers.devices.Translator`)."""
+class Cia402Drives(Translator):
+    """The device side of three CiA 402 drives."""
 
     def __init__(self, devices: Devices, counts_per_rev: int, tick_hz: float):
+        super().__init__()
         options = devices.cia402
         self.network = RigNetwork(1.0 / tick_hz)
         self.drives = [
@@ -337,17 +338,6 @@ class Cia402Drives:
         self.sends = frozenset(
             f + n for n in options.node_ids for f in (EMCY, TPDO1, TPDO2, TPDO3, 0x580, HEARTBEAT)
         )
-        self.tick = 0
-        self._node: ProfileNode | None = None
-
-    def bind(self, node: ProfileNode) -> None:
-        self._node = node
-
-    def on_sync(self, tick: int) -> None:
-        self.tick = tick
-
-    def observe(self, rx: Received) -> None:
-        pass
 
     # ------------------------------------------------------------------------------ the drives' output
     def outgoing(self, name: str, values: Mapping[str, float]) -> list[can.Message]:
@@ -433,9 +423,9 @@ class Cia402Drives:
 
     def _flush(self, index: int) -> None:
         """What the Network sent while handling a frame (SDO responses, EMCY): out at once."""
-        assert self._node is not None
+        assert self.node is not None
         for m in self.network.take():
-            self._node.reply(DRIVE_FEEDBACK[index], m)
+            self.node.reply(DRIVE_FEEDBACK[index], m)
 
 
 def _maps(pdos: PdoBase) -> PdoMaps:

@@ -22,7 +22,7 @@ import can
 
 from drivers.can_bus import Received
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE
-from drivers.devices import Devices, ProfileNode
+from drivers.devices import Devices, Translator
 from drivers.devices.odrive import REQUESTED, AxisError, AxisState, Cmd, ControlMode, OdriveWire, split_id
 
 log = logging.getLogger(__name__)
@@ -73,10 +73,11 @@ class Axis:
         self.error |= error
 
 
-class OdriveAxes:
-    """The device side of three ODrive axes (`drivers.devices.Translator`)."""
+class OdriveAxes(Translator):
+    """The device side of three ODrive axes."""
 
     def __init__(self, devices: Devices, counts_per_rev: int, tick_hz: float):
+        super().__init__()
         options = devices.odrive
         self.wire = OdriveWire()
         mode = {"torque": ControlMode.TORQUE_CONTROL, "velocity": ControlMode.VELOCITY_CONTROL}.get(
@@ -91,17 +92,6 @@ class OdriveAxes:
         self.names = frozenset((*DRIVE_FEEDBACK, *DRIVE_TORQUE))
         self.frame_ids = self.wire.ids(options.node_ids, range(32))
         self.sends = self.wire.ids(options.node_ids, ANSWERS)
-        self.tick = 0
-        self._node: ProfileNode | None = None
-
-    def bind(self, node: ProfileNode) -> None:
-        self._node = node
-
-    def on_sync(self, tick: int) -> None:
-        self.tick = tick
-
-    def observe(self, rx: Received) -> None:
-        pass
 
     # ------------------------------------------------------------------------------ the drives' output
     def outgoing(self, name: str, values: Mapping[str, float]) -> list[can.Message]:
@@ -161,8 +151,8 @@ class OdriveAxes:
         axis = self.axes[i]
         if msg.is_remote_frame:
             if cmd in ANSWERS:
-                assert self._node is not None
-                self._node.reply(DRIVE_FEEDBACK[i], self._reply(axis, cmd))
+                assert self.node is not None
+                self.node.reply(DRIVE_FEEDBACK[i], self._reply(axis, cmd))
             return None
         if cmd in OWN:  # the same id sent by another node: a bus conflict, not a command
             raise ValueError(f"axis {node}: a frame with this axis's own id 0x{msg.arbitration_id:03X}")

@@ -19,7 +19,7 @@ import can
 
 from drivers.can_bus import Received
 from drivers.can_codec import MessageName
-from drivers.devices import Devices, ProfileNode
+from drivers.devices import Devices, Translator
 from drivers.devices.xsens import TIME_TICKS_PER_S, Status, XsensWire
 
 FIELDS: dict[str, tuple[str, tuple[tuple[str, str], ...]]] = {
@@ -31,12 +31,13 @@ FIELDS: dict[str, tuple[str, tuple[tuple[str, str], ...]]] = {
 HEALTHY = Status.SELF_TEST | Status.FILTER_VALID
 
 
-class XsensImu:
-    """The device side of an Xsens MTi on CAN (`drivers.devices.Translator`)."""
+class XsensImu(Translator):
+    """The device side of an Xsens MTi on CAN."""
 
     profile = "xsens"
 
     def __init__(self, devices: Devices, counts_per_rev: int, tick_hz: float):
+        super().__init__()
         options = devices.xsens
         self.wire = XsensWire(options.base_id)
         self.every = max(1, round(tick_hz / options.rate_hz))
@@ -55,15 +56,10 @@ class XsensImu:
         """The current tick's group header is out (or this tick sends no group)."""
         self._sending = False
 
-    def bind(self, node: ProfileNode) -> None:
-        pass
-
     def on_sync(self, tick: int) -> None:
+        super().on_sync(tick)
         self.ticks += 1
         self._started = False
-
-    def observe(self, rx: Received) -> None:
-        pass
 
     def incoming(self, msg: can.Message) -> Received | None:
         return None
