@@ -17,74 +17,24 @@ import msgspec
 import pytest
 
 from drivers.can_bus import BusConfig, open_bus, private_channel
-from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MessageName
+from drivers.can_codec import DRIVE_FEEDBACK
 from drivers.config import ConfigError
-from drivers.devices import Devices, ProfileNode
+from drivers.devices import Devices
 from drivers.devices.odrive import AxisError, AxisState, OdriveWire
 from hil.devices.odrive import OdriveAxes
-from plant.drives import DriveArray, DriveState
-from plant.params import Drive
+from plant.drives import DriveState
+from tests.device_bench import TICK, WATCHDOG, DevicesOnABench
 from tests.zenoh_helpers import private_bench
 
 odrive_can = pytest.importorskip("odrive_can", reason="the odrive profile needs odrive-can (a dependency)")
 
 NODES = (1, 2, 3)
-TICK = 0.0025
-WATCHDOG = 0.5
-"""s: the bench's drives' watchdog, long beside the 5 ms feeds (a loaded machine may starve a thread for
-tens of ms; the rig's drives keep the plant's 20 ms in simulated time)."""
-
-
-class AxesOnABench:
-    """The emulated axes in front of three plant drives, ticking on a thread at about 400 Hz (wall clock,
-    as a real drive would): feedback and SYNC out, the hosts' frames in and onto the power stages."""
-
-    def __init__(self, channel: str):
-        self.bus = open_bus(BusConfig(channel=channel))
-        self.axes = OdriveAxes(Devices(drives="odrive"), 8192, 1 / TICK)
-        self.node = ProfileNode(self.bus, [self.axes], name="rig")
-        self.drives = DriveArray(Drive(watchdog_timeout=WATCHDOG))
-        self.t, self.k = 0.0, 0
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        while not self.stop.is_set():
-            self.k += 1
-            self.t += TICK
-            self.drives.advance(TICK, self.t)
-            for name, m in zip(DRIVE_FEEDBACK, self.drives.motors, strict=True):
-                self.node.send(
-                    name,
-                    {
-                        "Position": 1000 * self.k,
-                        "Velocity": 2.0,
-                        "Enabled": int(m.state is DriveState.ENABLED),
-                        "WatchdogTripped": int(m.state is DriveState.WATCHDOG),
-                        "BusPowered": int(m.bus_powered),
-                    },
-                )
-            if self.k % 4 == 0:
-                for name, m in zip(DRIVE_TORQUE, self.drives.motors, strict=True):
-                    self.node.send(name, {"Torque": m.torque})
-            self.node.send(MessageName.SYNC, {"Tick": self.k % 65536})
-            while (rx := self.node.recv(timeout=0.0)) is not None:
-                if rx.name in DRIVE_COMMAND:
-                    motor = self.drives.motors[DRIVE_COMMAND.index(rx.name)]
-                    motor.set_command(float(rx.signals["Torque"]), bool(rx.signals["Enable"]), self.t)
-            time.sleep(TICK)
-
-    def close(self) -> None:
-        self.stop.set()
-        self.thread.join()
-        self.bus.shutdown()
 
 
 @pytest.fixture
 def bench():
     channel = private_channel("odrive")
-    axes = AxesOnABench(channel)
+    axes = DevicesOnABench(channel, OdriveAxes(Devices(drives="odrive"), 8192, 1 / TICK))
     yield axes, channel
     axes.close()
 
