@@ -32,7 +32,9 @@ class EmbeddedSupervisor:
             robot = load_toml(spec.robot, RobotGeometry)
             rules = msgspec.convert(spec.rules, SupervisorConfig)
             can = host_node(self.bus, spec.devices, robot.encoder.counts_per_rev, "supervisor")
-            self.node = SupervisorNode(can, link, rules, robot, tick_hz=spec.tick_hz)
+            self.node = SupervisorNode(
+                can, link, rules, robot, tick_hz=spec.tick_hz, stage_read_back=spec.devices.stage_read_back
+            )
         except BaseException:
             self._close()
             raise

@@ -20,8 +20,10 @@ takeover latches with it), and a reset permits motion, it never causes it.
 Power is removed on two paths (IEC 60204-1, ISO 13849): the drives' permission (SUPERVISOR_ESTOP), and
 the main contactor in their power feed. In ESTOP the drives must confirm that they are off (their feedback
 reports Enabled = 0) within `drives.confirm`; if one does not (a power stage stuck on, a drive that cannot
-be heard) the contactor opens (DRIVE_NOT_DISABLED), and it does not close again until a valid reset. An
-open contactor that a drive still reports powered after `drives.confirm` is CONTACTOR_FAULT.
+be heard) the contactor opens (DRIVE_NOT_DISABLED), and it does not close again until a valid reset. Drives
+whose Enabled is only their firmware's state (`stage_read_back` False: ODrive, CiA 402) cannot confirm a
+power stage off, so there both paths act on every e-stop: the contactor opens `drives.confirm` after ESTOP
+is entered. An open contactor that a drive still reports powered after `drives.confirm` is CONTACTOR_FAULT.
 
 Root cause: causes are checked from source to consequence (the order of `_immediate` and `_controlled`),
 so when several hold in one update the most upstream one names the transition; a stop already under way
@@ -260,7 +262,8 @@ class Event:
 
     t: float
     kind: str
-    """'transition' or 'reset_refused'."""
+    """'transition', 'reset_refused' or 'contactor_opened' (the rule for drives that cannot confirm their
+    power stage off; opened by DRIVE_NOT_DISABLED it is a transition)."""
     from_state: str
     to_state: str
     cause: str
@@ -294,6 +297,7 @@ class Supervisor:
         config: SupervisorConfig | None = None,
         torque_limit: float = 3.75,
         drive_watchdog: float = 0.02,
+        stage_read_back: bool = True,
     ):
         self.config = c = config or SupervisorConfig()
         self.tilt_limit = math.radians(c.motion.tilt_limit_deg)
@@ -301,6 +305,8 @@ class Supervisor:
         self.torque_limit = torque_limit
         self.drive_watchdog = drive_watchdog
         """The drives' own command watchdog (robot file), s: for the root-cause rule."""
+        self.stage_read_back = stage_read_back
+        """The drives' Enabled reads back their power stage (else the contactor opens on every e-stop)."""
         self.state, self.cause, self.since = State.NORMAL, Cause.NONE, 0.0
         self.started: float | None = None
         self.permitted_since = 0.0
@@ -582,6 +588,16 @@ class Supervisor:
                     f"{unconfirmed} {(obs.t - self.since) * 1e3:.1f} ms after the e-stop: "
                     "main contactor opened",
                     keep_since=True,
+                )
+            elif not self.stage_read_back:
+                self.contactor_closed, self._contactor_opened = False, obs.t
+                self._log(
+                    obs,
+                    "contactor_opened",
+                    self.state,
+                    self.cause,
+                    "the drives' state cannot show a power stage stuck on: main contactor opened "
+                    f"{(obs.t - self.since) * 1e3:.1f} ms after the e-stop",
                 )
         elif not self._contactor_fault and obs.t - self._contactor_opened >= confirm - 1e-9:
             live = [str(i) for i, d in enumerate(obs.drives, 1) if d.bus_powered]

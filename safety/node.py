@@ -55,11 +55,14 @@ class SupervisorNode:
         tick_hz: float = 400.0,
         fence_wait: float = 0.5,
         on_put: Callable[[str, bytes], None] | None = None,
+        stage_read_back: bool = True,
     ):
         self.config = config = config or SupervisorConfig()
         robot = robot or RobotGeometry()
         self.can, self.link, self.keys = can, link, link.keys
-        self.machine = Supervisor(config, robot.drive.torque_limit, robot.drive.watchdog_timeout)
+        self.machine = Supervisor(
+            config, robot.drive.torque_limit, robot.drive.watchdog_timeout, stage_read_back=stage_read_back
+        )
         self.monitors = Monitors(config, robot, tick_hz)
         self.recovery = RecoveryLaw(robot, config.recovery)
         self.recovery_torques: tuple[float, float, float] | None = None
@@ -119,7 +122,7 @@ class SupervisorNode:
         self.observation = self.monitors.observe(t)
         decision = self.machine.update(self.observation)
         new = self.machine.events[self._events_seen :]
-        changed = any(e.kind == "transition" for e in new)
+        changed = any(e.kind in ("transition", "contactor_opened") for e in new)
         if any(e.kind == "transition" and e.to_state == State.RECOVERY.name for e in new):
             self.monitors.isolated.engage()
             self.recovery.design(self.monitors.seat_load)

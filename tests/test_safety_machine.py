@@ -274,6 +274,29 @@ def test_drives_that_confirm_off_leave_the_contactor_closed_and_silence_opens_it
     assert (d.cause, d.contactor_closed) == (Cause.DRIVE_NOT_DISABLED, False)
 
 
+def test_drives_that_cannot_confirm_their_stage_off_get_the_contactor_opened_on_every_estop():
+    """ODrive's and CiA 402's Enabled is the firmware's state: a power stage stuck on still reads off, so
+    both paths act on every e-stop (docs/safety.md "The second shutdown path")."""
+    cut = tuple(DriveReport(enabled=False, bus_powered=False) for _ in range(3))
+    for read_back in (False, True):
+        s = Supervisor(CFG, LIMIT, stage_read_back=read_back)
+        s.update(obs(t=0.0))
+        to_estop(s)
+        assert s.update(obs(t=1.0 + CONFIRM - DT)).contactor_closed, "within the bound"
+        d = s.update(obs(t=1.0 + CONFIRM))
+        if read_back:  # positive control: drives confirmed off leave it closed
+            assert d.contactor_closed and s.events[-1].kind == "transition"
+            continue
+        assert (d.state, d.cause, d.contactor_closed) == (State.ESTOP, Cause.HEARTBEAT_LOST, False), (
+            "the e-stop keeps its cause: an opened contactor is no finding about the drives"
+        )
+        assert s.events[-1].kind == "contactor_opened" and "20.0 ms after the e-stop" in s.events[-1].detail
+        # The contactor is still checked, and a reset closes it again.
+        assert s.update(obs(t=1.0 + 2 * CONFIRM, drives=cut)).cause is Cause.HEARTBEAT_LOST
+        d = s.update(obs(t=2.0, drives=cut, operator="reset"))
+        assert (d.state, d.contactor_closed) == (State.NORMAL, True)
+
+
 def test_a_contactor_that_does_not_cut_the_bus_is_a_fault_of_its_own():
     s = supervisor()
     to_estop(s)
@@ -552,9 +575,9 @@ steps = st.lists(
 
 
 @settings(max_examples=300, deadline=None)
-@given(steps)
-def test_properties_over_any_observation_sequence(sequence):
-    s = Supervisor(CFG, LIMIT)
+@given(steps, st.booleans())
+def test_properties_over_any_observation_sequence(sequence, stage_read_back):
+    s = Supervisor(CFG, LIMIT, stage_read_back=stage_read_back)
     t = 0.0
     closed, taken, latched = True, False, ""
     for step in sequence:

@@ -4,6 +4,7 @@ runs that never wait out the wall-clock guard tick after tick. The plant's truth
 
 import msgspec
 import numpy as np
+import pytest
 
 from drivers.config import load_toml
 from drivers.schemas import ScCommand, decode
@@ -18,7 +19,7 @@ BENCH = load_toml(ROOT / "configs/scenarios/bench_smoke.toml", Scenario)
 CFG = SupervisorConfig()
 
 
-def run(faults=(), operator=(), safety=None, duration=2.5):
+def run(faults=(), operator=(), safety=None, duration=2.5, bench="embedded"):
     scenario = msgspec.structs.replace(
         BENCH,
         duration=duration,
@@ -27,7 +28,7 @@ def run(faults=(), operator=(), safety=None, duration=2.5):
         safety=safety or {},
         criteria=[],
     )
-    return pipeline.run(scenario, private_bench()).trace
+    return pipeline.run(scenario, private_bench(bench)).trace
 
 
 def causes(trace):
@@ -50,6 +51,21 @@ def test_a_drive_stuck_on_during_an_estop_ends_unpowered_and_at_rest():
     # Positive control: without the second path in time the stuck drive stays powered to the end.
     tr = run(STUCK, ESTOP, safety={"drives": {"confirm": 100.0}})
     assert tr.powered[-1] and tr.stats.contactor_opened == 0
+
+
+@pytest.mark.parametrize("bench", ["odrive", "cia402"])
+def test_a_drive_stuck_on_that_its_firmware_calls_off_is_cut_by_the_contactor_every_estop(bench):
+    """On ODrive and CiA 402 the drive's state says off whatever its power stage does: nothing sees the
+    stuck stage, so the contactor opens on every e-stop (docs/safety.md "The second shutdown path")."""
+    tr = run(STUCK, ESTOP, bench=bench)
+    estop = next(t for t, state, _ in causes(tr) if state == "ESTOP")
+    assert "DRIVE_NOT_DISABLED" not in {cause for *_, cause in causes(tr)}, "the firmware's state hides it"
+    opened = next(e.t for e in tr.safety_events if e.kind == "contactor_opened")
+    assert opened - estop <= CFG.drives.confirm + 0.0025
+    # Positive control within the run: the stuck drive was still powered after the drives' own stop.
+    assert tr.powered[(tr.t > estop + 0.005) & (tr.t < opened)].all()
+    assert not tr.powered[tr.t > opened + 0.005].any(), "every drive unpowered from the contactor on"
+    assert tr.stats.contactor_opened == 1 and tr.fallen is None and tr.resting[-1]
 
 
 def sc_commands(trace, after: float) -> list[ScCommand]:

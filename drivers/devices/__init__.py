@@ -113,6 +113,13 @@ class Devices(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=T
     cia402: Cia402Options = Cia402Options()
     xsens: XsensOptions = XsensOptions()
 
+    @property
+    def stage_read_back(self) -> bool:
+        """The drives' Enabled reads back their power stage itself (pure's drives). On ODrive and CiA 402 it
+        is the firmware's state, which a power stage that failed on does not change: a supervisor must then
+        open the main contactor on every e-stop, not only when a drive does not confirm it is off."""
+        return self.drives == "pure"
+
     def __post_init__(self) -> None:
         if self.drives == "odrive":
             kept = _contract_ids(drives=False, imu=self.imu == "pure")
