@@ -13,6 +13,7 @@ import json
 import threading
 import time
 
+import can
 import msgspec
 import pytest
 
@@ -319,6 +320,33 @@ def test_a_fault_of_a_profile_the_bench_does_not_speak_is_refused_before_the_run
     trace = run(scenario, private_bench()).trace
     assert trace.failure is not None and trace.failure.config
     assert "needs a bench whose drives speak 'odrive'" in trace.failure.error
+
+
+@pytest.mark.parametrize("role", ["supervisor", "controller"])
+def test_every_hosts_commands_are_known_frames_to_the_other_host(role):
+    """After a reset the controller clears the axes' DC-bus error (the contactor opened on the e-stop): the
+    supervisor read its Clear_Errors as unknown ids once."""
+    from drivers.devices import host_node
+    from drivers.devices.odrive import HOST_SENDS, Cmd
+
+    wire, node = OdriveWire(), NODES[0]
+    payload = {
+        Cmd.ESTOP: {},
+        Cmd.SET_AXIS_STATE: {"Axis_Requested_State": AxisState.CLOSED_LOOP_CONTROL},
+        Cmd.SET_INPUT_TORQUE: {"Input_Torque": 0.1, "Torque_FF": 0.0},
+        Cmd.CLEAR_ERRORS: {"Identify": 0},
+    }
+    bus = can.Bus(interface="virtual", channel=f"odrive-hosts-{role}")
+    try:
+        host = host_node(bus, Devices(drives="odrive"), 8192, role)
+        for cmd in HOST_SENDS:
+            host.decode(wire.frame(node, cmd, payload[cmd]))
+        assert not host.stats.malformed, dict(host.stats.malformed)
+        # Test the test: a frame of an axis this bench does not have is counted.
+        host.decode(can.Message(arbitration_id=0x7E0, data=b"\0", is_extended_id=False))
+        assert host.stats.malformed["unknown_id"] == 1
+    finally:
+        bus.shutdown()
 
 
 @pytest.mark.parametrize(("torque", "enabled"), [(0.3, 1), (-0.3, 1), (0.01, 0), (0.0, 0)])

@@ -68,6 +68,21 @@ def test_a_drive_stuck_on_that_its_firmware_calls_off_is_cut_by_the_contactor_ev
     assert tr.stats.contactor_opened == 1 and tr.fallen is None and tr.resting[-1]
 
 
+@pytest.mark.parametrize("bench", ["odrive", "cia402"])
+def test_after_a_reset_the_drives_clear_the_open_contactors_error_and_balance_again(bench):
+    """The contactor opened on the e-stop leaves every drive with a DC-bus error: a reset closes it and the
+    controller's next enable clears the error and arms the drives."""
+    operator = [
+        OperatorEntry(at=1.0, action="estop"),
+        OperatorEntry(at=2.0, action="reset"),
+        OperatorEntry(at=2.1, action="enable"),
+    ]
+    tr = run(operator=operator, bench=bench, duration=3.5)
+    assert [e.kind for e in tr.safety_events].count("contactor_opened") == 1
+    assert tr.resting[(tr.t > 1.5) & (tr.t < 2.0)].all(), "at rest, unpowered, before the reset"
+    assert tr.powered[tr.t > 2.6].all() and tr.fallen is None and not tr.resting[-1]
+
+
 def sc_commands(trace, after: float) -> list[ScCommand]:
     return [
         decode(data, ScCommand)

@@ -164,11 +164,9 @@ class OdriveHost(DriveHost):
         nodes = self.options.node_ids
         self.axes = [HostAxis(n) for n in nodes]
         self._axis_of = {n: i for i, n in enumerate(nodes)}
-        reads = [Cmd.HEARTBEAT, Cmd.GET_ENCODER_ESTIMATES, Cmd.GET_TORQUES]
-        if role == "supervisor":  # it checks the controller's commands against what the drives do
-            reads += [Cmd.SET_INPUT_TORQUE, Cmd.SET_AXIS_STATE, Cmd.ESTOP]
-        else:
-            reads += HOST_SENDS  # the supervisor's own (its takeover, its Estop): seen, not used
+        # Every host's commands too: a supervisor checks the controller's against what the drives do; a
+        # controller sees the supervisor's (its takeover, its Estop), not used.
+        reads = [Cmd.HEARTBEAT, Cmd.GET_ENCODER_ESTIMATES, Cmd.GET_TORQUES, *HOST_SENDS]
         self.frame_ids = self.wire.ids(nodes, reads)
         options = self.options
         self.heartbeat_patience = (
@@ -206,8 +204,8 @@ class OdriveHost(DriveHost):
             return None  # another host's request: its answer is what counts
         i = self._axis_of[node]
         axis = self.axes[i]
-        if self.role == "controller" and cmd in HOST_SENDS:
-            return None
+        if (self.role == "controller" and cmd in HOST_SENDS) or cmd == Cmd.CLEAR_ERRORS:
+            return None  # a clear shows in the axis's next heartbeat
         if cmd == Cmd.ESTOP:
             axis.want = False
             return None
