@@ -548,3 +548,57 @@ def test_a_live_fault_starts_exactly_at_after_the_tick_that_takes_it_in():
         faults.update(k, k / faults.tick_hz)
     (start,) = starts
     assert start.t == pytest.approx(taken_at / faults.tick_hz + 0.5)
+
+
+@pytest.mark.parametrize(("bench", "own", "other"), [("odrive", 0x029, 0x049), ("cia402", 0x181, 0x182)])
+def test_can_masquerade_on_a_device_profile_sends_under_the_other_devices_id(tmp_path, bench, own, other):
+    """On a profile the impersonated drive's frames are the profile's (axis 2's Get_Encoder_Estimates, drive
+    2's TPDO1), not the contract's DRIVE2_FEEDBACK (0x182 on an odrive bus belongs to nobody)."""
+    import msgspec
+
+    from hil.pipeline import load_scenario, run
+    from tests.zenoh_helpers import private_bench
+
+    at = 0.5
+    fault = parse_fault(
+        {"kind": "can.masquerade", "message": "DRIVE1_FEEDBACK", "as_message": "DRIVE2_FEEDBACK", "at": at}
+    )
+    scenario = msgspec.structs.replace(load_scenario("balance"), duration=1.0, faults=[fault], criteria=[])
+    run(scenario, private_bench(bench), out=tmp_path)
+    ticks: list[list[tuple[int, str]]] = [[]]  # the frames between two SYNCs (the rig's tick, 2.5 ms)
+    for line in (tmp_path / "can.log").read_text().splitlines():
+        frame_id, _, data = line.split()[2].partition("#")
+        if int(frame_id, 16) == 0x080:
+            ticks.append([])
+        ticks[-1].append((int(frame_id, 16), data))
+    start = round(at / 0.0025) + 2
+
+    def copies(tick: list[tuple[int, str]]) -> bool:
+        """Drive 1's frame went out again under drive 2's id this tick."""
+        return {d for i, d in tick if i == own} <= {d for i, d in tick if i == other} and (
+            sum(i == other for i, _ in tick) == 2 * sum(i == own for i, _ in tick) > 0
+        )
+
+    assert all(copies(tick) for tick in ticks[start:-1])
+    assert not any(copies(tick) for tick in ticks[10 : start - 4]), "test the test: none before the fault"
+    if bench == "odrive":
+        assert all(i != 0x182 for tick in ticks for i, _ in tick), "no contract frame on an odrive bus"
+
+
+@pytest.mark.parametrize(
+    ("bench", "fault", "error"),
+    [
+        ("xsens", {"message": "IMU_RATE", "as_message": "IMU_ACCEL"}, "xsens profile cannot send a frame"),
+        ("odrive", {"message": "DRIVE1_FEEDBACK", "as_message": "IMU_RATE"}, "not frames of one family"),
+    ],
+)
+def test_can_masquerade_a_profile_cannot_carry_is_refused_before_the_run(bench, fault, error):
+    import msgspec
+
+    from hil.pipeline import load_scenario, run
+    from tests.zenoh_helpers import private_bench
+
+    spec = parse_fault({"kind": "can.masquerade", "at": 0.5, **fault})
+    scenario = msgspec.structs.replace(load_scenario("balance"), duration=1.0, faults=[spec])
+    trace = run(scenario, private_bench(bench)).trace
+    assert trace.failure is not None and error in trace.failure.error

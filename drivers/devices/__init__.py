@@ -196,6 +196,8 @@ class Translator:
     """Standard frame ids it reads (remote frames included)."""
     sends: frozenset[int] = frozenset()
     """Standard frame ids it sends (a replay tells a controller's answer from the rig's frames by them)."""
+    profile: str = ""
+    """The device profile (its name in a bench's `[devices]`)."""
 
     def __init__(self) -> None:
         self.node: ProfileNode | None = None
@@ -226,6 +228,11 @@ class Translator:
     def on_sync(self, tick: int) -> None:
         """The node sent SYNC(tick)."""
         self.tick = tick
+
+    def frame_id_as(self, msg: can.Message, name: str) -> int:
+        """The id under which `msg`, a frame of one of its messages, passes for the same frame of message
+        `name` (a node impersonating another: can.masquerade). A profile that knows how overrides it."""
+        raise ValueError(f"the {self.profile or 'device'} profile cannot send a frame as {name}")
 
 
 class DriveHost(Translator):
@@ -306,6 +313,10 @@ class ProfileNode(CanNode):
             for m in [msg] if self.tx_hook is None else self.tx_hook(name, msg):
                 sent = self.transmit(name, m) and sent
         return sent
+
+    def translator_of(self, name: str) -> Translator | None:
+        """The translator that sends logical message `name` (None: a contract frame)."""
+        return self._out.get(name)
 
     def contract_frame(self, name: str, values: Mapping[str, float]) -> can.Message:
         """A contract message as this node would send it (E2E sealed): for a translator that adds to it."""

@@ -340,6 +340,12 @@ class Cia402Drives(Translator):
         )
 
     # ------------------------------------------------------------------------------ the drives' output
+    def frame_id_as(self, msg: can.Message, name: str) -> int:
+        """The same COB (its function code) from the drive that sends `name`."""
+        index = DRIVE_FEEDBACK.index(name) if name in DRIVE_FEEDBACK else DRIVE_TORQUE.index(name)
+        function = msg.arbitration_id - (msg.arbitration_id & 0x7F)
+        return function + self.drives[index].node_id
+
     def outgoing(self, name: str, values: Mapping[str, float]) -> list[can.Message]:
         self.network.take()  # nothing pending outside a call
         if name in DRIVE_TORQUE:

@@ -23,7 +23,16 @@ import can
 from drivers.can_bus import Received
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE
 from drivers.devices import Devices, Translator
-from drivers.devices.odrive import REQUESTED, AxisError, AxisState, Cmd, ControlMode, OdriveWire, split_id
+from drivers.devices.odrive import (
+    REQUESTED,
+    AxisError,
+    AxisState,
+    Cmd,
+    ControlMode,
+    OdriveWire,
+    frame_id,
+    split_id,
+)
 
 log = logging.getLogger(__name__)
 
@@ -94,6 +103,11 @@ class OdriveAxes(Translator):
         self.sends = self.wire.ids(options.node_ids, ANSWERS)
 
     # ------------------------------------------------------------------------------ the drives' output
+    def frame_id_as(self, msg: can.Message, name: str) -> int:
+        """The same command from the axis that sends `name`."""
+        index = DRIVE_FEEDBACK.index(name) if name in DRIVE_FEEDBACK else DRIVE_TORQUE.index(name)
+        return frame_id(self.axes[index].node_id, split_id(msg.arbitration_id)[1])
+
     def outgoing(self, name: str, values: Mapping[str, float]) -> list[can.Message]:
         if name in DRIVE_TORQUE:
             axis = self.axes[DRIVE_TORQUE.index(name)]

@@ -17,6 +17,7 @@ import msgspec
 
 from drivers.bus_load import frame_bits
 from drivers.can_codec import DRIVE_COMMAND, MessageName
+from drivers.devices import ProfileNode, Translator
 from drivers.e2e import counter_of, is_protected, with_counter
 from hil.faults.base import FaultSpec, FaultState, FaultTarget, Positive, Probability
 
@@ -170,7 +171,8 @@ class WrongDlc(CanFault, frozen=True, tag="can.wrong_dlc"):
 
 class Masquerade(CanFault, frozen=True, tag="can.masquerade"):
     """A node sends this message's valid payload under `as_message`'s id as well (a node impersonating
-    another): the E2E data id in the CRC makes receivers of `as_message` see CRC errors."""
+    another): the E2E data id in the CRC makes receivers of `as_message` see CRC errors. On a device
+    profile the copy goes out under the profile's id of the same frame of `as_message`'s device (no E2E)."""
 
     as_message: str
     both_ways: ClassVar[bool] = False
@@ -183,9 +185,30 @@ class Masquerade(CanFault, frozen=True, tag="can.masquerade"):
             raise ValueError(f"{self.kind}: no message {self.as_message!r} in the DBC") from None
         if target.length != rig.can.catalog[self.message].length:
             raise ValueError(f"{self.kind}: {self.message} and {self.as_message} differ in length")
+        own, other = _translator(rig, self.message), _translator(rig, self.as_message)
+        if own is not other:  # on a device profile: the same frame of another device of that profile
+            family = [t.profile if t else "the contract's" for t in (own, other)]
+            raise ValueError(
+                f"{self.kind}: {self.message} ({family[0]}) and {self.as_message} ({family[1]}) are not "
+                "frames of one family on this bench"
+            )
+        if own is not None:
+            # Refused here, not mid-run, when the profile cannot: asked with one of its own frames.
+            own.frame_id_as(can.Message(arbitration_id=min(own.sends)), self.as_message)
 
     def tx(self, msg: can.Message, rig: FaultTarget, state: FaultState) -> list[can.Message]:
-        return [msg, _copy(msg, arbitration_id=rig.can.catalog[self.as_message].frame_id)]
+        translator = _translator(rig, self.message)
+        frame_id = (
+            rig.can.catalog[self.as_message].frame_id
+            if translator is None
+            else translator.frame_id_as(msg, self.as_message)
+        )
+        return [msg, _copy(msg, arbitration_id=frame_id)]
+
+
+def _translator(rig: FaultTarget, name: str) -> Translator | None:
+    """The device profile's translator that sends `name` on this bench (None: the contract's frame)."""
+    return rig.can.translator_of(name) if isinstance(rig.can, ProfileNode) else None
 
 
 class Replay(CanFault, frozen=True, tag="can.replay"):
