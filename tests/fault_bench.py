@@ -6,7 +6,8 @@ import time
 
 import can
 
-from drivers.can_bus import BusConfig, CanNode, Received, open_bus, private_channel
+from drivers.bus_config import BusConfig
+from drivers.can_bus import CanNode, Received, open_bus, private_channel
 from drivers.config import load_toml
 from drivers.keys import Keys
 from drivers.schemas import ScRequest, TesWrench

@@ -15,7 +15,8 @@ import can
 import msgspec
 import pytest
 
-from drivers.can_bus import BusConfig, private_channel
+from drivers.bus_config import BusConfig
+from drivers.can_bus import private_channel
 from drivers.config import load_toml
 from hil.pipeline import run
 from hil.run.scenario import Scenario

@@ -7,7 +7,8 @@ import time
 import msgspec
 import numpy as np
 
-from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
+from drivers.bus_config import BusConfig
+from drivers.can_bus import CanNode, open_bus, private_channel
 from drivers.config import load_toml
 from drivers.zenoh_link import ZenohLink, open_session
 from hil.faults.processes import Kill
