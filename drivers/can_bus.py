@@ -25,6 +25,7 @@ import can
 from drivers.bus_config import BusConfig, BusConfigError
 from drivers.can_codec import CanCodecError, Catalog, MessageCodec
 from drivers.e2e import E2EChecker, E2EEvent, E2EProtector, E2EStatus, is_protected
+from drivers.native import mypyc_attr
 
 log = logging.getLogger(__name__)
 
@@ -106,6 +107,7 @@ class BusStats:
         }
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # a device profile's ProfileNode (drivers/devices) is one
 class CanNode:
     """One node on a bus: typed send with E2E protection, typed receive that never raises."""
 
