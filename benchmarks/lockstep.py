@@ -48,14 +48,15 @@ from plant.ballbot import Plant
 FRAMES_PER_TICK = 12  # 3 feedback, 3 IMU, SYNC, 3 commands, heartbeat, + (DRIVEn_TORQUE, estop) / 4
 STAGES = {
     "plant.step": "plant step (RK4, rider)",
-    "_send_sensors": "sample + 7 frames out",
+    "_sample": "sample the sensors (drives, IMU, seat)",
+    "_send_sensors": "7 frames out (drives, IMU)",
     "_publish_tes": "seat wrench -> zenoh",
     "_publish_sc_request": "SC request -> zenoh",
     "controller": "controller (driven: frames, step, out)",
     "_collect_commands": "collect the controller's answer",
     "_supervise": "supervisor (frames, decide, emit)",
 }
-RIG_STAGES = ("_send_sensors", "_publish_tes", "_publish_sc_request", "_collect_commands", "_supervise")
+RIG_STAGES = tuple(name for name in STAGES if name.startswith("_"))
 """The stages that are the rig's own methods: timed in a subclass (a compiled Rig cannot be patched)."""
 
 
