@@ -17,7 +17,8 @@ import time
 import numpy as np
 from can_roundtrip import TICK  # one tick's frames, shared with the other CAN benchmark
 
-from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
+from drivers.bus_config import BusConfig
+from drivers.can_bus import CanNode, open_bus, private_channel
 
 
 def measure(config: BusConfig, frames: int) -> tuple[float, np.ndarray]:

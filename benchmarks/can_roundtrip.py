@@ -10,7 +10,8 @@ import argparse
 import statistics
 import time
 
-from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
+from drivers.bus_config import BusConfig
+from drivers.can_bus import CanNode, open_bus, private_channel
 from drivers.can_codec import Catalog
 
 # One tick's worth of frames, in the order the rig and the controller send them.

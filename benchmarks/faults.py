@@ -20,7 +20,8 @@ import argparse
 import logging
 import time
 
-from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
+from drivers.bus_config import BusConfig
+from drivers.can_bus import CanNode, open_bus, private_channel
 from drivers.config import load_toml
 from drivers.keys import Keys
 from drivers.resources import find

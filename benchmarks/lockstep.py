@@ -1,9 +1,14 @@
 """Lockstep speed of a scenario with everything on (plant, CAN frames through the DBC codec and E2E, zenoh,
 the reference controller, the embedded supervisor, the CAN log recorder, run.mcap: its cost alone is
-benchmarks/mcap_cost.py), the per-stage cost of the rig's tick, and, measured in the same run:
+benchmarks/mcap_cost.py), the per-stage cost of the rig's tick (from a second run of the same scenario with
+its stages timed: the tick loop's own figure comes from a run with nothing timed), and, measured in the same
+run:
 - rig only: the same scenario with an instant responder in place of the controller (it answers every SYNC
   with disabled zero-torque commands and a heartbeat at once; the plant is clamped on its stand);
 - the floor: bare python-can virtual send+recv of the tick's frames.
+
+It runs on whichever build is installed (docs/performance.md, "Compiled build"): `build` in the output says
+which, from where the compiled build's modules were imported.
 
     python benchmarks/lockstep.py [SCENARIO (default speed_limiting)] [--duration S] [--json]
                                   [--devices PROFILE ...]
@@ -15,6 +20,7 @@ its tick loop and stages beside `pure`'s (the embedded bench), measured in the s
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import os
 import tempfile
@@ -38,18 +44,20 @@ from hil.bench.bench import load_bench
 from hil.pipeline import load_scenario, run
 from hil.run.build import RunOptions
 from plant.ballbot import Plant
-from safety.node import SupervisorNode
 
 FRAMES_PER_TICK = 12  # 3 feedback, 3 IMU, SYNC, 3 commands, heartbeat, + (DRIVEn_TORQUE, estop) / 4
 STAGES = {
     "plant.step": "plant step (RK4, rider)",
-    "_send_sensors": "sample + 7 frames out",
+    "_sample": "sample the sensors (drives, IMU, seat)",
+    "_send_sensors": "7 frames out (drives, IMU)",
     "_publish_tes": "seat wrench -> zenoh",
     "_publish_sc_request": "SC request -> zenoh",
     "controller": "controller (driven: frames, step, out)",
     "_collect_commands": "collect the controller's answer",
-    "supervisor": "supervisor (frames, decide, emit)",
+    "_supervise": "supervisor (frames, decide, emit)",
 }
+RIG_STAGES = tuple(name for name in STAGES if name.startswith("_"))
+"""The stages that are the rig's own methods: timed in a subclass (a compiled Rig cannot be patched)."""
 
 
 def timed(totals: dict[str, float], name: str, fn):
@@ -163,13 +171,28 @@ def frame_work(ticks: int, out: Path) -> float:
 
 
 def instrument(totals: dict[str, float]) -> None:
+    """Time every stage of the runs from here on: the rig's own stages in a subclass the build makes instead
+    of the Rig (compiled, a Rig's methods cannot be replaced; a subclass of it may override them), the plant's
+    step and the driven controller's poll (Python classes on both builds) in place."""
     rig = rig_module.Rig
-    for name in ("_send_sensors", "_publish_tes", "_publish_sc_request", "_collect_commands"):
-        setattr(rig, name, timed(totals, name, getattr(rig, name)))
+    timed_rig = type(
+        "TimedRig", (rig,), {name: timed(totals, name, getattr(rig, name)) for name in RIG_STAGES}
+    )
+    build_module.Rig = timed_rig
     Plant.step = timed(totals, "plant.step", Plant.step)
-    SupervisorNode.update = timed(totals, "supervisor", SupervisorNode.update)
     embedded = controller.embedded.EmbeddedController
     embedded.poll = timed(totals, "controller", embedded.poll)
+
+
+COMPILED_PROBES = ("drivers.can_codec", "drivers.can_bus", "hil.run.rig")
+
+
+def build() -> str:
+    """'compiled' when the compiled build's modules are C extensions here (setup.py), else 'pure'."""
+    files = [importlib.import_module(name).__file__ or "" for name in COMPILED_PROBES]
+    if all(f.endswith(".so") for f in files):
+        return "compiled"
+    return "pure" if not any(f.endswith(".so") for f in files) else "mixed"
 
 
 def main() -> None:
@@ -185,9 +208,12 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="lockstep-bench-") as tmp:
         out = Path(tmp)
         only_us = rig_only(scenario, out)
+        result, wall = timed_run(scenario, load_bench(), out / "full")
         totals: dict[str, float] = {}
         instrument(totals)
-        result, wall = timed_run(scenario, load_bench(), out / "full")
+        staged, _ = timed_run(scenario, load_bench(), out / "staged")
+        if staged.trace.failure is not None:
+            raise SystemExit(f"staged run failed: {staged.trace.failure}")
         profiles = {}
         pure_stages = dict(totals)
         for profile in args.devices:
@@ -212,6 +238,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="lockstep-frames-") as tmp:
         frames = frame_work(ticks, Path(tmp))
     figures = {
+        "build": build(),
         "scenario": scenario.name,
         "law": result.law,
         "tick_hz": scenario.tick_hz,
@@ -220,10 +247,13 @@ def main() -> None:
         "speed_tick_loop": loop.speed,
         "speed_end_to_end": sim / wall,
         "us_per_tick": loop.wall_time / ticks * 1e6,
+        "staged_us_per_tick": staged.trace.timing.wall_time / staged.trace.stats.ticks * 1e6,
         "rig_only_us_per_tick": only_us,
         "floor_us_per_tick": floor / ticks * 1e6,
         "frame_work_us_per_tick": frames / ticks * 1e6,
-        "stages_us_per_tick": {name: totals.get(name, 0.0) / ticks * 1e6 for name in STAGES},
+        "stages_us_per_tick": {
+            name: totals.get(name, 0.0) / staged.trace.stats.ticks * 1e6 for name in STAGES
+        },
         "missing_commands": trace.stats.missing_commands,
         "passed": result.passed,
         "devices": profiles,
@@ -232,8 +262,8 @@ def main() -> None:
         print(json.dumps(figures))
         return
     print(
-        f"{scenario.name} ({result.law}, lockstep, {scenario.tick_hz:g} Hz, recorder and run.mcap on): "
-        f"{sim:.2f} s simulated, {ticks} ticks, passed: {result.passed}"
+        f"{scenario.name} ({result.law}, lockstep, {scenario.tick_hz:g} Hz, recorder and run.mcap on, "
+        f"{figures['build']} build): {sim:.2f} s simulated, {ticks} ticks, passed: {result.passed}"
     )
     print(
         f"  end to end (start-up, run, outputs): {wall:.2f} s wall = "
@@ -243,7 +273,10 @@ def main() -> None:
         f"  tick loop only:                      {loop.wall_time:.2f} s = {loop.speed:.2f}x real time, "
         f"{figures['us_per_tick']:.0f} us/tick"
     )
-    print("  per-stage cost of the rig's tick:")
+    print(
+        "  per-stage cost of the rig's tick (a second run, stages timed: "
+        f"{figures['staged_us_per_tick']:.0f} us/tick):"
+    )
     for name, label in STAGES.items():
         print(f"    {label:<40} {figures['stages_us_per_tick'][name]:8.0f} us/tick")
     print(

@@ -30,7 +30,8 @@ from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from drivers.can_bus import BusConfig, CanNode, network_interfaces, open_bus, private_channel
+from drivers.bus_config import BusConfig, network_interfaces
+from drivers.can_bus import CanNode, open_bus, private_channel
 from hil.run.clock import RealtimeClock
 from plant.ballbot import Plant, RiderIntent
 from plant.params import RiderParams, RobotParams, SimParams

@@ -29,7 +29,8 @@ import time
 import can
 import numpy as np
 
-from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
+from drivers.bus_config import BusConfig
+from drivers.can_bus import CanNode, open_bus, private_channel
 from drivers.config import load_toml
 from drivers.resources import find
 from drivers.schemas import EstopCommand, TesWrench

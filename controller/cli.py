@@ -22,7 +22,8 @@ import msgspec
 from controller.config import ControllerConfig
 from controller.embedded import build_controller
 from controller.node import ControllerNode
-from drivers.can_bus import BusConfigError, open_bus, parse_can_spec
+from drivers.bus_config import BusConfigError, parse_can_spec
+from drivers.can_bus import open_bus
 from drivers.config import ConfigError, load_toml
 from drivers.devices import Devices, host_node
 from drivers.dut import DutSpec

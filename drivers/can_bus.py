@@ -1,17 +1,17 @@
 """CAN buses in python-can's own terms, and a node's typed, E2E-protected view of one.
 
-`BusConfig` names a python-can interface, channel, bitrate and extra kwargs; `open_bus` hands them to
-`can.Bus`, which picks and imports the backend lazily by name. `CanNode` sends catalog messages with their
-alive counter and CRC filled in, and turns received frames into typed results, counting (never raising on)
-unknown ids, wrong lengths, error frames and E2E events. `BusRecorder` tees all traffic of a channel into a
-python-can logger (.blf, .asc, .log candump format, ... chosen by file suffix) and any further listeners.
+`open_bus` hands a `BusConfig` (drivers/bus_config.py: a python-can interface, channel, bitrate and extra
+kwargs) to `can.Bus`, which picks and imports the backend lazily by name. `CanNode` sends catalog messages
+with their alive counter and CRC filled in, and turns received frames into typed results, counting (never
+raising on) unknown ids, wrong lengths, error frames and E2E events. `BusRecorder` tees all traffic of a
+channel into a python-can logger (.blf, .asc, .log candump format, ... chosen by file suffix) and any further
+listeners.
 """
 
 from __future__ import annotations
 
 import errno
 import logging
-import socket
 import time
 import uuid
 from collections import Counter
@@ -21,71 +21,19 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import can
-import msgspec
 
+from drivers.bus_config import BusConfig, BusConfigError
 from drivers.can_codec import CanCodecError, Catalog, MessageCodec
 from drivers.e2e import E2EChecker, E2EEvent, E2EProtector, E2EStatus, is_protected
+from drivers.native import mypyc_attr
 
 log = logging.getLogger(__name__)
-
-LOOPBACK_ONLY_INTERFACES = frozenset({"udp_multicast"})
-"""Buses over IP multicast: allowed only in a network namespace whose only interface is lo, where nothing
-can leave the machine (docs/bench.md, "Processes at host speed"), never in the host's namespace."""
-IN_PROCESS_INTERFACES = frozenset({"pure_shared", "virtual"})
-"""Buses that exist only inside one Python process (drivers/shared_bus.py; python-can's `virtual`)."""
-
-
-class BusConfigError(ValueError):
-    pass
-
-
-class BusConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    """A bus in python-can's terms (`can.Bus(interface=..., channel=..., bitrate=..., **kwargs)`)."""
-
-    interface: str = "pure_shared"
-    channel: str = "pure"
-    bitrate: int = 1_000_000
-    kwargs: dict[str, Any] = {}
-    max_load: float = 0.70
-    """Refuse a tick rate whose worst-case bus load exceeds this fraction of the bitrate."""
-
-    @property
-    def in_process(self) -> bool:
-        """Only nodes in this Python process can join the bus."""
-        return self.interface in IN_PROCESS_INTERFACES
-
-    def __post_init__(self) -> None:
-        if self.interface in LOOPBACK_ONLY_INTERFACES and (here := network_interfaces()) != ["lo"]:
-            raise ValueError(
-                f"interface {self.interface!r} is not allowed here: it sends multicast UDP, allowed only "
-                f"inside a network namespace whose only interface is lo (this one has {', '.join(here)}); "
-                "use 'pure_shared' or 'socketcan', or run the bench inside such a namespace (docs/bench.md)"
-            )
-        if not 0.0 < self.max_load <= 1.0:
-            raise ValueError("max_load must be in (0, 1]")
-
-
-def network_interfaces() -> list[str]:
-    """The network interfaces of this process's namespace."""
-    return sorted(name for _, name in socket.if_nameindex())
 
 
 def private_channel(prefix: str = "pure") -> str:
     """A fresh in-process channel name. It never ends in digits: python-can's log writers (BLF)
     read trailing digits as a channel number and fail on one above 65535."""
     return f"{prefix}-{uuid.uuid4().hex[:12]}-vbus"
-
-
-def parse_can_spec(spec: str, base: BusConfig | None = None) -> BusConfig:
-    """`pure_shared`, `pure_shared:NAME`, `socketcan:vcan0`, `pcan:PCAN_USBBUS1`, ... -> BusConfig."""
-    interface, _, channel = spec.partition(":")
-    if not interface:
-        raise BusConfigError(f"bad CAN spec {spec!r}: expected INTERFACE[:CHANNEL], e.g. socketcan:vcan0")
-    base = base or BusConfig()
-    try:
-        return msgspec.structs.replace(base, interface=interface, channel=channel or base.channel)
-    except ValueError as exc:
-        raise BusConfigError(f"bad CAN spec {spec!r}: {exc}") from exc
 
 
 class BusUnavailable(BusConfigError):
@@ -159,6 +107,7 @@ class BusStats:
         }
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # a device profile's ProfileNode (drivers/devices) is one
 class CanNode:
     """One node on a bus: typed send with E2E protection, typed receive that never raises."""
 

@@ -12,7 +12,7 @@ from typing import Literal, Protocol
 
 import msgspec
 
-from drivers.can_bus import BusConfig
+from drivers.bus_config import BusConfig
 from drivers.devices import Devices
 from drivers.plugs import find_plug
 from drivers.zenoh_link import ZenohAccess

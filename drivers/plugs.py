@@ -16,7 +16,7 @@ from typing import Any
 
 import msgspec
 
-from drivers.can_bus import BusConfig
+from drivers.bus_config import BusConfig
 from drivers.devices import Devices
 from drivers.zenoh_link import ZenohAccess
 

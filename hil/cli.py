@@ -76,7 +76,7 @@ def add_bench_options(parser: argparse.ArgumentParser, clock: bool = False) -> N
 
 
 def bench_from(args: argparse.Namespace):
-    from drivers.can_bus import parse_can_spec
+    from drivers.bus_config import parse_can_spec
     from hil.bench.bench import EMBEDDED, load_bench
 
     bench = load_bench(args.bench or EMBEDDED)

@@ -7,7 +7,8 @@ from __future__ import annotations
 import threading
 import time
 
-from drivers.can_bus import BusConfig, open_bus
+from drivers.bus_config import BusConfig
+from drivers.can_bus import open_bus
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MessageName
 from drivers.devices import ProfileNode, Translator
 from plant.drives import DriveArray, DriveState

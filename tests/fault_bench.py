@@ -6,7 +6,8 @@ import time
 
 import can
 
-from drivers.can_bus import BusConfig, CanNode, Received, open_bus, private_channel
+from drivers.bus_config import BusConfig
+from drivers.can_bus import CanNode, Received, open_bus, private_channel
 from drivers.config import load_toml
 from drivers.keys import Keys
 from drivers.schemas import ScRequest, TesWrench
@@ -23,14 +24,15 @@ DT = 1.0 / 400
 
 
 class Bench:
-    def __init__(self, session, faults=(), seed: int = 0, prefix: str | None = None):
+    def __init__(self, session, faults=(), seed: int = 0, prefix: str | None = None, rig: type[Rig] = Rig):
+        """rig: the Rig or a test's subclass of it (the compiled build's Rig cannot be patched)."""
         self.plant = Plant(ROBOT, RIDER, SimParams(seed=seed))
         self.bus_config = config = BusConfig(channel=private_channel())
         self.bus, self.listen_bus = open_bus(config), open_bus(config)
         self.listener = CanNode(self.listen_bus, name="listener")
         self.link = ZenohLink(session, Keys(prefix or private_channel("bench").replace("-", "")))
         specs = [parse_fault(f) if isinstance(f, dict) else f for f in faults]
-        self.rig = Rig(self.plant, CanNode(self.bus, name="rig"), self.link, faults=FaultSet(specs, seed))
+        self.rig = rig(self.plant, CanNode(self.bus, name="rig"), self.link, faults=FaultSet(specs, seed))
         self.rig.faults.attach(self.rig)
         keys = self.link.keys
         self.tes = self.link.subscribe(keys.tes_wrench, TesWrench, capacity=1 << 14)

@@ -8,16 +8,9 @@ from crccheck.crc import Crc8SaeJ1850
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from drivers.bus_config import BusConfig, BusConfigError, parse_can_spec
 from drivers.bus_load import BusLoadError, bus_load, check_bus_load, frame_bits
-from drivers.can_bus import (
-    BusConfig,
-    BusConfigError,
-    BusRecorder,
-    CanNode,
-    open_bus,
-    parse_can_spec,
-    private_channel,
-)
+from drivers.can_bus import BusRecorder, CanNode, open_bus, private_channel
 from drivers.can_codec import Catalog
 from drivers.e2e import E2EChecker, E2EProtector, E2EStatus, counter_of, crc8, is_protected, with_counter
 

@@ -19,17 +19,22 @@ from tests.helpers import ROOT
 COMPILED_SUITE = (
     # Every compiled module is exercised by at least one of these (test_every_compiled_module_is_covered).
     "tests/test_compiled.py",
-    "tests/test_can.py",  # drivers/can_codec.py, drivers/e2e.py
+    "tests/test_can.py",  # drivers/can_codec.py, drivers/e2e.py, drivers/can_bus.py
+    "tests/test_shared_bus.py",  # drivers/shared_bus.py (Python) under the compiled CanNode
     "tests/test_safety_machine.py",  # safety/machine.py
     "tests/test_safety_monitors.py",  # safety/monitors.py
     "tests/test_safety_diagnostics.py",  # safety/diagnostics.py
-    "tests/test_controller_units.py",  # controller/estimator.py, controller/core.py
+    "tests/test_safety_arbiter.py",  # safety/arbiter.py
+    "tests/test_failop.py",  # safety/recovery.py, and the Rig's takeover paths
+    "tests/test_safety_node.py",  # safety/node.py standalone, on its own timer and on SYNC
+    "tests/test_controller_units.py",  # controller/estimator.py, controller/balance.py, controller/core.py
     "tests/test_controller_closed_loop.py",
     "tests/test_plant_dynamics.py",  # plant/plane.py
     "tests/test_sensors.py",  # plant/sensors.py
     "tests/test_omniwheel.py",  # plant/omniwheel.py
     "tests/test_rider.py",
-    # End to end: every shipped scenario, determinism, replay, faults on the wire, the supervisor's paths.
+    # End to end: every shipped scenario, determinism, replay, faults on the wire (hil/run/rig.py), the
+    # supervisor's and the controller's nodes (safety/node.py, controller/node.py) on their paths.
     "tests/test_scenarios.py",
     "tests/test_faults_wire.py",
     "tests/test_safety_e2e.py",

@@ -77,7 +77,7 @@ def test_missing_file_is_a_config_error(tmp_path):
 
 
 def test_bench_files_name_the_file_and_the_field(tmp_path):
-    from drivers.can_bus import network_interfaces
+    from drivers.bus_config import network_interfaces
     from hil.bench.bench import load_bench
 
     for path in sorted((CONFIGS / "benches").glob("*.toml")):

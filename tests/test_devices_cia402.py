@@ -17,7 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from drivers.can_bus import BusConfig, open_bus, private_channel
+from drivers.bus_config import BusConfig
+from drivers.can_bus import open_bus, private_channel
 from drivers.config import ConfigError
 from drivers.devices import Devices
 from drivers.devices.cia402 import ErrorCode, State, eds_path, state_of

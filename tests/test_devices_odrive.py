@@ -17,7 +17,8 @@ import can
 import msgspec
 import pytest
 
-from drivers.can_bus import BusConfig, open_bus, private_channel
+from drivers.bus_config import BusConfig
+from drivers.can_bus import open_bus, private_channel
 from drivers.can_codec import DRIVE_FEEDBACK
 from drivers.config import ConfigError
 from drivers.devices import Devices
@@ -264,7 +265,7 @@ def test_a_controller_on_odrive_cans_own_client_balances_the_robot(tmp_path):
     import importlib.util
     from pathlib import Path
 
-    from drivers.can_bus import BusConfig
+    from drivers.bus_config import BusConfig
     from hil.pipeline import load_scenario, run
 
     path = Path(__file__).resolve().parents[1] / "examples" / "odrive_controller.py"

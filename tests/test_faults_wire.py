@@ -12,6 +12,7 @@ from drivers.e2e import E2EStatus
 from drivers.zenoh_link import LOOPBACK, open_session
 from hil.faults import CATALOG, FAMILIES, parse_fault
 from hil.faults.frames import RX_MESSAGES
+from hil.run.rig import Rig
 from tests.fault_bench import DT, Bench
 from tests.zenoh_helpers import hub_endpoint
 
@@ -471,13 +472,19 @@ class Responder:
         self.node.bus.shutdown()
 
 
+class PermittedRig(Rig):
+    """No supervisor here: permission is not the subject."""
+
+    def apply_permission(self):
+        pass
+
+
 def applied_commands(session, fault, ticks=80):
     """(tick, the torque drive 1 holds after it) with a responder that answers every tick."""
     import time
 
-    bench = Bench(session, [fault] if fault else [])
+    bench = Bench(session, [fault] if fault else [], rig=PermittedRig)
     responder = Responder(bench)
-    bench.rig.apply_permission = lambda: None  # no supervisor here: permission is not the subject
     bench.plant.drives.set_permission(True)
     out = []
     try:

@@ -7,7 +7,8 @@ from __future__ import annotations
 import msgspec
 import pytest
 
-from drivers.can_bus import BusConfig, private_channel
+from drivers.bus_config import BusConfig
+from drivers.can_bus import private_channel
 from drivers.plugs import SUPERVISORS, PlugNotFound, SupervisorSpec, find_plug
 from hil.bench.parts import BenchUnavailable, check
 from hil.cli import main

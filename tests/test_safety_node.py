@@ -8,7 +8,8 @@ import time
 import msgspec
 import pytest
 
-from drivers.can_bus import BusConfig, CanNode, open_bus, private_channel
+from drivers.bus_config import BusConfig
+from drivers.can_bus import CanNode, open_bus, private_channel
 from drivers.schemas import ScCommand, ScRequest, TesWrench
 from drivers.zenoh_link import ZenohLink, open_session
 from hil.bench.rigs import HUB_VARIABLE, announce

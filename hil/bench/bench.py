@@ -17,7 +17,7 @@ from typing import Annotated, Literal
 
 import msgspec
 
-from drivers.can_bus import BusConfig
+from drivers.bus_config import BusConfig
 from drivers.config import ConfigError, load_toml
 from drivers.devices import Devices
 from drivers.resources import find

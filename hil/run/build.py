@@ -22,7 +22,8 @@ import can
 import msgspec
 import zenoh
 
-from drivers.can_bus import BusConfig, BusRecorder, open_bus, private_channel
+from drivers.bus_config import BusConfig
+from drivers.can_bus import BusRecorder, open_bus, private_channel
 from drivers.can_codec import MessageName
 from drivers.config import load_toml
 from drivers.contract import CONTRACT_VERSION, mismatch

@@ -32,6 +32,7 @@ from typing import Literal
 from drivers.can_bus import BusRecorder, CanNode, Received
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MessageName
 from drivers.dut import DutHandle
+from drivers.native import mypyc_attr
 from drivers.schemas import (
     ControllerCommand,
     ControllerTelemetry,
@@ -117,6 +118,7 @@ class AgentLinks:
     operator: ZenohLink
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # benchmarks/lockstep.py times its stages in a subclass
 class Rig:
     def __init__(
         self,
@@ -276,17 +278,22 @@ class Rig:
         waiting = self.poll_dut is None and not self._silent
         self._collect_commands(k, guard if waiting else time.monotonic(), lockstep, faults.command_delay())
         self._deliver_held(k)
-        if self.supervisor is not None:
-            self.supervisor.update(plant.t, fence=k if lockstep else None)
-        elif lockstep:
-            self._await_supervisor(guard)
-            if self.takeover:
-                self._await_recovery(k, guard)
+        self._supervise(k, guard, lockstep)
         self._drain_nowait()
         self.apply_permission()
         if self.recorder is not None:
             self.recorder.poll()
         self.stats.ticks += 1
+
+    def _supervise(self, k: int, guard: float, lockstep: bool) -> None:
+        """The supervisor's part of tick k: the in-process one updates from the tick's traffic; in lockstep
+        one elsewhere is waited for (its permission, and its recovery commands while it holds the drives)."""
+        if self.supervisor is not None:
+            self.supervisor.update(self.plant.t, fence=k if lockstep else None)
+        elif lockstep:
+            self._await_supervisor(guard)
+            if self.takeover:
+                self._await_recovery(k, guard)
 
     # ------------------------------------------------------------------------------------------ outputs
     def _sample(self) -> tuple[Sequence[DriveFeedback], ImuSample, TesSample, set[str]]:

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.can_bus import BusConfigError
+from drivers.bus_config import BusConfigError
 from drivers.config import ConfigError
 from drivers.plugs import PlugNotFound
 from drivers.zenoh_link import ZenohConfigError

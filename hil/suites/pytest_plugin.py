@@ -44,7 +44,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 
 def bench_of(config: pytest.Config, default: str | None = None):
     """The bench of --hil-bench; without it `default` (a campaign's own), else the embedded bench."""
-    from drivers.can_bus import parse_can_spec
+    from drivers.bus_config import parse_can_spec
     from hil.bench.bench import EMBEDDED, load_bench
 
     can = config.getoption("--hil-can")

@@ -19,7 +19,8 @@ from pathlib import Path
 import can
 import msgspec
 
-from drivers.can_bus import BusConfig, open_bus, private_channel
+from drivers.bus_config import BusConfig
+from drivers.can_bus import open_bus, private_channel
 from drivers.can_codec import Catalog, MessageName
 from drivers.config import ConfigError
 from drivers.devices import Devices, controller_frame_ids
