@@ -202,7 +202,17 @@ class SensorRules(_Strict, frozen=True):
     """m/s: the encoders' speed change vs the integrated horizontal acceleration over `trend_window`."""
     stuck_samples: Annotated[int, msgspec.Meta(ge=2)] = 20
     """A channel that repeats the same raw value this many frames in a row while other evidence says it
-    moved is stuck."""
+    moved is stuck: at the contract's resolution. An IMU stream whose values step coarser needs as many
+    more as keep a live channel's chance of such a run the same, given the noise below
+    (safety/diagnostics.py `Resolution`)."""
+    attitude_noise: Positive = 8.7e-4
+    """rad: 1σ per sample of the IMU's attitude output (0.05°, VN-100 class). With `rate_noise` and
+    `accel_noise`: how often a live IMU channel changes its raw value at rest, at its stream's resolution.
+    A lower bound: a quieter sensor repeats its values more often than the stuck check allows for."""
+    rate_noise: Positive = 8.6e-4
+    """rad/s: 1σ per sample of the gyro (6.1e-5 rad/s/√Hz over the 200 Hz band of a 400 Hz output)."""
+    accel_noise: Positive = 0.019
+    """m/s²: 1σ per sample of the accelerometer (1.37e-3 m/s²/√Hz over 200 Hz)."""
 
 
 class SeatRules(_Strict, frozen=True):

@@ -10,7 +10,8 @@ What PURE's sensors make redundant (docs/safety.md "Diagnostics"):
 - the measured torque follows the command through the drive's current loop;
 - a seat carries a seated rider: weight within a band of the tared weight, COP on the seat, COP consistent
   with force and moment, no faster change than a body and the chassis make;
-- a noisy sensor never repeats its raw value many frames in a row while other evidence says it moved.
+- a noisy sensor never repeats its raw value many frames in a row while other evidence says it moved (how
+  many: as many as make such a run unlikely for a live one at its stream's step, `Resolution`).
 
 Every check keeps `peak`: the largest |residual| / bound it has seen, so a run shows how close it came to a
 false trip (summary.json → safety.diagnostics).
@@ -68,25 +69,75 @@ class Check:
         return Finding(self.cause, f"{self.name}: {detail}", self.parts) if ratio > 1.0 else None
 
 
+def live_run(step: float, contract: float, noise: float, samples: int) -> float:
+    """Frames in a row a channel whose values step by `step` must repeat its raw value to be as unlikely
+    for a live one as `samples` frames are at the contract's `contract` step.
+
+    A live sensor's reading stays on its step from one frame to the next with probability at most
+    p(q) = erf(q / (2√2 σ)) (its true value at the step's middle, white noise of 1σ `noise`), so a run of
+    n frames has at most p(q)^(n - 1). At the contract's step p = p(contract); at a coarser one the run
+    that keeps p^(n - 1) the same is longer. A step no coarser than the contract's keeps `samples`; one so
+    coarse that a live reading (numerically) never leaves it gives inf: repetition then proves nothing."""
+    if step <= contract * (1.0 + 1e-9):
+        return samples
+    scale = 1.0 / (2.0 * math.sqrt(2.0) * noise)
+    p0, p = math.erf(contract * scale), math.erf(step * scale)
+    if p >= 1.0:
+        return math.inf
+    return 1 + math.ceil((samples - 1) * math.log(p0) / math.log(p) - 1e-9)
+
+
+class Resolution:
+    """A stream's resolution as its values show it: the smallest step any of its signals has made, never
+    taken finer than the contract's (a message's signals share one scaling, in the contract and in every
+    device profile), and from it the run of repeated raw values that shows a channel frozen (`live_run`).
+
+    The supervisor reads the logical messages a device profile's host makes of the device's own frames
+    (drivers/devices/): it is not told their scaling, but a live stream shows it within a few frames (its
+    noise moves it by single steps). Until a step is seen the contract's holds; a step seen only lowers
+    what is taken, so the check never becomes less sensitive than the steps the stream has shown."""
+
+    def __init__(self, contract: float, noise: float, samples: int):
+        self.contract, self.noise, self.base = contract, noise, samples
+        self.step = math.inf
+        """The smallest step seen (inf: none yet)."""
+        self.samples: float = samples
+        """Frames in a row a channel of this stream must repeat its raw value to count as frozen."""
+
+    def moved(self, step: float) -> None:
+        if 0.0 < step < self.step:
+            self.step = step
+            self.samples = live_run(max(step, self.contract), self.contract, self.noise, self.base)
+
+
 class Stuck:
     """Counts how many frames in a row a channel repeated its raw value, and how far the other evidence
     says it should have moved over that run."""
 
-    def __init__(self, samples: int, need: float):
-        self.samples, self.need = samples, need
+    def __init__(self, samples: int, need: float, resolution: Resolution | None = None):
+        """`resolution`: the stream's, shared by its channels (None: `samples` whatever the values' step)."""
+        self.samples, self.need, self.resolution = samples, need, resolution
         self.last: object = None
         self.run = 0
         self.evidence = 0.0
 
+    @property
+    def required(self) -> float:
+        """Frames in a row that show the channel frozen (with the evidence)."""
+        return self.samples if self.resolution is None else self.resolution.samples
+
     def sample(self, raw: object, evidence: float) -> bool:
         """One frame's raw value and how far the other evidence moved since the previous frame; True if
-        the channel is stuck: the same value `samples` times in a row while the evidence moved `need`."""
+        the channel is stuck: the same value `required` times in a row while the evidence moved `need`."""
         if raw == self.last:
             self.run += 1
             self.evidence += evidence
         else:
+            last = self.last
+            if self.resolution is not None and isinstance(raw, int | float) and isinstance(last, int | float):
+                self.resolution.moved(abs(raw - last))
             self.last, self.run, self.evidence = raw, 1, 0.0
-        return self.run >= self.samples and self.evidence >= self.need
+        return self.run >= self.required and self.evidence >= self.need
 
     def clear(self) -> None:
         self.last, self.run, self.evidence = None, 0, 0.0

@@ -31,6 +31,7 @@ from safety.diagnostics import (
     AttitudeCheck,
     EncoderCheck,
     Replay,
+    Resolution,
     SeatCheck,
     Stuck,
     TorqueCheck,
@@ -67,6 +68,13 @@ PLANES = (("roll", "Roll", "RateX"), ("pitch", "Pitch", "RateY"))
 """Per plane: its checks' name, its attitude input, its rate input."""
 ATTITUDE_LSB = 1e-4
 """rad: IMU_ATTITUDE's resolution (the DBC); "it moved" means several of these."""
+CONTRACT_STEP: dict[str, float] = {
+    MessageName.IMU_ATTITUDE: ATTITUDE_LSB,
+    MessageName.IMU_RATE: 1e-3,
+    MessageName.IMU_ACCEL: 1e-3,
+}
+"""Each IMU message's resolution in the contract (the DBC): rad, rad/s, m/s². A device profile may step
+coarser (xsens: 2^-7 deg, 2^-9 rad/s, 2^-8 m/s²); the stuck check takes each stream's step from its values."""
 MOVED = 3 * ATTITUDE_LSB
 G0 = 9.80665
 Signals = Mapping[str, float | int]
@@ -166,8 +174,19 @@ class Monitors:
         )
         self.imu: dict[str, list[float]] = {name: [0.0, 0.0, 0.0] for name in IMU_CHANNELS}
         self._imu_seen: dict[str, float] = dict.fromkeys(IMU_CHANNELS, -math.inf)
+        noise: dict[str, float] = {
+            MessageName.IMU_ATTITUDE: sensors.attitude_noise,
+            MessageName.IMU_RATE: sensors.rate_noise,
+            MessageName.IMU_ACCEL: sensors.accel_noise,
+        }
+        self.imu_resolution = {
+            name: Resolution(CONTRACT_STEP[name], noise[name], sensors.stuck_samples) for name in IMU_CHANNELS
+        }
+        """Each IMU stream's step as its values show it, and the run that shows one of its channels frozen:
+        a live channel whose step is coarse against its noise repeats its value at rest (xsens' gyro)."""
         self._imu_stuck: dict[str, list[Stuck]] = {
-            name: [Stuck(sensors.stuck_samples, MOVED) for _ in names] for name, names in IMU_CHANNELS.items()
+            name: [Stuck(sensors.stuck_samples, MOVED, self.imu_resolution[name]) for _ in names]
+            for name, names in IMU_CHANNELS.items()
         }
         self._attitude_at_rate = (0.0, 0.0)
         self._imu_motion = 0.0
@@ -293,7 +312,8 @@ class Monitors:
         self._found[name, "stuck"] = (
             Finding(
                 Cause.SENSOR_STUCK,
-                f"{name}.{signals[stuck[0]]} frozen at {values[stuck[0]]:.4f} while other evidence moved",
+                f"{name}.{signals[stuck[0]]} frozen at {values[stuck[0]]:.4f} for "
+                f"{self._imu_stuck[name][stuck[0]].run} frames while other evidence moved",
                 tuple(i for i in dict.fromkeys(CHANNEL_INPUT[name][c] for c in stuck) if i),
             )
             if stuck

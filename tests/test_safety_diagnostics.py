@@ -17,11 +17,13 @@ from safety.diagnostics import (
     AttitudeCheck,
     EncoderCheck,
     Replay,
+    Resolution,
     SeatCheck,
     Stuck,
     TorqueCheck,
     TrendCheck,
     YawCheck,
+    live_run,
     motor_jacobian,
     world_acceleration,
 )
@@ -160,6 +162,69 @@ def test_a_repeated_value_is_stuck_only_when_other_evidence_moved():
     flags = [moving.sample(0.1234, 1e-4) for _ in range(25)]
     assert flags.index(True) == 19
     assert not moving.sample(0.1235, 1e-4), "a new value ends the run"
+
+
+XSENS_RATE = 2**-9
+"""rad/s: the Xsens profile's gyro step (configs/devices/xsens_mti.dbc), about twice the gyro's noise."""
+
+
+def test_the_run_that_shows_a_channel_frozen_grows_with_its_streams_step_against_its_noise():
+    sigma = SENSORS.rate_noise
+    assert live_run(1e-3, 1e-3, sigma, 20) == 20, "at the contract's step: stuck_samples"
+    assert live_run(1e-4, 1e-3, sigma, 20) == 20, "a finer step is taken as the contract's"
+    n = live_run(XSENS_RATE, 1e-3, sigma, 20)
+    assert n == 54
+
+    def stay(q):  # a live reading's chance to stay on its step for one more frame (the worst case)
+        return math.erf(q / (2 * math.sqrt(2) * sigma))
+
+    # The same chance for a live channel as 20 frames at the contract's step, and no shorter run has it.
+    assert stay(XSENS_RATE) ** (n - 1) <= stay(1e-3) ** 19 < stay(XSENS_RATE) ** (n - 2)
+    assert live_run(2 * XSENS_RATE, 1e-3, sigma, 20) > n
+    assert live_run(100 * sigma, 1e-3, sigma, 20) == math.inf, "a step a live reading never leaves"
+
+
+def near_rest(rng, n, q):
+    """A live gyro channel near rest as a stream of step q carries it: a slow true rate within a quarter
+    step of zero plus the configured noise, rounded to the step (the emulated Xsens: round to the count)."""
+    true = 0.25 * q * np.sin(np.arange(n) * DT * 2 * math.pi / 3.0)
+    return [round(float(v) / q) * q for v in true + rng.normal(0.0, SENSORS.rate_noise, n)]
+
+
+def test_a_live_channel_at_the_xsens_step_near_rest_is_not_stuck_and_a_frozen_one_is():
+    rng = np.random.default_rng(1)
+    live = near_rest(rng, 40 * 400, XSENS_RATE)  # 40 s
+    moved = 1e-3  # the evidence: the attitude's noise alone moves it this much a frame
+    check = Stuck(20, 3e-4, Resolution(1e-3, SENSORS.rate_noise, 20))
+    assert not any(check.sample(v, moved) for v in live)
+    assert check.resolution.step == XSENS_RATE and check.required == 54
+    # Test the test: judged by the contract's 20 frames, the same live stream looks frozen.
+    old = Stuck(20, 3e-4)
+    assert any(old.sample(v, moved) for v in live)
+    # The positive control: frozen at a value of the xsens step (a rate it had while moving), the channel is
+    # found at its 54th frame.
+    flags = [check.sample(7 * XSENS_RATE, moved) for _ in range(60)]
+    assert flags.index(True) == 53 and all(flags[53:])
+    # Without other evidence (a robot truly at rest, the evidence silent) it is not.
+    resting = Stuck(20, 3e-4, Resolution(1e-3, SENSORS.rate_noise, 20))
+    for v in live[:400]:
+        resting.sample(v, 0.0)
+    assert not any(resting.sample(live[399], 0.0) for _ in range(200))
+
+
+def test_at_the_contracts_step_a_frozen_channel_is_found_after_stuck_samples_and_a_live_one_is_not():
+    rng = np.random.default_rng(2)
+    live = near_rest(rng, 40 * 400, 1e-3)
+    resolution = Resolution(1e-3, SENSORS.rate_noise, 20)
+    check = Stuck(20, 3e-4, resolution)
+    assert not any(check.sample(v, 1e-3) for v in live)
+    assert check.required == 20
+    frozen = 0.123  # a value the live stream never had: the run starts at the first frozen frame
+    flags = [check.sample(frozen, 1e-3) for _ in range(25)]
+    assert flags.index(True) == 19
+    # A stream whose steps were never seen (frozen from the start) is judged at the contract's step.
+    fresh = Stuck(20, 3e-4, Resolution(1e-3, SENSORS.rate_noise, 20))
+    assert [fresh.sample(0.5, 1e-3) for _ in range(25)].index(True) == 19
 
 
 def test_a_replay_from_one_counter_period_back_is_seen_and_a_live_or_constant_stream_is_not():

@@ -3,6 +3,7 @@ integrity counting, and the per-update parts."""
 
 import math
 
+import numpy as np
 import pytest
 
 from drivers.can_bus import CanNode
@@ -11,6 +12,7 @@ from drivers.schemas import EstopCommand, ScRequest, TesWrench
 from plant.ballbot import Plant
 from plant.params import RobotParams, SimParams
 from safety.config import RobotGeometry, SupervisorConfig
+from safety.machine import Cause
 from safety.monitors import Monitors, motor_jacobian
 from tests.helpers import RIDER_75, ROOT
 
@@ -127,3 +129,87 @@ def test_a_stale_wrench_repeated_unchanged_does_not_feed_the_watchdog():
     assert m.stale_wrench == 2
     m.wrench(TesWrench(seq=0, stamp=0.0, force=(0.0, 0.0, -600.0), moment=(0.0,) * 3, cop=(0.0, 0.0)), 1.5)
     assert m.observe(1.5).ages["wrench"] == 0.0, "a restarted seat (seq from 0) is fresh"
+
+
+# ----------------------------------------------------------------------------------- stuck IMU channels
+def imu_near_rest(rng: np.random.Generator, rate_y: float | None = None) -> dict[str, dict[str, float]]:
+    """One IMU sample of a robot near rest with the configured noise (rate_y: RateY frozen at it)."""
+    s = SupervisorConfig().sensors
+    a, g, f = (rng.normal(0.0, sigma, 3) for sigma in (s.attitude_noise, s.rate_noise, s.accel_noise))
+    return {
+        "IMU_ATTITUDE": {"Roll": a[0], "Pitch": 0.01 + a[1], "Yaw": 0.3 + a[2], "Valid": 1},
+        "IMU_RATE": {"RateX": g[0], "RateY": g[1] if rate_y is None else rate_y, "RateZ": g[2], "Valid": 1},
+        "IMU_ACCEL": {"AccX": f[0], "AccY": f[1], "AccZ": 9.80665 + f[2], "Valid": 1},
+    }
+
+
+def contract_imu():
+    """The sample as the contract's IMU frames, decoded by the supervisor's node."""
+    tx, rx = CanNode(FakeBus(), name="tx"), CanNode(FakeBus(), name="rx")
+    return lambda sample, k: [rx.decode(tx.message(name, values)) for name, values in sample.items()]
+
+
+def xsens_imu():
+    """The sample as the emulated Xsens group, read by the supervisor's host (drivers/devices/xsens.py)."""
+    from drivers.devices import Devices
+    from drivers.devices.xsens import XsensHost
+    from hil.devices.xsens import XsensImu
+
+    devices = Devices(imu="xsens")
+    imu, host = XsensImu(devices, 8192, 400.0), XsensHost(devices, 8192, "supervisor")
+
+    def send(sample, k):
+        frames = [f for name, values in sample.items() for f in imu.outgoing(name, values)]
+        imu.on_sync(k)
+        return [rx for f in frames if (rx := host.incoming(f)) is not None]
+
+    return send
+
+
+@pytest.mark.parametrize("profile, required", [("pure", 20), ("xsens", 54)])
+def test_a_live_imu_near_rest_is_not_stuck_and_a_frozen_rate_is_found(profile, required):
+    """Near rest a live Xsens RateY (2^-9 rad/s steps, about twice the gyro's noise) reads one value for
+    20 frames and more: at its step the check asks 54 (the same chance for a live channel as 20 at the
+    contract's 1e-3); a rate frozen while the attitude moves is found at that many, on either profile."""
+    m, rng = monitors(), np.random.default_rng(7)
+    send = contract_imu() if profile == "pure" else xsens_imu()
+    dt, k = 1.0 / 400, 0
+    for k in range(1, 20 * 400):  # 20 s near rest
+        for rx in send(imu_near_rest(rng), k):
+            m.frame(rx, k * dt)
+        assert not [f for f in m.findings(k * dt) if f.cause is Cause.SENSOR_STUCK], (profile, k * dt)
+    assert m.imu_resolution["IMU_RATE"].samples == required
+    found = []
+    for i in range(required + 5):  # RateY frozen at a rate it has while moving (the sensor.stuck fault)
+        t = (k + 1 + i) * dt
+        for rx in send(imu_near_rest(rng, rate_y=0.0137), k + 1 + i):
+            m.frame(rx, t)
+        found.append([f for f in m.findings(t) if f.cause is Cause.SENSOR_STUCK])
+    first = next(i for i, f in enumerate(found) if f)
+    assert first == required - 1 and found[first][0].parts == ("RateY",), found[first]
+
+
+def test_judged_by_the_contracts_20_frames_the_same_live_xsens_stream_looks_frozen(monkeypatch):
+    """Test the test: without the stream's own step (20 frames whatever it is) the live stream above trips,
+    as speed_limiting on the xsens bench did at 0.503 s."""
+    from safety.diagnostics import Resolution
+
+    monkeypatch.setattr(Resolution, "moved", lambda self, step: None)
+    m, rng, send = monitors(), np.random.default_rng(7), xsens_imu()
+    for k in range(1, 20 * 400):
+        for rx in send(imu_near_rest(rng), k):
+            m.frame(rx, k / 400)
+        if found := [f for f in m.findings(k / 400) if f.cause is Cause.SENSOR_STUCK]:
+            assert "for 20 frames" in found[0].detail
+            return
+    pytest.fail("the live stream never looked frozen: the test above proves nothing")
+
+
+def test_the_contract_steps_the_stuck_check_starts_from_are_the_dbcs():
+    from drivers.can_codec import Catalog
+    from safety.monitors import CONTRACT_STEP, IMU_CHANNELS
+
+    catalog = Catalog()
+    for name, step in CONTRACT_STEP.items():
+        scales = {s.name: s.scale for s in catalog[name].signals}
+        assert all(scales[signal] == step for signal in IMU_CHANNELS[name]), name
