@@ -79,12 +79,12 @@ def live_run(step: float, contract: float, noise: float, samples: int) -> float:
     that keeps p^(n - 1) the same is longer. A step no coarser than the contract's keeps `samples`; one so
     coarse that a live reading (numerically) never leaves it gives inf: repetition then proves nothing."""
     if step <= contract * (1.0 + 1e-9):
-        return samples
+        return float(samples)
     scale = 1.0 / (2.0 * math.sqrt(2.0) * noise)
     p0, p = math.erf(contract * scale), math.erf(step * scale)
     if p >= 1.0:
         return math.inf
-    return 1 + math.ceil((samples - 1) * math.log(p0) / math.log(p) - 1e-9)
+    return float(1 + math.ceil((samples - 1) * math.log(p0) / math.log(p) - 1e-9))
 
 
 class Resolution:
@@ -101,7 +101,7 @@ class Resolution:
         self.contract, self.noise, self.base = contract, noise, samples
         self.step = math.inf
         """The smallest step seen (inf: none yet)."""
-        self.samples: float = samples
+        self.samples = float(samples)  # mypyc: one float representation, whatever live_run gives
         """Frames in a row a channel of this stream must repeat its raw value to count as frozen."""
 
     def moved(self, step: float) -> None:
@@ -124,7 +124,7 @@ class Stuck:
     @property
     def required(self) -> float:
         """Frames in a row that show the channel frozen (with the evidence)."""
-        return self.samples if self.resolution is None else self.resolution.samples
+        return float(self.samples) if self.resolution is None else self.resolution.samples
 
     def sample(self, raw: object, evidence: float) -> bool:
         """One frame's raw value and how far the other evidence moved since the previous frame; True if
