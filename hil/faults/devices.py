@@ -11,7 +11,7 @@ from typing import Annotated, ClassVar, Protocol, cast
 
 import msgspec
 
-from drivers.devices import IMU_PROFILES
+from drivers.devices import IMU_PROFILES, ProfileNode
 from hil.faults.base import FaultError, FaultSpec, FaultState, FaultTarget
 
 Motor = Annotated[int, msgspec.Meta(ge=1, le=3)]
@@ -52,8 +52,9 @@ class DeviceFault(FaultSpec, frozen=True, kw_only=True):
         self.emulation(rig)
 
     def emulation(self, rig: FaultTarget) -> object:
-        for translator in getattr(rig.can, "translators", ()):
-            if getattr(translator, "profile", "") == self.profile:
+        translators = rig.can.translators if isinstance(rig.can, ProfileNode) else ()
+        for translator in translators:
+            if translator.profile == self.profile:
                 return translator
         device = "IMU" if self.profile in IMU_PROFILES else "drives"
         key = "imu" if device == "IMU" else "drives"
