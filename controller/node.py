@@ -21,12 +21,11 @@ from drivers.can_bus import CanNode, Received
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, MessageName
 from drivers.contract import CONTRACT_VERSION
 from drivers.keys import Keys
-from drivers.schemas import ControllerCommand, ControllerTelemetry, ScCommand, TesWrench
+from drivers.schemas import TICK_MODULO, ControllerCommand, ControllerTelemetry, ScCommand, TesWrench
 from drivers.zenoh_link import Fence, Subscription, ZenohLink
 
 log = logging.getLogger(__name__)
 
-TICK_MODULO = 1 << 16
 FEEDBACK: dict[str, int] = {name: motor for motor, name in enumerate(DRIVE_FEEDBACK)}
 SEAT_FLAGGED = frozenset({"WRENCH_IMPLAUSIBLE"})
 """SUPERVISOR_ESTOP.Reason values that say the seat's wrench is not a rider's: the controller stops using it

@@ -142,6 +142,15 @@ class RigTick(Payload, frozen=True, kw_only=True):
     puts: dict[Annotated[str, msgspec.Meta(max_length=200)], Annotated[int, msgspec.Meta(ge=0)]]
 
 
+TICK_MODULO = 1 << 16
+"""Tick counts on the wire (the SYNC frame's Tick, the tick a lockstep put is tagged with) wrap here."""
+
+
+def tick_after(a: int, b: int) -> bool:
+    """Tick a is later than tick b, either given in full or wrapped (at most half the range apart)."""
+    return 0 < (a - b) % TICK_MODULO < TICK_MODULO // 2
+
+
 P = TypeVar("P", bound=Payload)
 
 _encoder = msgspec.msgpack.Encoder()

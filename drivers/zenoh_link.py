@@ -32,7 +32,7 @@ import zenoh
 
 from drivers.keys import Keys
 from drivers.resources import SHIPPED
-from drivers.schemas import Payload, PayloadError, RigTick, decode, encode
+from drivers.schemas import TICK_MODULO, Payload, PayloadError, RigTick, decode, encode, tick_after
 
 log = logging.getLogger(__name__)
 
@@ -291,6 +291,10 @@ def poll_until(ready: Callable[[], object], timeout: float) -> bool:
     return True
 
 
+TICK_TAG_BYTES = 2
+"""A put's tick tag: the tick modulo TICK_MODULO, little-endian (zenoh attachment)."""
+
+
 class Subscription(Generic[P]):
     """Samples land in a zenoh ring channel (filled by zenoh's threads without the GIL; the oldest drop
     when full); the consumer takes and decodes them on its own thread with `drain()` (all new) or
@@ -298,7 +302,8 @@ class Subscription(Generic[P]):
 
     def __init__(self, session: zenoh.Session, key: str, payload_type: type[P], capacity: int = 256):
         self.key, self.type = key, payload_type
-        self._buffer: deque[bytes] = deque(maxlen=capacity)
+        self._buffer: deque[tuple[bytes, int | None]] = deque(maxlen=capacity)
+        """Undrained samples with the tick a lockstep rig tagged them with (None: untagged)."""
         self._received = 0
         self._sub = session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
         self.accepted = 0
@@ -308,7 +313,10 @@ class Subscription(Generic[P]):
 
     def _take(self) -> None:
         while (sample := self._sub.try_recv()) is not None:
-            self._buffer.append(sample.payload.to_bytes())
+            tag = sample.attachment
+            tagged = tag is not None and len(tag_bytes := tag.to_bytes()) == TICK_TAG_BYTES
+            tick = int.from_bytes(tag_bytes, "little") if tagged else None
+            self._buffer.append((sample.payload.to_bytes(), tick))
             self._received += 1
 
     @property
@@ -326,10 +334,14 @@ class Subscription(Generic[P]):
 
         return poll_until(arrived, timeout)
 
-    def drain(self) -> list[P]:
+    def drain(self, tick: int | None = None) -> list[P]:
+        """Everything new; given the reader's tick, samples a lockstep rig tagged with a later tick stay
+        queued (a reader behind the rig judges each input at the tick it was put)."""
         self._take()
-        pending = list(self._buffer)
-        self._buffer.clear()
+        pending: list[bytes] = []
+        buffer = self._buffer
+        while buffer and (tick is None or (tag := buffer[0][1]) is None or not tick_after(tag, tick)):
+            pending.append(buffer.popleft()[0])
         out: list[P] = []
         for data in pending:
             try:
@@ -409,8 +421,13 @@ class ZenohLink:
     def put(self, key: str, payload: Payload) -> None:
         self.put_bytes(key, encode(payload))
 
-    def put_bytes(self, key: str, data: bytes) -> None:
-        self.publisher(key).put(data)
+    def put_bytes(self, key: str, data: bytes, tick: int | None = None) -> None:
+        """`tick`: the rig's tick the sample belongs to, attached for readers that may lag (`drain(tick)`)."""
+        pub = self.publisher(key)
+        if tick is None:
+            pub.put(data)
+        else:
+            pub.put(data, attachment=(tick % TICK_MODULO).to_bytes(TICK_TAG_BYTES, "little"))
         self.puts[key] += 1
 
     def put_fence(self, tick: int, stamp: float) -> None:
@@ -449,11 +466,20 @@ class Fence:
     def _short(self, s: Subscription[Any]) -> int:
         return self._puts.get(s.key, 0) - self.lost[s.key] - s.received
 
-    def _ready(self, k: int) -> bool:
+    def _take_fences(self) -> None:
         for fence in self.ticks.drain():
             if fence.seq > self.tick:
                 self.tick, self._puts = fence.seq, fence.puts
+
+    def _ready(self, k: int) -> bool:
+        self._take_fences()
         return self.tick >= k and all(self._short(s) <= 0 for s in self.reads)
+
+    @property
+    def heard(self) -> bool:
+        """A lockstep rig's fence has arrived (such a rig also tags its puts with their tick)."""
+        self._take_fences()
+        return self.tick >= 0
 
     def wait(self, k: int, timeout: float) -> bool:
         """Wait until tick k's inputs are all here (True) or the timeout passes (False)."""

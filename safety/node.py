@@ -24,6 +24,7 @@ from typing import cast
 from drivers.can_bus import CanNode, Received
 from drivers.can_codec import MessageName
 from drivers.schemas import (
+    TICK_MODULO,
     EstopCommand,
     Payload,
     SafetyAlert,
@@ -41,8 +42,6 @@ from safety.monitors import Monitors
 from safety.recovery import RecoveryLaw
 
 log = logging.getLogger(__name__)
-
-TICK_MODULO = 1 << 16
 
 
 class SupervisorNode:
@@ -106,11 +105,11 @@ class SupervisorNode:
     def _drain_zenoh(self, t: float, fence: int | None) -> None:
         if fence is not None and not self.fence.wait(fence, self.fence_wait):
             self.fence_misses += 1
-        for w in self.wrench.drain():
+        for w in self.wrench.drain(fence):
             self.monitors.wrench(w, t)
-        for r in self.requests.drain():
+        for r in self.requests.drain(fence):
             self.monitors.sc_request(r, t)
-        for cmd in self.operator.drain():
+        for cmd in self.operator.drain(fence):
             log.warning("operator %s from %s", cmd.action, cmd.source)
             self.monitors.operator_command(cmd)
 
@@ -273,7 +272,9 @@ class SupervisorNode:
                 # tick it came in, so a zenoh input is judged at the newest tick, not an old one it overtook.
                 while (queued := self.can.recv(timeout=0.0)) is not None:
                     self.frame(queued, self._stamp(0.0))
-                self.update(self._stamp(0.0))
+                # Beside a rig that sends fences, its zenoh inputs are held to their tick as well: one put
+                # just before the next SYNC must not be judged a tick early.
+                self.update(self._stamp(0.0), fence=self.tick if self.fence.heard else None)
 
 
 class SupervisorThread:

@@ -2,10 +2,12 @@
 the operator's e-stop, drives off when the controller or the supervisor dies, and a reset that permits
 motion without causing it. The plant's truth is the referee; the supervisor never sees it."""
 
+import threading
 import time
 
 import msgspec
 import numpy as np
+import pytest
 
 from drivers.bus_config import BusConfig
 from drivers.can_bus import CanNode, open_bus, private_channel
@@ -134,9 +136,10 @@ def test_reset_permits_motion_but_never_causes_it():
     assert np.abs(tr.velocity[tr.t > 4.0]).max() < 0.1
 
 
-def external_supervisor_run(scenario: Scenario, stall_at: int | None = None):
+def external_supervisor_run(scenario: Scenario, stall_at: int | None = None, rx_hook=None):
     """A lockstep run with the supervisor on a thread of its own on the SYNC time base; `stall_at`: at that
-    SYNC tick it stalls for 0.2 s of wall time (a supervisor slower than the loop, not a dead one)."""
+    SYNC tick it stalls for 0.2 s of wall time (a supervisor slower than the loop, not a dead one);
+    `rx_hook`: the supervisor's CAN receive hook, for other ways of holding it up."""
     endpoint = hub_endpoint()
     session = open_session(role="hub", hub_endpoint=endpoint)
     link = ZenohLink(session)
@@ -153,6 +156,8 @@ def external_supervisor_run(scenario: Scenario, stall_at: int | None = None):
             return msg
 
         can.rx_hook = stalling
+    if rx_hook is not None:
+        can.rx_hook = rx_hook
     thread = SupervisorThread(node, sync=True).start()
     try:
         bench = private_bench(can=bus_config, supervisor="external", hub=endpoint)
@@ -193,6 +198,48 @@ def test_external_supervisor_on_the_sync_time_base():
     assert transitions(tr) == [("STOPPING", "OPERATOR_ESTOP"), ("ESTOP", "OPERATOR_ESTOP")]
     assert abs(first(tr, "OPERATOR_ESTOP").t - 4.0) < 0.01
     assert result.passed, [v for v in result.verdicts if not v.passed]
+
+
+def test_a_supervisor_behind_the_rig_judges_each_zenoh_input_at_the_tick_it_was_put(monkeypatch):
+    """The rig puts tick k's zenoh inputs before tick k's SYNC. A supervisor on the SYNC time base that
+    is still at tick k - 1 (a busy machine) must not take the operator's e-stop of tick k a tick early: the
+    rig tags each put with its tick, and the supervisor holds a later tick's input. The CI failure this
+    fixes: the e-stop's STOPPING came at 3.9975 s for an e-stop put at 4.0 s."""
+    k = 400  # the e-stop's tick, 1.0 s
+    put = threading.Event()
+
+    class AheadRig(Rig):
+        """At tick k: the zenoh inputs are out, then the supervisor held at SYNC k - 1 is let go, and this
+        tick's SYNC follows only later."""
+
+        def _send_sensors(self, tick, *args):
+            if tick == k:
+                put.set()
+                time.sleep(0.3)  # ordering only: the held supervisor updates before SYNC k is sent
+            super()._send_sensors(tick, *args)
+
+        def _await_supervisor(self, deadline):
+            if self.plant.tick != k - 1:  # the supervisor waits for the rig here, not the other way round
+                super()._await_supervisor(deadline)
+
+    def held_at_the_tick_before(msg):
+        if msg.arbitration_id == SYNC.frame_id and SYNC.decode(msg.data)["Tick"] == k - 1:
+            put.wait(10.0)
+        return msg
+
+    scenario = Scenario(
+        name="estop", rider=str(REF), duration=1.2, operator=[OperatorEntry(at=k * TICK, action="estop")]
+    )
+    monkeypatch.setattr(build, "Rig", AheadRig)
+    stop = first(external_supervisor_run(scenario, rx_hook=held_at_the_tick_before).trace, "OPERATOR_ESTOP")
+    assert stop.t == pytest.approx(k * TICK)
+
+    # Control: the same puts untagged (as before the fix) are judged at the tick the supervisor is at.
+    untagged = ZenohLink.put_bytes
+    monkeypatch.setattr(ZenohLink, "put_bytes", lambda link, key, data, tick=None: untagged(link, key, data))
+    put.clear()
+    early = first(external_supervisor_run(scenario, rx_hook=held_at_the_tick_before).trace, "OPERATOR_ESTOP")
+    assert early.t == pytest.approx((k - 1) * TICK)
 
 
 def test_a_run_ended_by_an_operators_live_estop_is_not_passed(tmp_path):

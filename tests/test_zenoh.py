@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 
 from drivers.keys import Keys
 from drivers.schemas import (
+    TICK_MODULO,
     ControllerTelemetry,
     EstopCommand,
     PayloadError,
@@ -20,6 +21,7 @@ from drivers.schemas import (
     ScRequest,
     TesWrench,
     decode,
+    encode,
 )
 from drivers.zenoh_link import (
     CONFIG_DIR,
@@ -208,6 +210,29 @@ def test_latest_and_all_new(hub_and_member):
     assert wait_for(lambda: sub.latest() is not None and sub.accepted == 5)
     assert sub.latest().seq == 4
     assert sub.drain() == [] and sub.latest().seq == 4
+
+
+def test_a_reader_behind_the_rig_leaves_later_ticks_queued(hub_and_member):
+    """Puts tagged with a tick (the lockstep rig's) wait for a reader at that tick, across the 2^16 wrap;
+    untagged ones (a person's e-stop) never wait for a tick; drain() without a tick takes all."""
+    tx, rx, _ = hub_and_member
+    key = Keys().tes_wrench
+    sub = rx.subscribe(key, TesWrench)
+    assert wait_matching(tx.publisher(key))
+    data = {i: encode(msgspec.structs.replace(SAMPLES[0], seq=i)) for i in range(5)}
+    tx.put_bytes(key, data[0])  # untagged
+    tx.put_bytes(key, data[1], tick=TICK_MODULO - 1)
+    tx.put_bytes(key, data[2], tick=TICK_MODULO)  # wraps to 0: one tick later
+    tx.put_bytes(key, data[3], tick=TICK_MODULO + 2)
+    assert wait_for(lambda: sub.received == 4)
+    seqs = lambda payloads: [p.seq for p in payloads]  # noqa: E731
+    assert seqs(sub.drain(tick=TICK_MODULO - 1)) == [0, 1]
+    assert seqs(sub.drain(tick=TICK_MODULO - 1)) == []
+    assert seqs(sub.drain(tick=TICK_MODULO + 1)) == [2]  # the reader counts on past the wrap, unwrapped
+    tx.put_bytes(key, data[4])
+    assert wait_for(lambda: sub.received == 5)
+    assert seqs(sub.drain(tick=1)) == [], "in order: the untagged one waits behind tick 2's"
+    assert seqs(sub.drain()) == [3, 4]
 
 
 MALFORMED = {

@@ -34,6 +34,7 @@ from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, Messa
 from drivers.dut import DutHandle
 from drivers.native import mypyc_attr
 from drivers.schemas import (
+    TICK_MODULO,
     ControllerCommand,
     ControllerTelemetry,
     EstopCommand,
@@ -52,7 +53,6 @@ from plant.drives import DriveState, MotorDrive
 from plant.sensors import DriveFeedback, ImuSample, TesSample
 from safety.node import SupervisorNode
 
-TICK_MODULO = 1 << 16
 COMMANDS: dict[str, int] = {name: motor for motor, name in enumerate(DRIVE_COMMAND)}
 """Each drive's command frame (keyed by name as frames carry it: Received.name) -> its motor."""
 TORQUE_EVERY = 4  # DRIVEn_TORQUE at 100 Hz on a 400 Hz tick (the DBC's GenMsgCycleTime)
@@ -346,7 +346,7 @@ class Rig:
         self._put_bytes(k, key, encode(payload), link)
 
     def _put_bytes(self, k: int, key: str, data: bytes, link: ZenohLink | None = None) -> None:
-        (link or self.link).put_bytes(key, data)
+        (link or self.link).put_bytes(key, data, tick=k)
         self._record(k, key, data)
 
     def _next_seq(self, key: str) -> int:
