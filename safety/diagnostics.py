@@ -320,6 +320,7 @@ class TorqueCheck(Check):
             self.cause,
             f"{self.name}: measured {measured:+.3f} Nm, expected {expected:+.3f} Nm "
             f"for {self.over} samples in a row",
+            self.parts,
         )
 
 

@@ -194,6 +194,28 @@ def test_a_sign_flipped_wheel_in_motion_is_named_and_ridden_to_rest_without_it(t
     assert at_rest_upright(tr)
 
 
+def test_a_drive_dead_at_speed_is_named_and_the_robot_ridden_to_rest_on_the_other_two(tmp_path):
+    """Drive 2 stops making torque at 1.5 m/s (motor 1 is the lenient case: in straight-line motion along
+    +x wheels 2 and 3 brake without turning the robot). The diagnosis names Drive2, the recovery law
+    commands only drives 1 and 3, and the robot ends upright and at rest; without the recovery law it falls.
+    The pair's torque turns the robot as it brakes (docs/safety.md: about 8 rad/s of yaw rate)."""
+    fault = [{"kind": "plant.drive_torque", "motor": 2, "scale": 0.0, "at": 4.5}]
+    tr = run(BRAKING, fault, tmp_path)
+    assert np.hypot(*tr.velocity[np.searchsorted(tr.t, 4.5)]) > 1.2, "the fault comes at speed"
+    takeover = next(e for e in tr.safety_events if e.to_state == "RECOVERY")
+    assert takeover.cause == "ACTUATOR_MISMATCH" and takeover.t - 4.5 < 0.05
+    wire = frames(tmp_path)
+    named = [s for name, s in wire if name == MessageName.SUPERVISOR_DIAGNOSIS and s["Drive2"]]
+    assert named and not any(s["Drive1"] or s["Drive3"] for s in named)
+    recovery = [s for name, s in wire if name == MessageName.SUPERVISOR_RECOVERY]
+    assert recovery and all(s["Torque2"] == 0.0 for s in recovery), "nothing asked of the dead drive"
+    assert max(abs(s["Torque1"]) + abs(s["Torque3"]) for s in recovery) > 0.5, "the other two balance"
+    assert at_rest_upright(tr)
+    # Positive control: without the recovery law the supervisor cuts power at speed, and the robot falls.
+    control = run(BRAKING, fault, tmp_path / "control", safety={"recovery": {"enabled": False}})
+    assert control.fallen is not None
+
+
 def test_a_controller_that_balances_at_standstill_on_healthy_inputs_is_never_taken_over(tmp_path):
     tr = run(BRAKING, [], tmp_path)
     assert tr.stats.recovery_commands == 0 and tr.stats.overridden_commands == 0

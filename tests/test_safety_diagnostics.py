@@ -246,6 +246,9 @@ def test_measured_torque_must_follow_the_command():
     assert check.sample(0.0, 2.0, False) is None, "a disabled drive makes none"
     found = [check.sample(0.0, 1.0, True) for _ in range(3)]
     assert found[:2] == [None, None] and found[2].cause is Cause.ACTUATOR_MISMATCH
+    # It names its drive: the recovery law balances on the other two only if the diagnosis says which one
+    # is dead (without the name it commanded the dead drive, and a dead drive 2 or 3 in motion fell).
+    assert found[2].parts == ("Drive1",)
 
 
 # --------------------------------------------------------------------------------------------- seat
