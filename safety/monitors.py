@@ -105,6 +105,8 @@ class Drive:
         self.command: tuple[float, bool] | None = None
         """(torque, enable) of the last command on the bus."""
         self.enable_since: float | None = None
+        self.idle_since: float | None = None
+        """Since when, under the recovery law, this drive has reported itself making no torque."""
         self.findings: dict[str, Finding | None] = {}
 
     def feedback(self, s: Signals, t: float, lost: int) -> None:
@@ -139,6 +141,17 @@ class Drive:
         producing = self.enabled and self.bus_powered and self.command is not None and self.command[1]
         commanded = None if self.command is None else self.command[0]
         self.findings["torque"] = self.torque.sample(torque, commanded, producing)
+
+    def dead_to_the_law(self, t: float, held: bool, confirm: float) -> bool:
+        """Held by the recovery law (`held`), the drive has reported itself off, its watchdog tripped or
+        faulted for `confirm`: the law's commands do not reach it or it cannot follow them. The drives come
+        back within a few frames of a takeover (a dead controller's tripped watchdogs: 1-4 frames)."""
+        if not held or (self.enabled and not self.watchdog and not self.fault):
+            self.idle_since = None
+            return False
+        if self.idle_since is None:
+            self.idle_since = t
+        return t - self.idle_since >= confirm - 1e-9
 
     def report(self, t: float, timeout: float) -> DriveReport:
         fresh = t - self.seen <= timeout
@@ -199,6 +212,8 @@ class Monitors:
         """A sensor check failed: the speed estimate is the conservative one until a reset."""
         self.recovering = False
         """The drives follow the recovery law (its commands, not the controller's, are checked)."""
+        self._law_commanded = False
+        """The recovery law commanded the drives since the last observation."""
         self.named: frozenset[str] = frozenset()
         """What the diagnosis named at the last observation (`suspects`)."""
         self._named: set[str] = set()
@@ -266,7 +281,7 @@ class Monitors:
     def recovery_commanded(self, torques: tuple[float, float, float]) -> None:
         """The recovery law holds the drives: its commands are the ones they follow (for the torque check),
         not the controller's, until a reset."""
-        self.recovering = True
+        self.recovering = self._law_commanded = True
         for drive, torque in zip(self.drives, torques, strict=True):
             drive.command = (torque, True)
 
@@ -471,8 +486,12 @@ class Monitors:
             self.degraded = True
         for f in found:
             self._named.update(f.parts)
+        held, self._law_commanded = self._law_commanded, False
+        confirm = self.config.drives.confirm
         for drive in self.drives:
-            if drive.fault:
+            # A drive's own fault names it at once; a drive that stays off under the recovery law names
+            # itself too (its commands are lost, as on cia402 where the law's torques ride in its RPDO1).
+            if drive.fault or drive.dead_to_the_law(t, held, confirm):
                 self._named.add(f"Drive{drive.index}")
         return tuple(found)
 

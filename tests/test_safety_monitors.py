@@ -216,3 +216,51 @@ def test_the_contract_steps_the_stuck_check_starts_from_are_the_dbcs():
     for name, step in CONTRACT_STEP.items():
         scales = {s.name: s.scale for s in catalog[name].signals}
         assert all(scales[signal] == step for signal in IMU_CHANNELS[name]), name
+
+
+# ------------------------------------------------------------------------------ a drive the law loses
+def drive_flags(plant: Plant, tripped: set[int]):
+    """The plant's frames with the drives in `tripped` (1-3) reporting their command watchdog tripped."""
+    out = frames(plant)
+    tx, rx = CanNode(FakeBus(), name="tx"), CanNode(FakeBus(), name="rx")
+    for i in tripped:
+        fb = out[i - 1].signals
+        values = {"Position": fb["Position"], "Velocity": fb["Velocity"], "Enabled": 0, "WatchdogTripped": 1}
+        out[i - 1] = rx.decode(tx.message(f"DRIVE{i}_FEEDBACK", values))
+    return out
+
+
+def named_drives(m: Monitors, plant: Plant, ticks: int, t0: float, tripped, law: bool) -> list[frozenset]:
+    """`ticks` updates at 400 Hz from t0; with `law`, the recovery law commands the drives after each."""
+    out = []
+    for k in range(ticks):
+        t = t0 + k / 400
+        for rx in drive_flags(plant, tripped(k)):
+            m.frame(rx, t)
+        m.observe(t)
+        out.append(frozenset(n for n in m.named if n.startswith("Drive")))
+        if law:
+            m.recovery_commanded((0.1, 0.1, 0.1))
+    return out
+
+
+def test_a_drive_that_stays_off_under_the_recovery_law_is_named_and_one_that_comes_back_is_not():
+    """A drive the recovery law's commands do not reach (cia402: they ride in its lost RPDO1) reports its
+    watchdog tripped for as long as the law holds the drives: after drives.confirm it is named, and the
+    law balances on the other two. Drives that come back within a few frames of the takeover (a dead
+    controller's tripped watchdogs) are not; nor is a tripped drive before any takeover (the controller's
+    own commands are lost: a DRIVE_FAULT the law may still fix)."""
+    plant = Plant(load_toml(ROBOT, RobotParams), RIDER_75, SimParams(seed=3))
+    confirm_ticks = round(SupervisorConfig().drives.confirm * 400)
+    m = monitors()
+    before = named_drives(m, plant, 40, 0.0, lambda k: {2}, law=False)
+    assert not any(before), "no takeover: nothing named"
+    lost = named_drives(m, plant, 20, 0.1, lambda k: {2}, law=True)
+    first = next(k for k, named in enumerate(lost) if named)
+    assert lost[first] == {"Drive2"} and confirm_ticks <= first <= confirm_ticks + 2
+    assert lost[-1] == {"Drive2"}, "latched"
+    # Control: all three tripped at the takeover (a dead controller), back on the law's commands in 4 frames.
+    m = monitors()
+    named_drives(m, plant, 10, 0.0, lambda k: set(), law=False)
+    back = named_drives(m, plant, 30, 0.025, lambda k: {1, 2, 3} if k < 4 else set(), law=True)
+    assert not any(back)
