@@ -123,7 +123,7 @@ BRAKING = load_toml(ROOT / "configs/scenarios/braking.toml", Scenario)
 SPEED_LIMITING = load_toml(ROOT / "configs/scenarios/speed_limiting.toml", Scenario)
 
 
-def run(base, faults, tmp_path, safety=None, duration=None):
+def run(base, faults, tmp_path, safety=None, duration=None, bench="embedded"):
     scenario = msgspec.structs.replace(
         base,
         duration=duration or base.duration,
@@ -131,7 +131,7 @@ def run(base, faults, tmp_path, safety=None, duration=None):
         safety={**base.safety, **(safety or {})},
         criteria=[],
     )
-    return pipeline.run(scenario, private_bench(), out=tmp_path).trace
+    return pipeline.run(scenario, private_bench(bench), out=tmp_path).trace
 
 
 def frames(folder):
@@ -216,6 +216,20 @@ def test_a_drive_dead_at_speed_is_named_and_the_robot_ridden_to_rest_on_the_othe
     # Positive control: without the recovery law the supervisor cuts power at speed, and the robot falls.
     control = run(BRAKING, fault, tmp_path / "control", safety={"recovery": {"enabled": False}})
     assert control.fallen is not None
+
+
+def test_a_cia402_drive_held_in_fault_is_named_once_it_stays_off_under_the_recovery_law(tmp_path):
+    """On cia402 a drive held in FAULT (a manufacturer's code: neither `Fault` nor `WatchdogTripped` on the
+    host) reads as off although permitted: DRIVE_FAULT, which names no drive by itself. Once it stays off
+    for drives.confirm while the recovery law commands it, the diagnosis names it and the law balances on
+    the other two (it kept commanding the dead drive, and the robot fell at 4.08 s, before)."""
+    fault = [{"kind": "cia402.fault", "motor": 2, "at": 3.0}]
+    tr = run(SPEED_LIMITING, fault, tmp_path, duration=6.0, bench="cia402")
+    takeover = next(e for e in tr.safety_events if e.to_state == "RECOVERY")
+    assert takeover.cause == "DRIVE_FAULT" and takeover.t - 3.0 < 0.05
+    named = [s for name, s in frames(tmp_path) if name == MessageName.SUPERVISOR_DIAGNOSIS and s["Drive2"]]
+    assert named and not any(s["Drive1"] or s["Drive3"] for s in named)
+    assert tr.fallen is None
 
 
 def test_a_controller_that_balances_at_standstill_on_healthy_inputs_is_never_taken_over(tmp_path):
