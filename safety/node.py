@@ -114,9 +114,11 @@ class SupervisorNode:
             self.monitors.operator_command(cmd)
 
     # --------------------------------------------------------------------------------------- decide
-    def update(self, t: float, fence: int | None = None) -> Decision:
-        """Take in everything that arrived, decide, and emit what is due at time t."""
-        self._drain_can(t)
+    def update(self, t: float, fence: int | None = None, take_can: bool = True) -> Decision:
+        """Take in everything that arrived, decide, and emit what is due at time t (`take_can` False: the
+        caller has fed the CAN frames up to this tick's SYNC itself, and later ones wait for their update)."""
+        if take_can:
+            self._drain_can(t)
         self._drain_zenoh(t, fence)
         self.observation = self.monitors.observe(t)
         decision = self.machine.update(self.observation)
@@ -267,14 +269,19 @@ class SupervisorNode:
             if rx is None:
                 continue
             self.frame(rx, self._stamp(0.0))
-            if rx.name == MessageName.SYNC:
-                # Behind the rig (a busy machine): take in what is already queued first, each frame at the
-                # tick it came in, so a zenoh input is judged at the newest tick, not an old one it overtook.
-                while (queued := self.can.recv(timeout=0.0)) is not None:
-                    self.frame(queued, self._stamp(0.0))
-                # Beside a rig that sends fences, its zenoh inputs are held to their tick as well: one put
-                # just before the next SYNC must not be judged a tick early.
-                self.update(self._stamp(0.0), fence=self.tick if self.fence.heard else None)
+            if rx.name != MessageName.SYNC:
+                continue
+            if self.fence.heard:
+                # A rig that sends fences tags its zenoh puts with their tick: however far behind (a busy
+                # machine), each SYNC is its own update, with the frames before it and the zenoh inputs of
+                # its tick and earlier, the same in every run.
+                self.update(self._stamp(0.0), fence=self.tick, take_can=False)
+                continue
+            # Otherwise, behind the rig: take in what is already queued first, each frame at the tick it came
+            # in, so an untagged zenoh input is judged at the newest tick, not an old one it overtook.
+            while (queued := self.can.recv(timeout=0.0)) is not None:
+                self.frame(queued, self._stamp(0.0))
+            self.update(self._stamp(0.0))
 
 
 class SupervisorThread:

@@ -203,8 +203,9 @@ def test_external_supervisor_on_the_sync_time_base():
 def test_a_supervisor_behind_the_rig_judges_each_zenoh_input_at_the_tick_it_was_put(monkeypatch):
     """The rig puts tick k's zenoh inputs before tick k's SYNC. A supervisor on the SYNC time base that
     is still at tick k - 1 (a busy machine) must not take the operator's e-stop of tick k a tick early: the
-    rig tags each put with its tick, and the supervisor holds a later tick's input. The CI failure this
-    fixes: the e-stop's STOPPING came at 3.9975 s for an e-stop put at 4.0 s."""
+    rig tags each put with its tick, and the supervisor holds a later tick's input; each SYNC is its own
+    update, so one far behind does not take several ticks at once either. The CI failures this fixes: the
+    e-stop's STOPPING came at 3.9975 s for an e-stop put at 4.0 s, and under load at 4.0125 s."""
     k = 400  # the e-stop's tick, 1.0 s
     put = threading.Event()
 
@@ -234,12 +235,13 @@ def test_a_supervisor_behind_the_rig_judges_each_zenoh_input_at_the_tick_it_was_
     stop = first(external_supervisor_run(scenario, rx_hook=held_at_the_tick_before).trace, "OPERATOR_ESTOP")
     assert stop.t == pytest.approx(k * TICK)
 
-    # Control: the same puts untagged (as before the fix) are judged at the tick the supervisor is at.
+    # Control: the same puts untagged (as before the fix) are judged at whatever tick the supervisor is at
+    # when they arrive: here, held at k - 1 or further behind, before their own tick.
     untagged = ZenohLink.put_bytes
     monkeypatch.setattr(ZenohLink, "put_bytes", lambda link, key, data, tick=None: untagged(link, key, data))
     put.clear()
     early = first(external_supervisor_run(scenario, rx_hook=held_at_the_tick_before).trace, "OPERATOR_ESTOP")
-    assert early.t == pytest.approx((k - 1) * TICK)
+    assert early.t < k * TICK - TICK / 2
 
 
 def test_a_run_ended_by_an_operators_live_estop_is_not_passed(tmp_path):
