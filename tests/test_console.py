@@ -235,8 +235,15 @@ def test_the_page_starts_a_run_sees_it_live_estops_it_and_keeps_it_in_the_histor
             what="run 1 after the restart",
         )
         assert row[1:3] == ["speed_limiting", "embedded"] and row[5:7] == ["ESTOPPED", "OPERATOR_ESTOP"], row
-        link = browser.find_element(By.CSS_SELECTOR, '#history tr[data-run="1"] a[href$="plots.png"]')
-        status, png = request(link.get_attribute("href"))
+        # One script, not find_element then get_attribute: the page redraws its history as runs change, and
+        # an element found before a redraw is stale after it (seen in CI).
+        href = page_wait(
+            browser,
+            'const a = document.querySelector(\'#history tr[data-run="1"] a[href$="plots.png"]\'); '
+            "return a && a.href",
+            what="run 1's plots link",
+        )
+        status, png = request(href)
         assert status == 200 and png == (folder / "plots.png").read_bytes()
 
         # A monitor's console on the same rig: the same screen, no button at all.
