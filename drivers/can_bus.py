@@ -120,6 +120,8 @@ class CanNode:
         self._checker = E2EChecker()
         self._codecs = {c.frame_id: (c, is_protected(c)) for c in self.catalog}
         """frame id -> (codec, E2E-protected): one lookup per received frame."""
+        self._outgoing = {c.name: (c, protected) for c, protected in self._codecs.values()}
+        """message name -> (codec, E2E-protected): one lookup per sent frame."""
         self._warned: set[tuple[str, int]] = set()
         self.tx_hook: Callable[[str, can.Message], Iterable[can.Message]] | None = None
         """Sees every frame `send` makes and returns the frames to put on the bus instead (fault injection:
@@ -128,9 +130,9 @@ class CanNode:
         """Sees every received frame before decoding; returns it (maybe altered) or None (lost)."""
 
     def message(self, name: str, values: Mapping[str, float]) -> can.Message:
-        codec = self.catalog[name]
+        codec, protected = self._outgoing[name]
         raw = codec.encode_int(values)
-        if is_protected(codec):
+        if protected:
             payload = self._protector.seal(codec, raw)
         else:
             payload = raw.to_bytes(codec.length, "little")

@@ -12,7 +12,6 @@ stream watchdogs (timing), not E2E, catch outages.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from enum import IntEnum
 from typing import NamedTuple
 
@@ -49,15 +48,26 @@ def _crc_continue(state: int, data: bytes | bytearray) -> int:
     return state
 
 
-@dataclass(frozen=True, slots=True)
 class _Layout:
-    """Where a protected message keeps its counter and CRC, and the CRC state after its data id."""
+    """Where a protected message keeps its counter and CRC, and the CRC state after its data id. The
+    counter is a nibble and the CRC a byte of the payload (checked when the layout is made), so sealing and
+    checking work on the payload's bytes: as one integer a 64-bit payload is beyond mypyc's short ints."""
 
-    counter_shift: int
-    crc_shift: int
-    crc_clear: int
-    seed: int
-    length: int
+    def __init__(self, name: str, counter_shift: int, crc_shift: int, seed: int, length: int) -> None:
+        self.counter_shift = counter_shift
+        self.counter_byte, self.counter_bit = divmod(counter_shift, 8)
+        self.crc_byte = crc_shift // 8
+        self.seed = seed
+        self.length = length
+        self.ok = tuple(E2EEvent(name, E2EStatus.OK, c, c) for c in range(COUNTER_MODULO))
+        """The OK event of each counter value, made once: most frames a node reads are OK."""
+
+    def crc(self, payload: bytes | bytearray) -> int:
+        """The CRC of `payload` with its CRC byte taken as zero."""
+        table, state, at = _TABLE, self.seed, self.crc_byte
+        for i in range(self.length):
+            state = table[state ^ (0 if i == at else payload[i])]
+        return state ^ 0xFF
 
 
 _found: dict[int, _Layout | None] = {}
@@ -78,8 +88,10 @@ def _find_layout(codec: MessageCodec) -> _Layout | None:
     else:
         if counter[1] != COUNTER_MODULO - 1 or crc[1] != 0xFF:
             raise ValueError(f"{codec.name}: E2E needs a 4-bit {COUNTER} and an 8-bit {CRC} signal")
+        if crc[0] % 8 or counter[0] % 8 > 4:
+            raise ValueError(f"{codec.name}: E2E needs its {CRC} on a byte and its {COUNTER} within one")
         seed = _crc_continue(0xFF, codec.frame_id.to_bytes(2, "little"))
-        layout = _layouts[codec.frame_id] = _Layout(counter[0], crc[0], ~(0xFF << crc[0]), seed, codec.length)
+        layout = _layouts[codec.frame_id] = _Layout(codec.name, counter[0], crc[0], seed, codec.length)
     _found[codec.frame_id] = layout
     return layout
 
@@ -131,24 +143,26 @@ class E2EProtector:
         lay = _layout(codec)
         counter = self._next.get(codec.frame_id, 0)
         self._next[codec.frame_id] = (counter + 1) % COUNTER_MODULO
-        raw |= counter << lay.counter_shift
-        crc = _crc_continue(lay.seed, raw.to_bytes(lay.length, "little")) ^ 0xFF
-        return (raw | crc << lay.crc_shift).to_bytes(lay.length, "little")
+        payload = bytearray(raw.to_bytes(lay.length, "little"))
+        payload[lay.counter_byte] |= counter << lay.counter_bit
+        payload[lay.crc_byte] = lay.crc(payload)
+        return bytes(payload)
 
 
 def with_counter(codec: MessageCodec, payload: bytes | bytearray, counter: int) -> bytes:
     """A protected payload with its alive counter replaced and the CRC made valid again (a sender whose
     counter is wrong, as opposed to a frame corrupted on the wire)."""
     lay = _layout(codec)
-    raw = int.from_bytes(payload, "little") & lay.crc_clear
-    raw = raw & ~((COUNTER_MODULO - 1) << lay.counter_shift) | (counter % COUNTER_MODULO) << lay.counter_shift
-    crc = _crc_continue(lay.seed, raw.to_bytes(lay.length, "little")) ^ 0xFF
-    return (raw | crc << lay.crc_shift).to_bytes(lay.length, "little")
+    out = bytearray(payload)
+    nibble = (COUNTER_MODULO - 1) << lay.counter_bit
+    out[lay.counter_byte] = out[lay.counter_byte] & ~nibble | (counter % COUNTER_MODULO) << lay.counter_bit
+    out[lay.crc_byte] = lay.crc(out)
+    return bytes(out)
 
 
 def counter_of(codec: MessageCodec, payload: bytes | bytearray) -> int:
     lay = _layout(codec)
-    return (int.from_bytes(payload, "little") >> lay.counter_shift) & (COUNTER_MODULO - 1)
+    return (payload[lay.counter_byte] >> lay.counter_bit) & (COUNTER_MODULO - 1)
 
 
 class E2EChecker:
@@ -159,24 +173,24 @@ class E2EChecker:
 
     def check(self, codec: MessageCodec, payload: bytes | bytearray) -> E2EEvent:
         lay = _layout(codec)
-        raw = int.from_bytes(payload, "little")
-        counter = (raw >> lay.counter_shift) & (COUNTER_MODULO - 1)
+        if len(payload) != lay.length:
+            return E2EEvent(codec.name, E2EStatus.CRC_ERROR, 0, None)
+        counter = (payload[lay.counter_byte] >> lay.counter_bit) & (COUNTER_MODULO - 1)
         last = self._last.get(codec.frame_id)
-        expected = None if last is None else (last + 1) % COUNTER_MODULO
-        cleared = (raw & lay.crc_clear).to_bytes(lay.length, "little")
-        if (raw >> lay.crc_shift) & 0xFF != _crc_continue(lay.seed, cleared) ^ 0xFF:
+        if payload[lay.crc_byte] != lay.crc(payload):
+            expected = None if last is None else (last + 1) % COUNTER_MODULO
             return E2EEvent(codec.name, E2EStatus.CRC_ERROR, counter, expected)
         if last is None:
             self._last[codec.frame_id] = counter
             return E2EEvent(codec.name, E2EStatus.OK, counter, None)
         delta = (counter - last) % COUNTER_MODULO
         if delta == 1:
-            status, lost = E2EStatus.OK, 0
-        elif delta == 0:
+            self._last[codec.frame_id] = counter
+            return lay.ok[counter]
+        expected = (last + 1) % COUNTER_MODULO
+        if delta == 0:
             return E2EEvent(codec.name, E2EStatus.REPEATED, counter, expected)
-        elif delta <= MAX_GAP:
-            status, lost = E2EStatus.LOST, delta - 1
-        else:
+        if delta > MAX_GAP:
             return E2EEvent(codec.name, E2EStatus.OUT_OF_ORDER, counter, expected)
         self._last[codec.frame_id] = counter
-        return E2EEvent(codec.name, status, counter, expected, lost)
+        return E2EEvent(codec.name, E2EStatus.LOST, counter, expected, delta - 1)

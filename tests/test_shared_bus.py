@@ -8,7 +8,7 @@ import can
 import pytest
 
 from drivers.can_bus import private_channel
-from drivers.shared_bus import SharedBus
+from drivers.shared_bus import _MESSAGE_FIELDS, SharedBus
 
 
 @pytest.fixture
@@ -42,6 +42,34 @@ def test_every_other_bus_on_the_channel_gets_one_shared_frame(channel):
     finally:
         for bus in (a, b, c, other):
             bus.shutdown()
+
+
+def test_a_received_frame_carries_every_field_of_the_sent_one(channel):
+    """The receivers' copy is built field by field (drivers/shared_bus.py): a field python-can adds to its
+    Message must be copied too, so the list is held to python-can's own slots."""
+    assert set(_MESSAGE_FIELDS) == set(can.Message.__slots__) - {"__weakref__"}
+    a, b = (can.Bus(interface="pure_shared", channel=channel) for _ in range(2))
+    try:
+        sent = can.Message(
+            arbitration_id=0x1ABCDE,
+            is_extended_id=True,
+            data=bytes(range(12)),
+            dlc=12,
+            is_fd=True,
+            bitrate_switch=True,
+            error_state_indicator=True,
+            is_rx=False,
+        )
+        a.send(sent)
+        got = b.recv(0)
+        assert got.equals(sent, timestamp_delta=None, check_channel=False, check_direction=False)
+        assert (got.is_rx, got.channel, got.dlc) == (True, channel, 12)
+        remote = can.Message(arbitration_id=0x10, is_extended_id=False, is_remote_frame=True, dlc=4)
+        a.send(remote)
+        assert b.recv(0).equals(remote, timestamp_delta=None, check_channel=False, check_direction=False)
+    finally:
+        a.shutdown()
+        b.shutdown()
 
 
 def test_receive_own_messages_on_request(channel):
