@@ -18,7 +18,7 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 import can
 
@@ -70,17 +70,26 @@ def open_bus(config: BusConfig) -> can.BusABC:
         raise BusUnavailable(f"CAN bus {where} cannot open: {exc}") from exc
 
 
-class Received(NamedTuple):
-    name: str
-    signals: dict[str, float | int]
-    timestamp: float
-    e2e: E2EEvent | None
-    """None for unprotected messages (SYNC)."""
+class Received:
+    """A decoded frame (a plain class, not a NamedTuple: one is made for every frame a node reads, and the
+    compiled build gives a plain class a native constructor)."""
+
+    def __init__(
+        self, name: str, signals: dict[str, float | int], timestamp: float, e2e: E2EEvent | None
+    ) -> None:
+        self.name = name
+        self.signals = signals
+        self.timestamp = timestamp
+        self.e2e = e2e
+        """None for unprotected messages (SYNC)."""
 
     @property
     def ok(self) -> bool:
         """Content can be trusted (unprotected, or E2E OK or LOST: a fresh frame after a gap)."""
         return self.e2e is None or self.e2e.status in (E2EStatus.OK, E2EStatus.LOST)
+
+    def __repr__(self) -> str:
+        return f"Received({self.name!r}, {self.signals!r}, {self.timestamp!r}, {self.e2e!r})"
 
 
 @dataclass(slots=True)

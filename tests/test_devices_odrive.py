@@ -18,7 +18,7 @@ import msgspec
 import pytest
 
 from drivers.bus_config import BusConfig
-from drivers.can_bus import open_bus, private_channel
+from drivers.can_bus import Received, open_bus, private_channel
 from drivers.can_codec import DRIVE_FEEDBACK
 from drivers.config import ConfigError
 from drivers.devices import Devices
@@ -372,4 +372,4 @@ def test_an_idle_axis_that_makes_torque_is_reported_powered(torque, enabled):
     rx = host.incoming(
         wire.frame(node, Cmd.GET_ENCODER_ESTIMATES, {"Pos_Estimate": 1.0, "Vel_Estimate": 0.0})
     )
-    assert isinstance(rx, tuple) and rx.name == DRIVE_FEEDBACK[0] and rx.signals["Enabled"] == enabled
+    assert isinstance(rx, Received) and rx.name == DRIVE_FEEDBACK[0] and rx.signals["Enabled"] == enabled
