@@ -65,6 +65,8 @@ class _Signal:
     raw_min: int
     raw_max: int
     integer: bool  # scale 1, offset 0: decode to int
+    half: int
+    """In an 8-byte payload read as two 32-bit halves: 0 low, 1 high, 2 across both."""
 
 
 class MessageCodec:
@@ -90,8 +92,11 @@ class MessageCodec:
                 hi = min(hi, round((s.maximum - s.offset) / s.scale))
             integer = s.scale == 1 and s.offset == 0
             sign_bit = 1 << (s.length - 1) if s.is_signed else 0
+            half = 1 if s.start >= 32 else 0 if s.start + s.length <= 32 else 2
             signals.append(
-                _Signal(s.name, s.start, (1 << s.length) - 1, sign_bit, s.scale, s.offset, lo, hi, integer)
+                _Signal(
+                    s.name, s.start, (1 << s.length) - 1, sign_bit, s.scale, s.offset, lo, hi, integer, half
+                )
             )
         self.signals = tuple(signals)
         self.signal_names = tuple(s.name for s in signals)
@@ -117,7 +122,24 @@ class MessageCodec:
     def decode(self, data: bytes | bytearray) -> dict[str, float | int]:
         if len(data) != self.length:
             raise CanCodecError(f"{self.name}: expected {self.length} bytes, got {len(data)}")
-        return self.decode_int(int.from_bytes(data, "little"))
+        if self.length != 8:
+            return self.decode_int(int.from_bytes(data, "little"))
+        # Two 32-bit halves: as one integer an 8-byte payload is beyond the compiled build's short ints
+        # (62 bits) whenever its top byte (the CRC) is 0x40 or more, and every shift and mask on it is a
+        # Python long's (a decode 1.25 -> ~0.8 us compiled).
+        low, high = int.from_bytes(data[:4], "little"), int.from_bytes(data[4:], "little")
+        out: dict[str, float | int] = {}
+        for s in self.signals:
+            if s.half == 0:
+                r = (low >> s.shift) & s.mask
+            elif s.half == 1:
+                r = (high >> (s.shift - 32)) & s.mask
+            else:
+                r = ((high << (32 - s.shift)) | (low >> s.shift)) & s.mask
+            if r & s.sign_bit:
+                r -= s.mask + 1
+            out[s.name] = r if s.integer else r * s.scale + s.offset
+        return out
 
     def decode_int(self, raw: int) -> dict[str, float | int]:
         out: dict[str, float | int] = {}

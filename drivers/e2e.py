@@ -56,6 +56,7 @@ class _Layout:
     def __init__(self, name: str, counter_shift: int, crc_shift: int, seed: int, length: int) -> None:
         self.counter_shift = counter_shift
         self.counter_byte, self.counter_bit = divmod(counter_shift, 8)
+        self.crc_shift = crc_shift
         self.crc_byte = crc_shift // 8
         self.seed = seed
         self.length = length
@@ -65,8 +66,11 @@ class _Layout:
     def crc(self, payload: bytes | bytearray) -> int:
         """The CRC of `payload` with its CRC byte taken as zero."""
         table, state, at = _TABLE, self.seed, self.crc_byte
-        for i in range(self.length):
-            state = table[state ^ (0 if i == at else payload[i])]
+        for i in range(at):
+            state = table[state ^ payload[i]]
+        state = table[state]
+        for i in range(at + 1, self.length):
+            state = table[state ^ payload[i]]
         return state ^ 0xFF
 
 
@@ -143,10 +147,9 @@ class E2EProtector:
         lay = _layout(codec)
         counter = self._next.get(codec.frame_id, 0)
         self._next[codec.frame_id] = (counter + 1) % COUNTER_MODULO
-        payload = bytearray(raw.to_bytes(lay.length, "little"))
-        payload[lay.counter_byte] |= counter << lay.counter_bit
-        payload[lay.crc_byte] = lay.crc(payload)
-        return bytes(payload)
+        raw |= counter << lay.counter_shift
+        crc = lay.crc(raw.to_bytes(lay.length, "little"))
+        return (raw | crc << lay.crc_shift).to_bytes(lay.length, "little")
 
 
 def with_counter(codec: MessageCodec, payload: bytes | bytearray, counter: int) -> bytes:
