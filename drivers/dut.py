@@ -15,7 +15,7 @@ import msgspec
 from drivers.bus_config import BusConfig
 from drivers.devices import Devices
 from drivers.plugs import find_plug
-from drivers.zenoh_link import ZenohAccess
+from drivers.zenoh_access import ZenohAccess
 
 GROUP = "pure_hil.controllers"
 

@@ -18,7 +18,7 @@ import msgspec
 
 from drivers.bus_config import BusConfig
 from drivers.devices import Devices
-from drivers.zenoh_link import ZenohAccess
+from drivers.zenoh_access import ZenohAccess
 
 SUPERVISORS = "pure_hil.supervisors"
 

@@ -27,7 +27,6 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Generic, Literal, TypeVar, cast
 
-import msgspec
 import zenoh
 
 from drivers.keys import Keys
@@ -152,6 +151,11 @@ def free_loopback_endpoint() -> str:
         return f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
 
+def hub_endpoints(path: Path | str) -> list[str]:
+    """Where a hub opened from the config at `path` listens."""
+    return _endpoints(_get(load_config(path, "hub"), "listen/endpoints"))
+
+
 def open_session(
     path: Path | str = LOOPBACK,
     role: Role = "member",
@@ -177,7 +181,7 @@ def open_hub(
     except zenoh.ZError as exc:
         if "Address already in use" not in str(exc):
             raise ZenohConfigError(f"{path}: cannot open the rig's zenoh hub: {exc}") from None
-        taken = endpoint or ", ".join(_endpoints(_get(load_config(path, "hub"), "listen/endpoints")))
+        taken = endpoint or ", ".join(hub_endpoints(path))
         if not fallback:
             raise ZenohConfigError(
                 f"{taken} is in use (another rig on this machine?): give this rig and every process of its "
@@ -214,6 +218,13 @@ class LentSession:
 _lent: dict[str | None, zenoh.Session] = {}
 
 
+def lent_session(endpoint: str | None) -> zenoh.Session | None:
+    """A proxy of the hub session lent to this process for `endpoint` (see `lend`), if any: all but
+    close() is the hub's."""
+    hub = _lent.get(endpoint)
+    return None if hub is None else cast(zenoh.Session, LentSession(hub))
+
+
 @contextmanager
 def lend(session: zenoh.Session, endpoint: str | None) -> Iterator[None]:
     """While inside, nodes of this process that join the loopback hub at `endpoint` share `session`."""
@@ -223,54 +234,6 @@ def lend(session: zenoh.Session, endpoint: str | None) -> Iterator[None]:
     finally:
         if _lent.get(endpoint) is session:
             del _lent[endpoint]
-
-
-class ZenohAccess(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    """How every process of a bench joins its zenoh: `loopback` (the rig is the hub on 127.0.0.1, the others
-    join it) or `router` (every process a client of the secured bench router, identified by its role's
-    certificate; docs/security.md). A bench file's `[zenoh]` table."""
-
-    mode: Literal["loopback", "router"] = "loopback"
-    endpoint: str | None = None
-    """loopback: the rig's hub (None: the config's, tcp/127.0.0.1:7447); router: the router's (None: the
-    client config's, tls/127.0.0.1:7448)."""
-    certs: str | None = None
-    """router: the folder of `pure-hil certs init` (a command's --certs fills it)."""
-    config: str | None = None
-    """A zenoh config file instead of the shipped loopback.json5 / bench-client.json5."""
-    network: bool = False
-    """router: the router is on another host (its endpoint is not on loopback)."""
-    prefix: str = "pure"
-
-    @property
-    def config_path(self) -> Path:
-        return Path(self.config) if self.config else LOOPBACK if self.mode == "loopback" else BENCH_CLIENT
-
-    def open(self, role: str) -> zenoh.Session:
-        """A session for one process of the bench in `role` (its certificate on a router; on loopback every
-        role but the rig's hub is a member)."""
-        if self.mode == "loopback":
-            hub = _lent.get(self.endpoint)
-            if hub is not None:
-                return cast(zenoh.Session, LentSession(hub))  # a proxy: all but close() is the hub's
-            return open_session(self.config_path, "member", self.endpoint)
-        if self.certs is None:
-            raise ZenohConfigError("zenoh mode router needs the certificate folder (--certs DIR)")
-        return open_session(
-            self.config_path, "member", self.endpoint, self.network, certs=self.certs, identity=role
-        )
-
-    def hub_endpoint(self) -> str:
-        """loopback: where the rig's hub listens (the bench's endpoint, or its zenoh config's)."""
-        return self.endpoint or _endpoints(_get(load_config(self.config_path, "hub"), "listen/endpoints"))[0]
-
-    def open_rig(self, fallback: bool) -> tuple[zenoh.Session, ZenohAccess]:
-        """The rig's session, and the access its other processes use (a loopback hub may have moved to a
-        free port: `fallback`, see open_hub)."""
-        if self.mode == "router":
-            return self.open("rig"), self
-        session, endpoint = open_hub(self.config_path, self.endpoint, fallback)
-        return session, msgspec.structs.replace(self, endpoint=endpoint)
 
 
 P = TypeVar("P", bound=Payload)
@@ -413,8 +376,10 @@ class ZenohLink:
 
         listener = pub.declare_matching_listener(on_change)
         try:
-            # zenoh's stub types `matching_status` as bool; it is a MatchingStatus (zenoh 1.x).
-            return pub.matching_status.matching or matched.wait(timeout)  # type: ignore[attr-defined]
+            # zenoh's stub types `matching_status` as bool; it is a MatchingStatus (zenoh 1.x). Read
+            # untyped: the compiled build checks an attribute is the type its stub says.
+            status = getattr(pub, "matching_status")  # noqa: B009
+            return bool(status.matching) or matched.wait(timeout)
         finally:
             listener.undeclare()
 

@@ -23,11 +23,11 @@ from drivers.schemas import (
     decode,
     encode,
 )
+from drivers.zenoh_access import ZenohAccess
 from drivers.zenoh_link import (
     CONFIG_DIR,
     LOOPBACK,
     LentSession,
-    ZenohAccess,
     ZenohConfigError,
     ZenohLink,
     check_config,

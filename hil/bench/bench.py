@@ -21,7 +21,7 @@ from drivers.bus_config import BusConfig
 from drivers.config import ConfigError, load_toml
 from drivers.devices import Devices
 from drivers.resources import find
-from drivers.zenoh_link import ZenohAccess
+from drivers.zenoh_access import ZenohAccess
 
 Where = Literal["embedded", "spawned", "external"]
 Positive = Annotated[float, msgspec.Meta(gt=0)]

@@ -31,7 +31,8 @@ from drivers.dut import DutHandle, DutSpec, start_dut
 from drivers.keys import Keys
 from drivers.plugs import SUPERVISORS, SupervisorSpec, find_plug
 from drivers.resources import find
-from drivers.zenoh_link import ZenohAccess, ZenohLink, lend
+from drivers.zenoh_access import ZenohAccess
+from drivers.zenoh_link import ZenohLink, lend
 from hil.bench.bench import Bench, RealtimePart
 from hil.bench.rigs import announce
 from hil.devices import rig_node

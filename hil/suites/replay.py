@@ -26,7 +26,8 @@ from drivers.config import ConfigError
 from drivers.devices import Devices, controller_frame_ids
 from drivers.dut import DutSpec, start_dut
 from drivers.resources import find
-from drivers.zenoh_link import ZenohAccess, ZenohLink
+from drivers.zenoh_access import ZenohAccess
+from drivers.zenoh_link import ZenohLink
 from hil.bench.bench import Bench, load_bench
 
 
