@@ -3,6 +3,7 @@
 import itertools
 
 import can
+import cantools
 import pytest
 from crccheck.crc import Crc8SaeJ1850
 from hypothesis import given, settings
@@ -11,7 +12,7 @@ from hypothesis import strategies as st
 from drivers.bus_config import BusConfig, BusConfigError, parse_can_spec
 from drivers.bus_load import BusLoadError, bus_load, check_bus_load, frame_bits
 from drivers.can_bus import BusRecorder, CanNode, open_bus, private_channel
-from drivers.can_codec import Catalog
+from drivers.can_codec import Catalog, MessageCodec
 from drivers.e2e import E2EChecker, E2EProtector, E2EStatus, counter_of, crc8, is_protected, with_counter
 
 CATALOG = Catalog()
@@ -87,6 +88,39 @@ def test_e2e_on_an_unprotected_message_is_refused_by_name():
     ):
         with pytest.raises(ValueError, match="SYNC is not E2E-protected"):
             call()
+
+
+@pytest.mark.parametrize("name", [c.name for c in CATALOG if is_protected(c)])
+def test_a_sealed_frame_carries_the_reference_crc_of_its_id_and_payload(name):
+    """E2E works on the payload's bytes (drivers/e2e.py): its CRC is the reference CRC-8/SAE-J1850 (crccheck)
+    of the frame id and the payload with the CRC byte zeroed, whatever the counter and the values."""
+    codec = CATALOG[name]
+    crc_at = codec.field_position("Crc")[0] // 8
+
+    @settings(max_examples=60, deadline=None)
+    @given(values=message_values(DB.get_message_by_name(name)), counter=st.integers(0, 15))
+    def check(values, counter):
+        payload = with_counter(codec, E2EProtector().seal(codec, codec.encode_int(values)), counter)
+        zeroed = bytearray(payload)
+        zeroed[crc_at] = 0
+        assert payload[crc_at] == Crc8SaeJ1850.calc(codec.frame_id.to_bytes(2, "little") + bytes(zeroed))
+        assert counter_of(codec, payload) == counter
+        checker = E2EChecker()
+        assert checker.check(codec, payload).status is E2EStatus.OK
+        assert checker.check(codec, with_counter(codec, payload, counter + 1)).status is E2EStatus.OK
+        corrupted = bytearray(payload)
+        corrupted[0] ^= 0x01
+        assert checker.check(codec, bytes(corrupted)).status is E2EStatus.CRC_ERROR
+
+    check()
+
+
+def test_e2e_fields_off_their_bytes_are_refused_by_name():
+    counter = cantools.database.can.Signal("Counter", start=3, length=4)
+    crc = cantools.database.can.Signal("Crc", start=9, length=8)
+    odd = MessageCodec(cantools.database.can.Message(0x300, "ODD", 4, [counter, crc]))
+    with pytest.raises(ValueError, match="ODD: E2E needs its Crc on a byte"):
+        is_protected(odd)
 
 
 # ------------------------------------------------------------------------------------------ buses
