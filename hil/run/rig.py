@@ -326,17 +326,15 @@ class Rig:
             for name, fb in zip(DRIVE_TORQUE, feedback, strict=True):
                 if not (silent and name in silent):
                     send(name, {"Torque": fb.torque})
+        (roll, pitch, yaw), (rx, ry, rz), (ax, ay, az) = imu.attitude, imu.rate, imu.accel
         frames = (
-            (
-                MessageName.IMU_ATTITUDE,
-                {"Roll": imu.attitude[0], "Pitch": imu.attitude[1], "Yaw": imu.attitude[2]},
-            ),
-            (MessageName.IMU_RATE, {"RateX": imu.rate[0], "RateY": imu.rate[1], "RateZ": imu.rate[2]}),
-            (MessageName.IMU_ACCEL, {"AccX": imu.accel[0], "AccY": imu.accel[1], "AccZ": imu.accel[2]}),
+            (MessageName.IMU_ATTITUDE, {"Roll": roll, "Pitch": pitch, "Yaw": yaw, "Valid": 1}),
+            (MessageName.IMU_RATE, {"RateX": rx, "RateY": ry, "RateZ": rz, "Valid": 1}),
+            (MessageName.IMU_ACCEL, {"AccX": ax, "AccY": ay, "AccZ": az, "Valid": 1}),
         )
         for name, signals in frames:
             if not (silent and name in silent):
-                send(name, {**signals, "Valid": 1})
+                send(name, signals)
 
     def _record(self, k: int, key: str, data: bytes) -> None:
         if key in (self.keys.tes_wrench, self.keys.sc_command, self.keys.controller_command):
