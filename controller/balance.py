@@ -41,6 +41,8 @@ def equilibrium(
 class PlaneBalancer:
     def __init__(self, model: PlaneModel, gain: np.ndarray, pi: SpeedPi, dt: float, torque_limit: float):
         self.pi, self.dt, self.torque_limit = pi, dt, torque_limit
+        # Read once: a compiled look-up into a config Struct is a dict's.
+        self._kp, self._ki, self._integral_limit = pi.kp, pi.ki, pi.integral_limit
         self.set_model(model, gain)
         self.reset(0.0)
 
@@ -71,9 +73,9 @@ class PlaneBalancer:
         speed_err = self.ref_rate - s[3]
         # Conditional integration: do not wind up into a saturated output.
         if not (self.saturated and math.copysign(1.0, speed_err) == self.saturated):
-            self.integral += self.pi.ki * speed_err * self.dt
-            self.integral = min(max(self.integral, -self.pi.integral_limit), self.pi.integral_limit)
-        tau = feedforward + tau_r + self.pi.kp * speed_err + self.integral
+            self.integral += self._ki * speed_err * self.dt
+            self.integral = min(max(self.integral, -self._integral_limit), self._integral_limit)
+        tau = feedforward + tau_r + self._kp * speed_err + self.integral
         if abs(tau) > self.torque_limit:
             self.saturated = math.copysign(1.0, tau)
             return math.copysign(self.torque_limit, tau)
