@@ -168,12 +168,11 @@ class Controller:
 
         tilt_cmd, tau = [0.0, 0.0], [0.0, 0.0]
         for k in (PITCH, ROLL):
-            s = planes[k].vector()
             rate_cmd = v[k] / r
             feedforward = 0.0
             if self._compensated[k] and self.tare is not None:
                 tilt_cmd[k], feedforward = self._compensation(k, moment, self.tare, planes[k].tilt, rate_cmd)
-            tau[k] = self.balancers[k].torque(s, rate_cmd, tilt_cmd[k], feedforward)
+            tau[k] = self.balancers[k].torque(planes[k], rate_cmd, tilt_cmd[k], feedforward)
         tau_z = YAW_RATE_GAIN * (estimate.yaw_rate - yaw_cmd)
         ball = (tau[ROLL], tau[PITCH], tau_z)
         motor = [r[0] * ball[0] + r[1] * ball[1] + r[2] * ball[2] for r in self._motor_rows]

@@ -16,10 +16,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Final
 
 import numpy as np
 
-PITCH, ROLL = 0, 1
+PITCH: Final = 0
+ROLL: Final = 1
 INT32 = 1 << 32
 DERIVATIVE_FILTER = 0.02
 """s: low-pass of the attitude's derivative that stands in for a rate channel."""
@@ -41,9 +43,6 @@ def _dot(row: tuple[float, ...], v: Sequence[float]) -> float:
 class PlaneState:
     def __init__(self, tilt: float, ball_angle: float, tilt_rate: float, ball_rate: float):
         self.tilt, self.ball_angle, self.tilt_rate, self.ball_rate = tilt, ball_angle, tilt_rate, ball_rate
-
-    def vector(self) -> tuple[float, float, float, float]:
-        return (self.tilt, self.ball_angle, self.tilt_rate, self.ball_rate)
 
 
 class Estimate:
