@@ -14,7 +14,7 @@ import logging
 import math
 import threading
 import time
-from typing import Any
+from typing import Any, Final
 
 from controller.core import Controller, Fault, Output, ScInput, State, Wrench
 from drivers.can_bus import CanNode, Received
@@ -26,7 +26,8 @@ from drivers.zenoh_link import Fence, Subscription, ZenohLink
 
 log = logging.getLogger(__name__)
 
-FEEDBACK: dict[str, int] = {name: motor for motor, name in enumerate(DRIVE_FEEDBACK)}
+# Final: compiled (mypyc), a static rather than a look-up in the module's globals per frame.
+FEEDBACK: Final[dict[str, int]] = {name: motor for motor, name in enumerate(DRIVE_FEEDBACK)}
 SEAT_FLAGGED = frozenset({"WRENCH_IMPLAUSIBLE"})
 """SUPERVISOR_ESTOP.Reason values that say the seat's wrench is not a rider's: the controller stops using it
 (as if the seat were silent) until the supervisor is back in NORMAL, instead of balancing on a phantom lean
