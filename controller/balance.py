@@ -62,7 +62,7 @@ class PlaneBalancer:
     def torque(
         self, s: PlaneState, ball_rate_cmd: float, tilt_cmd: float = 0.0, feedforward: float = 0.0
     ) -> float:
-        """Ball torque (Nm) for the estimated state s = [θ, φ, θ̇, φ̇] and the command."""
+        """Ball torque (Nm) for the plane's estimated state s (θ, φ, θ̇, φ̇) and the command."""
         err = (s.tilt - tilt_cmd, 0.0, s.tilt_rate, s.ball_rate - ball_rate_cmd)  # the ball's angle is free
         k, a = self._k, self._a
         tau_r = -(k[0] * err[0] + k[1] * err[1] + k[2] * err[2] + k[3] * err[3])
