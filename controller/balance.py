@@ -13,11 +13,11 @@ Anti-windup: the integrator holds while the output saturates in the direction of
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 
 import numpy as np
 
 from controller.config import SpeedPi
+from controller.estimator import PlaneState
 from controller.model import G0, PlaneModel
 
 
@@ -41,6 +41,8 @@ def equilibrium(
 class PlaneBalancer:
     def __init__(self, model: PlaneModel, gain: np.ndarray, pi: SpeedPi, dt: float, torque_limit: float):
         self.pi, self.dt, self.torque_limit = pi, dt, torque_limit
+        # Read once: a compiled look-up into a config Struct is a dict's.
+        self._kp, self._ki, self._integral_limit = pi.kp, pi.ki, pi.integral_limit
         self.set_model(model, gain)
         self.reset(0.0)
 
@@ -58,22 +60,22 @@ class PlaneBalancer:
         self.saturated = 0.0
 
     def torque(
-        self, s: Sequence[float], ball_rate_cmd: float, tilt_cmd: float = 0.0, feedforward: float = 0.0
+        self, s: PlaneState, ball_rate_cmd: float, tilt_cmd: float = 0.0, feedforward: float = 0.0
     ) -> float:
-        """Ball torque (Nm) for the estimated state s = [θ, φ, θ̇, φ̇] and the command."""
-        err = (s[0] - tilt_cmd, 0.0, s[2], s[3] - ball_rate_cmd)  # the ball's angle is free
+        """Ball torque (Nm) for the plane's estimated state s (θ, φ, θ̇, φ̇) and the command."""
+        err = (s.tilt - tilt_cmd, 0.0, s.tilt_rate, s.ball_rate - ball_rate_cmd)  # the ball's angle is free
         k, a = self._k, self._a
         tau_r = -(k[0] * err[0] + k[1] * err[1] + k[2] * err[2] + k[3] * err[3])
         # The reference model is linearised about the commanded equilibrium (upright for HACS, θ_EQ for
         # iHACS, where the rider's moment is what holds the tilt): there it predicts no acceleration.
         accel_ref = a[0] * err[0] + a[1] * err[1] + a[2] * err[2] + a[3] * err[3] + self.b_row * tau_r
         self.ref_rate += accel_ref * self.dt
-        speed_err = self.ref_rate - s[3]
+        speed_err = self.ref_rate - s.ball_rate
         # Conditional integration: do not wind up into a saturated output.
         if not (self.saturated and math.copysign(1.0, speed_err) == self.saturated):
-            self.integral += self.pi.ki * speed_err * self.dt
-            self.integral = min(max(self.integral, -self.pi.integral_limit), self.pi.integral_limit)
-        tau = feedforward + tau_r + self.pi.kp * speed_err + self.integral
+            self.integral += self._ki * speed_err * self.dt
+            self.integral = min(max(self.integral, -self._integral_limit), self._integral_limit)
+        tau = feedforward + tau_r + self._kp * speed_err + self.integral
         if abs(tau) > self.torque_limit:
             self.saturated = math.copysign(1.0, tau)
             return math.copysign(self.torque_limit, tau)

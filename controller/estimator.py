@@ -16,15 +16,22 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from typing import Final
 
 import numpy as np
 
-PITCH, ROLL = 0, 1
+# Final: compiled (mypyc), a constant rather than a look-up in the module's globals at every use.
+PITCH: Final = 0
+ROLL: Final = 1
 INT32 = 1 << 32
 DERIVATIVE_FILTER = 0.02
 """s: low-pass of the attitude's derivative that stands in for a rate channel."""
-STREAMS = ("imu_attitude", "imu_rate", "drive0", "drive1", "drive2")
+DRIVES = ("drive0", "drive1", "drive2")
+STREAMS = ("imu_attitude", "imu_rate", *DRIVES)
+ENCODERS = ("Encoder1", "Encoder2", "Encoder3")
+"""SUPERVISOR_DIAGNOSIS's names of the drives' encoders."""
+TILT_INPUTS = (("Roll", "RateX"), ("Pitch", "RateY"))
+"""SUPERVISOR_DIAGNOSIS's names of each plane's (roll, pitch) attitude and rate."""
 
 
 def _dot(row: tuple[float, ...], v: Sequence[float]) -> float:
@@ -32,24 +39,24 @@ def _dot(row: tuple[float, ...], v: Sequence[float]) -> float:
     return row[0] * v[0] + row[1] * v[1] + row[2] * v[2]
 
 
-@dataclass(slots=True)
+# Plain classes with a typed __init__: compiled (mypyc), a dataclass keeps its generated Python __init__, a
+# native one is a C constructor.
 class PlaneState:
-    tilt: float = 0.0
-    ball_angle: float = 0.0
-    tilt_rate: float = 0.0
-    ball_rate: float = 0.0
-
-    def vector(self) -> tuple[float, float, float, float]:
-        return (self.tilt, self.ball_angle, self.tilt_rate, self.ball_rate)
+    def __init__(self, tilt: float, ball_angle: float, tilt_rate: float, ball_rate: float):
+        self.tilt, self.ball_angle, self.tilt_rate, self.ball_rate = tilt, ball_angle, tilt_rate, ball_rate
 
 
-@dataclass(slots=True)
 class Estimate:
-    planes: tuple[PlaneState, PlaneState]
-    yaw_rate: float
-    fault: str | None
-    degraded: tuple[str, ...] = ()
-    """The inputs stood in for (SUPERVISOR_DIAGNOSIS's names: Encoder1, RateX, Pitch, ...)."""
+    def __init__(
+        self,
+        planes: tuple[PlaneState, PlaneState],
+        yaw_rate: float,
+        fault: str | None,
+        degraded: tuple[str, ...] = (),
+    ):
+        self.planes, self.yaw_rate, self.fault = planes, yaw_rate, fault
+        self.degraded = degraded
+        """The inputs stood in for (SUPERVISOR_DIAGNOSIS's names: Encoder1, RateX, Pitch, ...)."""
 
 
 class Estimator:
@@ -57,7 +64,8 @@ class Estimator:
         self.jacobian = motor_jacobian
         self.to_relative = np.linalg.inv(motor_jacobian)
         # Rows of it as floats: numpy's per-call overhead dominates a 3-vector product at 400 Hz.
-        self._roll_row, self._pitch_row = (tuple(float(x) for x in row) for row in self.to_relative[:2])
+        rows = (tuple(float(x) for x in row) for row in self.to_relative)
+        self._roll_row, self._pitch_row, self._yaw_row = rows
         self.rad_per_count = 2.0 * math.pi / counts_per_rev
         self.hold = hold
         self.attitude = (0.0, 0.0, 0.0)
@@ -110,25 +118,26 @@ class Estimator:
             self.counts[index] = counts
         self._raw_counts[index] = counts
         self.velocity[index] = velocity
-        self.last_good[f"drive{index}"] = t
+        self.last_good[DRIVES[index]] = t
 
-    def _lost(self, t: float) -> set[str]:
-        return {s for s, seen in self.last_good.items() if seen is None or t - seen > self.hold}
+    def _lost(self, stream: str, t: float) -> bool:
+        seen = self.last_good[stream]
+        return seen is None or t - seen > self.hold
 
     def estimate(self, t: float) -> Estimate:
-        lost, dropped = self._lost(t), self.dropped
-        never = [s for s in STREAMS if self.last_good[s] is None]
-        if never:
-            return self._nominal(t, f"{never[0]} never received")
-        attitude_ok = "imu_attitude" not in lost
-        rates_ok = "imu_rate" not in lost
-        bad_drives = [i for i in range(3) if f"drive{i}" in lost or f"Encoder{i + 1}" in dropped]
+        dropped = self.dropped
+        for stream in STREAMS:
+            if self.last_good[stream] is None:
+                return self._nominal(t, f"{stream} never received")
+        attitude_ok = not self._lost("imu_attitude", t)
+        rates_ok = not self._lost("imu_rate", t)
+        bad_drives = [i for i in range(3) if self._lost(DRIVES[i], t) or ENCODERS[i] in dropped]
         degraded: list[str] = []
-        trusted_attitude = attitude_ok and not dropped & {"Roll", "Pitch"}
+        trusted_attitude = attitude_ok and "Roll" not in dropped and "Pitch" not in dropped
         if trusted_attitude or self._integrated is None:
             self._integrated = [self.attitude[0], self.attitude[1]]
         tilt, tilt_rate = [0.0, 0.0], [0.0, 0.0]
-        for i, (angle, rate) in enumerate((("Roll", "RateX"), ("Pitch", "RateY"))):
+        for i, (angle, rate) in enumerate(TILT_INPUTS):
             use_attitude = attitude_ok and angle not in dropped
             use_rate = rates_ok and rate not in dropped
             if not use_attitude and not use_rate:
@@ -142,11 +151,11 @@ class Estimator:
         gyro_yaw_ok = rates_ok and "RateZ" not in dropped
         if len(bad_drives) > 1 or (bad_drives and not gyro_yaw_ok):
             return self._nominal(t, "two encoders (or one and the gyro's yaw rate) lost")
-        yaw_rate = self.rate[2] if gyro_yaw_ok else -_dot(tuple(self.to_relative[2]), self.velocity)
+        yaw_rate = self.rate[2] if gyro_yaw_ok else -_dot(self._yaw_row, self.velocity)
         if not gyro_yaw_ok:
             degraded.append("RateZ")
         roll_state, pitch_state = self._planes(t, tilt, tilt_rate, bad_drives)
-        degraded += [f"Encoder{i + 1}" for i in bad_drives]
+        degraded += [ENCODERS[i] for i in bad_drives]
         return Estimate((pitch_state, roll_state), yaw_rate, None, tuple(degraded))
 
     def _planes(

@@ -14,7 +14,7 @@ import logging
 import math
 import threading
 import time
-from typing import Any
+from typing import Any, Final
 
 from controller.core import Controller, Fault, Output, ScInput, State, Wrench
 from drivers.can_bus import CanNode, Received
@@ -26,7 +26,8 @@ from drivers.zenoh_link import Fence, Subscription, ZenohLink
 
 log = logging.getLogger(__name__)
 
-FEEDBACK: dict[str, int] = {name: motor for motor, name in enumerate(DRIVE_FEEDBACK)}
+# Final: compiled (mypyc), a static rather than a look-up in the module's globals per frame.
+FEEDBACK: Final[dict[str, int]] = {name: motor for motor, name in enumerate(DRIVE_FEEDBACK)}
 SEAT_FLAGGED = frozenset({"WRENCH_IMPLAUSIBLE"})
 """SUPERVISOR_ESTOP.Reason values that say the seat's wrench is not a rider's: the controller stops using it
 (as if the seat were silent) until the supervisor is back in NORMAL, instead of balancing on a phantom lean
@@ -85,25 +86,33 @@ class ControllerNode:
         self.last_output: Output | None = None
         self._wrench: TesWrench | None = None
         self._sc: ScCommand | None = None
+        self._sc_input: ScInput | None = None
+        """The newest SC command as the controller takes it (made again only when a new one arrives)."""
+        # What every tick reads, read once (a Keys property formats its key on each read).
+        self._telemetry_key = keys.controller_telemetry
+        self._mode = controller.config.mode
+        self._permission_timeout = controller.robot.drive.permission_timeout
 
     # ------------------------------------------------------------------------------------------ frames
     def handle(self, rx: Received) -> None:
-        if rx.name == MessageName.SYNC:
-            self.on_sync(int(rx.signals["Tick"]))
+        name, s = rx.name, rx.signals
+        if name == MessageName.SYNC:
+            self.on_sync(int(s["Tick"]))
             return
         if not rx.ok:
             return  # untrusted (CRC, repeat, out of order): the estimator holds the last good value
-        s, t = rx.signals, self._time()
+        t = self._time()
         est = self.controller.estimator
-        if rx.name in FEEDBACK:
-            est.drive(FEEDBACK[rx.name], int(s["Position"]), s["Velocity"], t)
-        elif rx.name == MessageName.IMU_ATTITUDE and s["Valid"]:
+        motor = FEEDBACK.get(name)
+        if motor is not None:
+            est.drive(motor, int(s["Position"]), s["Velocity"], t)
+        elif name == MessageName.IMU_ATTITUDE and s["Valid"]:
             est.imu_attitude(s["Roll"], s["Pitch"], s["Yaw"], t)
-        elif rx.name == MessageName.IMU_RATE and s["Valid"]:
+        elif name == MessageName.IMU_RATE and s["Valid"]:
             est.imu_rate(s["RateX"], s["RateY"], s["RateZ"], t)
-        elif rx.name == MessageName.SUPERVISOR_DIAGNOSIS:
+        elif name == MessageName.SUPERVISOR_DIAGNOSIS:
             est.drop(frozenset(part for part in self._parts if s[part]))
-        elif rx.name == MessageName.SUPERVISOR_ESTOP:
+        elif name == MessageName.SUPERVISOR_ESTOP:
             # The supervisor's recovery law holding the drives is an e-stop for this controller: its commands
             # are ignored, and it waits for an operator's enable after the reset (docs/contract.md).
             self.estop = bool(s["Estop"]) or bool(s["Takeover"])
@@ -123,11 +132,11 @@ class ControllerNode:
             self.tick += (raw_tick - self.tick) % TICK_MODULO
         t = self._time()
         self._update_zenoh(self.tick)
-        wrench, age = None, float("inf")
+        wrench, age = None, math.inf
         if self._wrench is not None and not self.seat_flagged:
             wrench = Wrench(self._wrench.force, self._wrench.moment)
             age = max(t - self._wrench.stamp, 0.0)
-        sc = None if self._sc is None else ScInput(self._sc.mode, self._sc.speed_cap, self._sc.stamp)
+        sc = self._sc_input
         if self._supervisor_lost(t):
             sc = ScInput("idle", 0.0, t)  # no supervisor: brake to rest, then off (docs/contract.md)
         try:
@@ -136,9 +145,10 @@ class ControllerNode:
             log.exception("controller step failed at tick %d: drives disabled", self.tick)
             self.controller.state, self.controller.fault = State.FAULT, Fault.INTERNAL
             out = Output((0.0, 0.0, 0.0), False, State.FAULT, Fault.INTERNAL)
-        for name, torque in zip(DRIVE_COMMAND, out.motor_torque, strict=True):
-            self.can.send(name, {"Torque": torque, "Tick": raw_tick, "Enable": int(out.enable)})
-        mode = self.controller.config.mode
+        enable = int(out.enable)
+        for motor, name in enumerate(DRIVE_COMMAND):
+            self.can.send(name, {"Torque": out.motor_torque[motor], "Tick": raw_tick, "Enable": enable})
+        mode = self._mode
         self.can.send(
             MessageName.CONTROLLER_HEARTBEAT,
             {
@@ -149,7 +159,7 @@ class ControllerNode:
             },
         )
         self.link.put(
-            self.keys.controller_telemetry,
+            self._telemetry_key,
             ControllerTelemetry(
                 seq=self.tick,
                 stamp=t,
@@ -167,8 +177,7 @@ class ControllerNode:
     def _supervisor_lost(self, t: float) -> bool:
         """The supervisor's frame has gone silent: stop on our own, and once still and upright for
         REST_TIME turn the drives off (latched until an operator's enable)."""
-        timeout = self.controller.robot.drive.permission_timeout
-        if self.supervisor_seen is None or t - self.supervisor_seen <= timeout:
+        if self.supervisor_seen is None or t - self.supervisor_seen <= self._permission_timeout:
             self._still_since = None
             return False
         if not self.stopped_alone and self.controller.state is State.BALANCING:
@@ -197,8 +206,9 @@ class ControllerNode:
             self._late_run = self._late_run + 1 if late else 0
         self._take_wrench()
         latest_sc = self.sc.latest()
-        if latest_sc is not None:
+        if latest_sc is not None and latest_sc is not self._sc:
             self._sc = latest_sc
+            self._sc_input = ScInput(latest_sc.mode, latest_sc.speed_cap, latest_sc.stamp)
 
     def _take_wrench(self) -> None:
         samples = self.tes.drain()
