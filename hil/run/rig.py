@@ -149,6 +149,9 @@ class Rig:
         self.sc_link = link if agent_link is None else agent_link.sc_agent
         self.operator_link = link if agent_link is None else agent_link.operator
         self.keys = link.keys
+        self._tes_key = self.keys.tes_wrench
+        self._logged_keys = frozenset((self._tes_key, self.keys.sc_command, self.keys.controller_command))
+        """The keys whose puts the inputs log keeps (a Keys property formats its key at every read)."""
         self.sc_schedule = sorted(sc_schedule, key=lambda s: s.tick)
         self.operator = sorted(operator, key=lambda s: s.tick)
         self.command_guard = command_guard
@@ -337,7 +340,7 @@ class Rig:
                 send(name, signals)
 
     def _record(self, k: int, key: str, data: bytes) -> None:
-        if key in (self.keys.tes_wrench, self.keys.sc_command, self.keys.controller_command):
+        if key in self._logged_keys:
             self.inputs.append(k, key, data)
 
     def _put(self, k: int, key: str, payload: Payload, link: ZenohLink | None = None) -> None:
@@ -353,7 +356,7 @@ class Rig:
 
     def _publish_tes(self, k: int, s: TesSample) -> None:
         """Publish the seat sample of tick k (as seat faults alter it)."""
-        key = self.keys.tes_wrench
+        key = self._tes_key
         payload = TesWrench(
             seq=k, stamp=self.plant.t, force=s.force, moment=s.moment, cop=s.cop, cells=s.cells
         )
