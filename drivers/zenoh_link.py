@@ -429,7 +429,8 @@ class Fence:
         """Per key, samples the fence counted that never arrived."""
 
     def _short(self, s: Subscription[Any]) -> int:
-        return self._puts.get(s.key, 0) - self.lost[s.key] - s.received
+        # .get: a Counter's missing key goes through its Python __missing__ (every key, every tick).
+        return self._puts.get(s.key, 0) - self.lost.get(s.key, 0) - s.received
 
     def _take_fences(self) -> None:
         for fence in self.ticks.drain():
