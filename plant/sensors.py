@@ -19,16 +19,31 @@ from plant.params import Drive, Encoder, Imu, Tes
 class NoiseStream:
     """Standard normal draws as Python floats, generated in blocks (one numpy call per block)."""
 
-    def __init__(self, rng: np.random.Generator, width: int, block: int = 1024):
-        self.rng, self.width, self.block = rng, width, block
+    def __init__(self, rng: np.random.Generator, width: int, block: int = 1024, as_array: bool = False):
+        """as_array: draw numpy rows (views of the block) for a model whose maths is numpy's."""
+        self.rng, self.width, self.block, self.as_array = rng, width, block, as_array
         self._rows: list[list[float]] = []
+        self._array: np.ndarray = np.empty((0, width))
+        self._next = 0
+
+    def _refill(self) -> None:
+        self._array = self.rng.standard_normal((self.block, self.width))
+        if not self.as_array:
+            self._rows = self._array.tolist()
         self._next = 0
 
     def draw(self) -> list[float]:
-        if self._next == len(self._rows):
-            self._rows = self.rng.standard_normal((self.block, self.width)).tolist()
-            self._next = 0
+        if self._next == len(self._array):
+            self._refill()
         row = self._rows[self._next]
+        self._next += 1
+        return row
+
+    def draw_array(self) -> np.ndarray:
+        """The next row as a numpy view (a stream made with as_array=True)."""
+        if self._next == len(self._array):
+            self._refill()
+        row: np.ndarray = self._array[self._next]
         self._next += 1
         return row
 
@@ -161,17 +176,21 @@ class TesModel:
         self.calibration = -self.geometry * (1.0 + error)
         """E: the calibration the seat firmware applies (wrench = −E m)."""
         self._neg_calibration = -self.calibration
-        self.noise = NoiseStream(rng, 6)
+        self.noise = NoiseStream(rng, 6, as_array=True)
 
     def sample(self, wrench: Sequence[float]) -> TesSample:
         """wrench: true [Fx, Fy, Fz, Mx, My, Mz] of the rider on the seat at P, body axes."""
-        cells = self.to_cells @ np.array(wrench) + self.p.cell_noise * np.array(self.noise.draw())
-        return self.from_cells(cells)
+        # numpy's products, not scalar sums: OpenBLAS's kernel (fused multiply-adds, its own order) rounds
+        # them, and the seat's readings must stay those of earlier runs bit for bit.
+        cells = np.dot(self.to_cells, wrench) + self.p.cell_noise * self.noise.draw_array()
+        return self._report(cells)
 
     def from_cells(self, cells: Sequence[float] | np.ndarray) -> TesSample:
         """What the seat reports for these cell readings (N): wrench through its calibration, and COP."""
-        cells = np.asarray(cells, float)
-        fx, fy, fz, mx, my, mz = (self._neg_calibration @ cells).tolist()
+        return self._report(np.asarray(cells, float))
+
+    def _report(self, cells: np.ndarray) -> TesSample:
+        fx, fy, fz, mx, my, mz = np.dot(self._neg_calibration, cells).tolist()
         cop_xy = cop(fx, fy, fz, mx, my, self.seat_height)
         return TesSample((fx, fy, fz), (mx, my, mz), cop_xy, tuple(cells.tolist()))
 
