@@ -15,11 +15,13 @@ import numpy as np
 
 from plant.anthropometry import SeatedRider, composite, robot_body_segment, seat_rider, yaw_inertia
 from plant.drives import DriveArray
+from plant.native import mypyc_attr
 from plant.omniwheel import motor_jacobian, wheel_inertia_equivalents
 from plant.params import RiderParams, RobotParams, SimParams
 from plant.plane import G0, STICK_TIME_CONSTANT, HipPolicy, PlaneDynamics, PlaneParams, Wrench
-from plant.rider import LeanStyle, Profile, Segment, Step, TorsoController, TwistController
+from plant.rider import LeanStyle, Profile, Segment, Step
 from plant.sensors import DriveFeedback, DriveFeedbackModel, ImuModel, ImuSample, TesModel, TesSample
+from plant.torso import TorsoController, TwistController
 
 PITCH, ROLL = 0, 1
 PLANES = ("pitch", "roll")
@@ -102,6 +104,7 @@ class Truth:
     """Any drive's power stage is on."""
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # benchmarks/lockstep.py times its step in a subclass
 class Plant:
     """PURE ballbot + rider. Per tick: `drives.set_commands(...)`, `step()`, then sample or read `truth()`."""
 
