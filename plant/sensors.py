@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -55,13 +54,35 @@ def counts_from_angle(angle: float, encoder: Encoder) -> int:
     return (raw + half) % (2 * half) - half
 
 
-@dataclass(frozen=True, slots=True)
-class DriveFeedback:
+class Record:
+    """A sample or state made every tick: read-only by convention, compared and shown by its values like
+    the frozen dataclasses these were. Not dataclasses: compiled, a dataclass's __init__ stays the Python
+    function `dataclasses` writes, a microsecond a record (the plant makes six a tick)."""
+
+    def _values(self) -> tuple[object, ...]:
+        raise NotImplementedError
+
+    def __eq__(self, other: object) -> bool:
+        return type(other) is type(self) and isinstance(other, Record) and self._values() == other._values()
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}{self._values()}"
+
+
+class DriveFeedback(Record):
+    """One drive's feedback sample."""
+
     counts: int
     velocity: float
     """Motor velocity, rad/s."""
     torque: float
     """Measured motor torque, Nm."""
+
+    def __init__(self, counts: int, velocity: float, torque: float) -> None:
+        self.counts, self.velocity, self.torque = counts, velocity, torque
+
+    def _values(self) -> tuple[object, ...]:
+        return self.counts, self.velocity, self.torque
 
 
 class DriveFeedbackModel:
@@ -88,14 +109,26 @@ class DriveFeedbackModel:
         )
 
 
-@dataclass(frozen=True, slots=True)
-class ImuSample:
+class ImuSample(Record):
+    """One IMU sample."""
+
     attitude: tuple[float, float, float]
     """Roll, pitch, yaw (ZYX Euler), rad; yaw wrapped to [-π, π)."""
     rate: tuple[float, float, float]
     """Angular rate in the body frame, rad/s."""
     accel: tuple[float, float, float]
     """Specific force in the body frame, m/s² (at rest upright: (0, 0, +g))."""
+
+    def __init__(
+        self,
+        attitude: tuple[float, float, float],
+        rate: tuple[float, float, float],
+        accel: tuple[float, float, float],
+    ) -> None:
+        self.attitude, self.rate, self.accel = attitude, rate, accel
+
+    def _values(self) -> tuple[object, ...]:
+        return self.attitude, self.rate, self.accel
 
 
 class ImuModel:
@@ -149,8 +182,9 @@ def load_cell_geometry(tes: Tes) -> np.ndarray:
     return np.array(cols).T
 
 
-@dataclass(frozen=True, slots=True)
-class TesSample:
+class TesSample(Record):
+    """One seat sample."""
+
     force: tuple[float, float, float]
     """Force of the rider on the seat, body axes at P, N (seated upright: Fz < 0)."""
     moment: tuple[float, float, float]
@@ -159,6 +193,18 @@ class TesSample:
     """Centre of pressure on the seat surface, body x and y from P's axis, m; (0, 0) when unloaded."""
     cells: tuple[float, float, float, float, float, float]
     """Raw load-cell readings m, N (PURE convention: wrench = −E m)."""
+
+    def __init__(
+        self,
+        force: tuple[float, float, float],
+        moment: tuple[float, float, float],
+        cop: tuple[float, float],
+        cells: tuple[float, float, float, float, float, float],
+    ) -> None:
+        self.force, self.moment, self.cop, self.cells = force, moment, cop, cells
+
+    def _values(self) -> tuple[object, ...]:
+        return self.force, self.moment, self.cop, self.cells
 
 
 MIN_SEATED_LOAD = 20.0
