@@ -16,7 +16,8 @@ from plant.params import Drive, Encoder, Imu, Tes
 
 
 class NoiseStream:
-    """Standard normal draws as Python floats, generated in blocks (one numpy call per block)."""
+    """Standard normal draws, generated in blocks (one numpy call per block): rows of Python floats, or
+    numpy views of the block's rows."""
 
     def __init__(self, rng: np.random.Generator, width: int, block: int = 1024, as_array: bool = False):
         """as_array: draw numpy rows (views of the block) for a model whose maths is numpy's."""
