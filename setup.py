@@ -43,10 +43,14 @@ COMPILED = [
     "controller/node.py",
     # The rig's tick (hil/run/rig.py: Rig allows Python subclasses, which tests and the benchmark use).
     "hil/run/rig.py",
-    # The plant's dynamics and sensors. Not plant/ballbot.py (benchmarks/lockstep.py times Plant.step by
-    # wrapping it) nor plant/drives.py (tests/test_failop.py wraps MotorDrive.set_command): a compiled
-    # class cannot be patched. Not plant/rider.py: msgspec does not see the class keywords (tag=...,
-    # frozen=True) of a Struct compiled by mypyc, and the rider's segments are a tagged union.
+    # The plant: its tick and outputs, drives, rider's torso, planar dynamics, sensors and wheel maps (Plant
+    # and MotorDrive allow Python subclasses, which benchmarks/lockstep.py and tests/test_failop.py use:
+    # plant/native.py). Not plant/rider.py: msgspec does not see the class keywords (tag=..., frozen=True)
+    # of a Struct compiled by mypyc, and the rider's segments are a tagged union (its per-tick maths is
+    # plant/torso.py).
+    "plant/ballbot.py",
+    "plant/drives.py",
+    "plant/torso.py",
     "plant/plane.py",
     "plant/sensors.py",
     "plant/omniwheel.py",

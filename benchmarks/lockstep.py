@@ -171,15 +171,15 @@ def frame_work(ticks: int, out: Path) -> float:
 
 
 def instrument(totals: dict[str, float]) -> None:
-    """Time every stage of the runs from here on: the rig's own stages in a subclass the build makes instead
-    of the Rig (compiled, a Rig's methods cannot be replaced; a subclass of it may override them), the plant's
-    step and the driven controller's poll (Python classes on both builds) in place."""
+    """Time every stage of the runs from here on: the rig's own stages and the plant's step in subclasses
+    the build makes instead of the Rig and the Plant (compiled, their methods cannot be replaced; a subclass
+    may override them), the driven controller's poll (a Python class on both builds) in place."""
     rig = rig_module.Rig
     timed_rig = type(
         "TimedRig", (rig,), {name: timed(totals, name, getattr(rig, name)) for name in RIG_STAGES}
     )
     build_module.Rig = timed_rig
-    Plant.step = timed(totals, "plant.step", Plant.step)
+    build_module.Plant = type("TimedPlant", (Plant,), {"step": timed(totals, "plant.step", Plant.step)})
     embedded = controller.embedded.EmbeddedController
     embedded.poll = timed(totals, "controller", embedded.poll)
 

@@ -15,11 +15,21 @@ import numpy as np
 
 from plant.anthropometry import SeatedRider, composite, robot_body_segment, seat_rider, yaw_inertia
 from plant.drives import DriveArray
+from plant.native import mypyc_attr
 from plant.omniwheel import motor_jacobian, wheel_inertia_equivalents
 from plant.params import RiderParams, RobotParams, SimParams
 from plant.plane import G0, STICK_TIME_CONSTANT, HipPolicy, PlaneDynamics, PlaneParams, Wrench
-from plant.rider import LeanStyle, Profile, Segment, Step, TorsoController, TwistController
-from plant.sensors import DriveFeedback, DriveFeedbackModel, ImuModel, ImuSample, TesModel, TesSample
+from plant.rider import LeanStyle, Profile, Segment, Step
+from plant.sensors import (
+    DriveFeedback,
+    DriveFeedbackModel,
+    ImuModel,
+    ImuSample,
+    Record,
+    TesModel,
+    TesSample,
+)
+from plant.torso import TorsoController, TwistController
 
 PITCH, ROLL = 0, 1
 PLANES = ("pitch", "roll")
@@ -73,8 +83,7 @@ class RiderIntent:
     twist: list[Segment] = field(default_factory=list)
 
 
-@dataclass(frozen=True, slots=True)
-class Truth:
+class Truth(Record):
     """The plant's true state after a tick, for metrics, recording and the supervisor's referee."""
 
     t: float
@@ -96,12 +105,59 @@ class Truth:
     seat_wrench: tuple[float, float, float, float, float, float]
     """True rider wrench on the seat at P, body axes [Fx, Fy, Fz, Mx, My, Mz]."""
     fallen: str | None
-    resting: bool = False
+    resting: bool
     """Powered off at standstill and held by the rider's feet or the stand."""
-    powered: bool = False
+    powered: bool
     """Any drive's power stage is on."""
 
+    def __init__(
+        self,
+        *,
+        t: float,
+        tilt: tuple[float, float],
+        tilt_rate: tuple[float, float],
+        ball_angle: tuple[float, float],
+        ball_rate: tuple[float, float],
+        lean: tuple[float, float],
+        velocity: tuple[float, float],
+        position: tuple[float, float],
+        yaw: float,
+        yaw_rate: float,
+        motor_torque: tuple[float, float, float],
+        hip_torque: tuple[float, float],
+        seat_wrench: tuple[float, float, float, float, float, float],
+        fallen: str | None,
+        resting: bool = False,
+        powered: bool = False,
+    ) -> None:
+        self.t, self.tilt, self.tilt_rate = t, tilt, tilt_rate
+        self.ball_angle, self.ball_rate, self.lean = ball_angle, ball_rate, lean
+        self.velocity, self.position, self.yaw, self.yaw_rate = velocity, position, yaw, yaw_rate
+        self.motor_torque, self.hip_torque, self.seat_wrench = motor_torque, hip_torque, seat_wrench
+        self.fallen, self.resting, self.powered = fallen, resting, powered
 
+    def _values(self) -> tuple[object, ...]:
+        return (
+            self.t,
+            self.tilt,
+            self.tilt_rate,
+            self.ball_angle,
+            self.ball_rate,
+            self.lean,
+            self.velocity,
+            self.position,
+            self.yaw,
+            self.yaw_rate,
+            self.motor_torque,
+            self.hip_torque,
+            self.seat_wrench,
+            self.fallen,
+            self.resting,
+            self.powered,
+        )
+
+
+@mypyc_attr(allow_interpreted_subclasses=True)  # benchmarks/lockstep.py times its step in a subclass
 class Plant:
     """PURE ballbot + rider. Per tick: `drives.set_commands(...)`, `step()`, then sample or read `truth()`."""
 
@@ -344,7 +400,8 @@ class Plant:
         return (roll, pitch, x[12]), (x[10], x[4], x[13]), body
 
     def sample_imu(self) -> ImuSample:
-        return self.imu_model.sample(*self.imu_truth())
+        attitude, rate, accel = self.imu_truth()
+        return self.imu_model.sample(attitude, rate, accel)
 
     def seat_wrench(self) -> tuple[float, float, float, float, float, float]:
         """True wrench of the rider on the seat at P, body axes (once per tick, shared by TES and truth)."""

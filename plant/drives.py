@@ -15,6 +15,7 @@ import math
 from dataclasses import dataclass
 from enum import IntEnum
 
+from plant.native import mypyc_attr
 from plant.params import Drive
 
 
@@ -25,6 +26,7 @@ class DriveState(IntEnum):
     """Disabled by the drive itself because commands stopped arriving; a fresh command re-arms it."""
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # tests/test_failop.py watches its setpoints in a subclass
 @dataclass(slots=True)
 class MotorDrive:
     params: Drive

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -17,18 +16,34 @@ from plant.params import Drive, Encoder, Imu, Tes
 
 
 class NoiseStream:
-    """Standard normal draws as Python floats, generated in blocks (one numpy call per block)."""
+    """Standard normal draws, generated in blocks (one numpy call per block): rows of Python floats, or
+    numpy views of the block's rows."""
 
-    def __init__(self, rng: np.random.Generator, width: int, block: int = 1024):
-        self.rng, self.width, self.block = rng, width, block
+    def __init__(self, rng: np.random.Generator, width: int, block: int = 1024, as_array: bool = False):
+        """as_array: draw numpy rows (views of the block) for a model whose maths is numpy's."""
+        self.rng, self.width, self.block, self.as_array = rng, width, block, as_array
         self._rows: list[list[float]] = []
+        self._array: np.ndarray = np.empty((0, width))
+        self._next = 0
+
+    def _refill(self) -> None:
+        self._array = self.rng.standard_normal((self.block, self.width))
+        if not self.as_array:
+            self._rows = self._array.tolist()
         self._next = 0
 
     def draw(self) -> list[float]:
-        if self._next == len(self._rows):
-            self._rows = self.rng.standard_normal((self.block, self.width)).tolist()
-            self._next = 0
+        if self._next == len(self._array):
+            self._refill()
         row = self._rows[self._next]
+        self._next += 1
+        return row
+
+    def draw_array(self) -> np.ndarray:
+        """The next row as a numpy view (a stream made with as_array=True)."""
+        if self._next == len(self._array):
+            self._refill()
+        row: np.ndarray = self._array[self._next]
         self._next += 1
         return row
 
@@ -40,13 +55,35 @@ def counts_from_angle(angle: float, encoder: Encoder) -> int:
     return (raw + half) % (2 * half) - half
 
 
-@dataclass(frozen=True, slots=True)
-class DriveFeedback:
+class Record:
+    """A sample or state made every tick: read-only by convention, compared and shown by its values like
+    the frozen dataclasses these were. Not dataclasses: compiled, a dataclass's __init__ stays the Python
+    function `dataclasses` writes, a microsecond a record (the plant makes six a tick)."""
+
+    def _values(self) -> tuple[object, ...]:
+        raise NotImplementedError
+
+    def __eq__(self, other: object) -> bool:
+        return type(other) is type(self) and isinstance(other, Record) and self._values() == other._values()
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}{self._values()}"
+
+
+class DriveFeedback(Record):
+    """One drive's feedback sample."""
+
     counts: int
     velocity: float
     """Motor velocity, rad/s."""
     torque: float
     """Measured motor torque, Nm."""
+
+    def __init__(self, counts: int, velocity: float, torque: float) -> None:
+        self.counts, self.velocity, self.torque = counts, velocity, torque
+
+    def _values(self) -> tuple[object, ...]:
+        return self.counts, self.velocity, self.torque
 
 
 class DriveFeedbackModel:
@@ -73,14 +110,26 @@ class DriveFeedbackModel:
         )
 
 
-@dataclass(frozen=True, slots=True)
-class ImuSample:
+class ImuSample(Record):
+    """One IMU sample."""
+
     attitude: tuple[float, float, float]
     """Roll, pitch, yaw (ZYX Euler), rad; yaw wrapped to [-π, π)."""
     rate: tuple[float, float, float]
     """Angular rate in the body frame, rad/s."""
     accel: tuple[float, float, float]
     """Specific force in the body frame, m/s² (at rest upright: (0, 0, +g))."""
+
+    def __init__(
+        self,
+        attitude: tuple[float, float, float],
+        rate: tuple[float, float, float],
+        accel: tuple[float, float, float],
+    ) -> None:
+        self.attitude, self.rate, self.accel = attitude, rate, accel
+
+    def _values(self) -> tuple[object, ...]:
+        return self.attitude, self.rate, self.accel
 
 
 class ImuModel:
@@ -134,8 +183,9 @@ def load_cell_geometry(tes: Tes) -> np.ndarray:
     return np.array(cols).T
 
 
-@dataclass(frozen=True, slots=True)
-class TesSample:
+class TesSample(Record):
+    """One seat sample."""
+
     force: tuple[float, float, float]
     """Force of the rider on the seat, body axes at P, N (seated upright: Fz < 0)."""
     moment: tuple[float, float, float]
@@ -144,6 +194,18 @@ class TesSample:
     """Centre of pressure on the seat surface, body x and y from P's axis, m; (0, 0) when unloaded."""
     cells: tuple[float, float, float, float, float, float]
     """Raw load-cell readings m, N (PURE convention: wrench = −E m)."""
+
+    def __init__(
+        self,
+        force: tuple[float, float, float],
+        moment: tuple[float, float, float],
+        cop: tuple[float, float],
+        cells: tuple[float, float, float, float, float, float],
+    ) -> None:
+        self.force, self.moment, self.cop, self.cells = force, moment, cop, cells
+
+    def _values(self) -> tuple[object, ...]:
+        return self.force, self.moment, self.cop, self.cells
 
 
 MIN_SEATED_LOAD = 20.0
@@ -161,17 +223,21 @@ class TesModel:
         self.calibration = -self.geometry * (1.0 + error)
         """E: the calibration the seat firmware applies (wrench = −E m)."""
         self._neg_calibration = -self.calibration
-        self.noise = NoiseStream(rng, 6)
+        self.noise = NoiseStream(rng, 6, as_array=True)
 
     def sample(self, wrench: Sequence[float]) -> TesSample:
         """wrench: true [Fx, Fy, Fz, Mx, My, Mz] of the rider on the seat at P, body axes."""
-        cells = self.to_cells @ np.array(wrench) + self.p.cell_noise * np.array(self.noise.draw())
-        return self.from_cells(cells)
+        # numpy's products, not scalar sums: OpenBLAS's kernel (fused multiply-adds, its own order) rounds
+        # them, and the seat's readings must stay those of earlier runs bit for bit.
+        cells = np.dot(self.to_cells, wrench) + self.p.cell_noise * self.noise.draw_array()
+        return self._report(cells)
 
     def from_cells(self, cells: Sequence[float] | np.ndarray) -> TesSample:
         """What the seat reports for these cell readings (N): wrench through its calibration, and COP."""
-        cells = np.asarray(cells, float)
-        fx, fy, fz, mx, my, mz = (self._neg_calibration @ cells).tolist()
+        return self._report(np.asarray(cells, float))
+
+    def _report(self, cells: np.ndarray) -> TesSample:
+        fx, fy, fz, mx, my, mz = np.dot(self._neg_calibration, cells).tolist()
         cop_xy = cop(fx, fy, fz, mx, my, self.seat_height)
         return TesSample((fx, fy, fz), (mx, my, mz), cop_xy, tuple(cells.tolist()))
 

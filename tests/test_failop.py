@@ -3,6 +3,7 @@ the controller cannot be trusted to stop the robot, and power goes off in motion
 the drives are the fault, or the operator asks for category 0. The state machine's rules, then whole lockstep
 runs with the reference controller, the plant's truth the referee and the CAN log the wire's."""
 
+import dataclasses
 import math
 
 import can
@@ -321,9 +322,22 @@ def test_the_drives_never_follow_two_masters_in_one_tick(tmp_path, monkeypatch):
 
     applied: list[tuple[int, str, bool]] = []
     sender: dict = {}
-    set_command = MotorDrive.set_command
+
+    class WatchedDrive(MotorDrive):  # a subclass: the compiled build's MotorDrive cannot be patched
+        def set_command(self, torque, enable, now):
+            rig = sender["rig"]
+            applied.append((rig.plant.tick, sender["who"], rig.takeover))
+            super().set_command(torque, enable, now)
 
     class WatchedRig(Rig):  # a subclass: the compiled build's Rig cannot be patched
+        def __init__(self, plant, *args, **kwargs):
+            drives = plant.drives
+            drives.motors = tuple(
+                WatchedDrive(**{f.name: getattr(m, f.name) for f in dataclasses.fields(m)})
+                for m in drives.motors
+            )
+            super().__init__(plant, *args, **kwargs)
+
         def _command(self, drive, torque, enable):
             sender.update(rig=self, who="controller")
             super()._command(drive, torque, enable)
@@ -332,13 +346,7 @@ def test_the_drives_never_follow_two_masters_in_one_tick(tmp_path, monkeypatch):
             sender.update(rig=self, who="recovery")
             super()._recover(signals)
 
-    def taken(drive, torque, enable, now):
-        rig = sender["rig"]
-        applied.append((rig.plant.tick, sender["who"], rig.takeover))
-        set_command(drive, torque, enable, now)
-
     monkeypatch.setattr(build, "Rig", WatchedRig)
-    monkeypatch.setattr(MotorDrive, "set_command", taken)
     flip = [{"kind": "sensor.sign_flip", "channel": "drive2.velocity", "at": 4.0}]
     tr = run(BRAKING, flip, tmp_path, duration=5.0)
     assert tr.stats.overridden_commands > 0, "the controller went on commanding during the takeover"

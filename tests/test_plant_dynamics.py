@@ -11,7 +11,8 @@ from plant.anthropometry import composite, robot_body_segment, seat_rider
 from plant.ballbot import Plant, RiderIntent, plane_params
 from plant.params import Drive, RobotParams
 from plant.plane import G0, PlaneDynamics, Wrench
-from plant.rider import Hold, Ramp
+from plant.rider import Hold, Profile, Ramp
+from plant.torso import TorsoController
 from tests.helpers import NO_FRICTION, RIDER_75, deg, robot, sim
 
 
@@ -387,3 +388,12 @@ def test_rest_ends_when_a_drive_is_powered_again():
         bal.drive()
         plant.step()
     assert not plant.resting and plant.fallen is None and plant.drives.powered
+
+
+def test_the_rider_holds_their_torso_against_gravity_within_capability():
+    # On its command (upright, at rest) the hip torque is the torso's own gravity compensation; far off it
+    # the PD saturates at the rider's capability.
+    mass, com = 30.0, 0.3
+    torso = TorsoController(RIDER_75, mass, com, Profile())
+    assert torso.hip_torque(0.1, 0.0, 0.0) == pytest.approx(-G0 * mass * com * math.sin(0.1))
+    assert torso.hip_torque(0.0, -1.0, 0.0) == RIDER_75.max_hip_torque
