@@ -22,9 +22,11 @@ from mcap.reader import NonSeekingReader, make_reader
 from mcap.writer import Writer
 
 from drivers.can_codec import Catalog, MessageName
+from drivers.keys import Keys
 from drivers.schemas import ControllerCommand, PayloadError, ScCommand, TesWrench, decode
 from hil.faults import parse_fault
 from hil.outputs.mcap_file import McapFile
+from hil.outputs.mcap_log import McapLog
 from hil.outputs.trace_log import COLUMNS, TELEMETRY
 from hil.pipeline import run
 from hil.run.scenario import Intent, OperatorEntry, Scenario, ScEntry
@@ -269,6 +271,49 @@ def test_a_run_that_fails_to_build_still_leaves_a_complete_file(tmp_path):
         reader = make_reader(f)
         assert reader.get_summary().statistics.message_count == 0
         assert next(reader.iter_metadata()).metadata["scenario"] == "mcap"
+
+
+def test_frames_that_are_not_a_dbc_message_stay_raw_among_those_that_are(tmp_path):
+    """An unknown id, a wrong length and an extended id, before and after a message's first good frame (which
+    opens its channel mid-tick): every frame on /can/frames, only the good ones decoded, in order, each
+    channel's records before its first message (read as a stream)."""
+    catalog = Catalog()
+    sync, imu = catalog[MessageName.SYNC], catalog[MessageName.IMU_RATE]
+    good_sync = sync.encode({"Tick": 7})
+    good_imu = bytes(range(imu.length))
+    ticks = [
+        [
+            can.Message(arbitration_id=0x555, data=bytes(8), is_extended_id=False),
+            can.Message(arbitration_id=sync.frame_id, data=good_sync + b"\0", is_extended_id=False),
+            can.Message(arbitration_id=sync.frame_id, data=good_sync, is_extended_id=True),
+            can.Message(arbitration_id=sync.frame_id, data=good_sync, is_extended_id=False),
+            can.Message(arbitration_id=0x555, data=bytes(8), is_extended_id=False),
+            can.Message(arbitration_id=imu.frame_id, data=good_imu, is_extended_id=False),
+        ],
+        [
+            can.Message(arbitration_id=imu.frame_id, data=good_imu[:-1], is_extended_id=False),
+            can.Message(arbitration_id=sync.frame_id, data=good_sync, is_extended_id=False),
+            can.Message(arbitration_id=0x555, data=bytes(8), is_extended_id=False),
+        ],
+    ]
+    path, now = tmp_path / "run.mcap", [0.0]
+    with McapLog(path, 400.0, Keys()) as log:
+        log.clock = lambda: now[0]
+        for i, frames in enumerate(ticks):
+            now[0] = i / 400
+            for m in frames:
+                log.on_message_received(m)
+            log.trace([now[0]] + [0.0] * (TELEMETRY - 1))
+    got = [(id_, data, t) for id_, data, _, t in mcap_frames(path)]
+    assert got == [(m.arbitration_id, bytes(m.data), i * DT_NS) for i, f in enumerate(ticks) for m in f]
+    assert messages(path, "/can/SYNC") == [(0, {"Tick": 7}), (DT_NS, {"Tick": 7})]
+    assert messages(path, "/can/IMU_RATE") == [(0, imu.decode(good_imu))]
+    with open(path, "rb") as f:
+        streamed = [c.topic for _, c, _ in NonSeekingReader(f, validate_crcs=True).iter_messages()]
+    assert streamed == [
+        *("/can/frames", "/can/SYNC", "/can/IMU_RATE", "/trace"),
+        *("/can/frames", "/can/SYNC", "/trace"),
+    ]
 
 
 def test_the_writer_holds_one_chunk_however_long_the_file(tmp_path):
