@@ -4,7 +4,13 @@ and in its thread's CPU time (which other processes on a busy machine disturb le
 with the writer's own calls timed (its share of a tick, and the dearest single call: a chunk closing).
 The recording and the plots are off in all runs: they are written after the loop and cost the same.
 
+--replay N: instead, the writer alone: one run's calls to it (every frame with the simulated time it was
+taken at, every zenoh input and row) kept, then fed N times to a fresh writer, its thread's CPU time per
+tick (the whole file, closing included). Nothing else runs then: it tells a change to the writer apart on a
+machine too busy for the tick loop's figures to.
+
     python benchmarks/mcap_cost.py [SCENARIO (default speed_limiting)] [--duration S] [--pairs N] [--json]
+                                   [--replay N]
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import msgspec
 
 import hil.pipeline as pipeline
+from drivers.keys import Keys
 from hil.bench.bench import load_bench
 from hil.outputs.mcap_log import McapLog
 from hil.pipeline import load_scenario, run
@@ -86,16 +93,73 @@ def writer_share(scenario, out: Path) -> tuple[float, float, int]:
     return totals["sum"] / ticks * 1e6, totals["max"] * 1e3, ticks
 
 
+def replay(scenario, out: Path, times: int) -> tuple[list[float], int]:
+    """(µs of thread CPU time per tick of each replay, ticks): the writer fed one run's calls again."""
+    calls: list[tuple] = []
+    originals = {name: getattr(McapLog, name) for name in TIMED}
+
+    def on_message_received(self, msg):
+        calls.append(("frame", self.clock(), msg))
+        originals["on_message_received"](self, msg)
+
+    def zenoh(self, tick, key, data):
+        calls.append(("zenoh", tick, key, bytes(data)))
+        originals["zenoh"](self, tick, key, data)
+
+    def trace(self, row):
+        calls.append(("trace", tuple(row)))
+        originals["trace"](self, row)
+
+    McapLog.on_message_received, McapLog.zenoh, McapLog.trace = on_message_received, zenoh, trace
+    bench = bench_with(True)
+    try:
+        run(scenario, bench, out=out / "recorded")
+    finally:
+        for name, fn in originals.items():
+            setattr(McapLog, name, fn)
+    ticks = sum(call[0] == "trace" for call in calls)
+    figures, taken_at = [], [0.0]
+    for i in range(times):
+        log = McapLog(out / f"replay-{i}.mcap", scenario.tick_hz, Keys(bench.zenoh.prefix))
+        log.clock = lambda: taken_at[0]  # simulated time when the recorder took the frame, as in the run
+        frame, zenoh_input, row = log.on_message_received, log.zenoh, log.trace
+        t0 = time.thread_time()
+        for call in calls:
+            if call[0] == "frame":
+                taken_at[0] = call[1]
+                frame(call[2])
+            elif call[0] == "trace":
+                row(call[1])
+            else:
+                zenoh_input(call[1], call[2], call[3])
+        log.stop()
+        figures.append((time.thread_time() - t0) / ticks * 1e6)
+        if log.error is not None:
+            raise SystemExit(f"the replay failed: {log.error}")
+    return figures, ticks
+
+
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("scenario", nargs="?", default="speed_limiting")
     parser.add_argument("--duration", type=float, default=None)
     parser.add_argument("--pairs", type=int, default=3, help="off/on runs, alternated")
     parser.add_argument("--json", action="store_true")
+    parser.add_argument("--replay", type=int, default=0, help="the writer alone, fed one run's calls N times")
     args = parser.parse_args()
     scenario = load_scenario(args.scenario)
     if args.duration:
         scenario = msgspec.structs.replace(scenario, duration=args.duration)
+    if args.replay:
+        with tempfile.TemporaryDirectory(prefix="mcap-cost-") as tmp:
+            figures, ticks = replay(scenario, Path(tmp), args.replay)
+        median = statistics.median(figures)
+        if args.json:
+            print(json.dumps({"scenario": scenario.name, "ticks": ticks, "replay_cpu_us_per_tick": figures}))
+        else:
+            print(f"{scenario.name}: the writer alone, one run's calls ({ticks} ticks) replayed")
+            print(f"  thread CPU: {' '.join(f'{x:.1f}' for x in figures)} us/tick, median {median:.1f}")
+        return
     off, on = [], []
     with tempfile.TemporaryDirectory(prefix="mcap-cost-") as tmp:
         out = Path(tmp)

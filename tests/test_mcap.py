@@ -22,9 +22,11 @@ from mcap.reader import NonSeekingReader, make_reader
 from mcap.writer import Writer
 
 from drivers.can_codec import Catalog, MessageName
+from drivers.keys import Keys
 from drivers.schemas import ControllerCommand, PayloadError, ScCommand, TesWrench, decode
 from hil.faults import parse_fault
 from hil.outputs.mcap_file import McapFile
+from hil.outputs.mcap_log import McapLog
 from hil.outputs.trace_log import COLUMNS, TELEMETRY
 from hil.pipeline import run
 from hil.run.scenario import Intent, OperatorEntry, Scenario, ScEntry
@@ -219,7 +221,7 @@ def test_the_summary_crc_is_the_specs(folder):
 
 def test_a_writer_error_keeps_the_file_up_to_it_and_is_named_in_the_summary(tmp_path, monkeypatch):
     calls = Counter()
-    message = McapFile.message
+    message, messages = McapFile.message, McapFile.messages
 
     def failing(self, channel, time, data):
         calls["n"] += 1
@@ -227,7 +229,16 @@ def test_a_writer_error_keeps_the_file_up_to_it_and_is_named_in_the_summary(tmp_
             raise OSError(28, "No space left on device")
         message(self, channel, time, data)
 
+    def failing_batch(self, time, channels, data):  # a tick's frames: the 3000th message fails in it
+        before = 3000 - 1 - calls["n"]
+        calls["n"] += len(channels)
+        if 0 <= before < len(channels):
+            messages(self, time, channels[:before], data[:before])
+            raise OSError(28, "No space left on device")
+        messages(self, time, channels, data)
+
     monkeypatch.setattr(McapFile, "message", failing)
+    monkeypatch.setattr(McapFile, "messages", failing_batch)
     short = msgspec.structs.replace(SCENARIO, duration=0.5, faults=[])
     result = run(short, bench(recording=False), out=tmp_path)
     summary = json.loads((tmp_path / "summary.json").read_text())
@@ -260,6 +271,49 @@ def test_a_run_that_fails_to_build_still_leaves_a_complete_file(tmp_path):
         reader = make_reader(f)
         assert reader.get_summary().statistics.message_count == 0
         assert next(reader.iter_metadata()).metadata["scenario"] == "mcap"
+
+
+def test_frames_that_are_not_a_dbc_message_stay_raw_among_those_that_are(tmp_path):
+    """An unknown id, a wrong length and an extended id, before and after a message's first good frame (which
+    opens its channel mid-tick): every frame on /can/frames, only the good ones decoded, in order, each
+    channel's records before its first message (read as a stream)."""
+    catalog = Catalog()
+    sync, imu = catalog[MessageName.SYNC], catalog[MessageName.IMU_RATE]
+    good_sync = sync.encode({"Tick": 7})
+    good_imu = bytes(range(imu.length))
+    ticks = [
+        [
+            can.Message(arbitration_id=0x555, data=bytes(8), is_extended_id=False),
+            can.Message(arbitration_id=sync.frame_id, data=good_sync + b"\0", is_extended_id=False),
+            can.Message(arbitration_id=sync.frame_id, data=good_sync, is_extended_id=True),
+            can.Message(arbitration_id=sync.frame_id, data=good_sync, is_extended_id=False),
+            can.Message(arbitration_id=0x555, data=bytes(8), is_extended_id=False),
+            can.Message(arbitration_id=imu.frame_id, data=good_imu, is_extended_id=False),
+        ],
+        [
+            can.Message(arbitration_id=imu.frame_id, data=good_imu[:-1], is_extended_id=False),
+            can.Message(arbitration_id=sync.frame_id, data=good_sync, is_extended_id=False),
+            can.Message(arbitration_id=0x555, data=bytes(8), is_extended_id=False),
+        ],
+    ]
+    path, now = tmp_path / "run.mcap", [0.0]
+    with McapLog(path, 400.0, Keys()) as log:
+        log.clock = lambda: now[0]
+        for i, frames in enumerate(ticks):
+            now[0] = i / 400
+            for m in frames:
+                log.on_message_received(m)
+            log.trace([now[0]] + [0.0] * (TELEMETRY - 1))
+    got = [(id_, data, t) for id_, data, _, t in mcap_frames(path)]
+    assert got == [(m.arbitration_id, bytes(m.data), i * DT_NS) for i, f in enumerate(ticks) for m in f]
+    assert messages(path, "/can/SYNC") == [(0, {"Tick": 7}), (DT_NS, {"Tick": 7})]
+    assert messages(path, "/can/IMU_RATE") == [(0, imu.decode(good_imu))]
+    with open(path, "rb") as f:
+        streamed = [c.topic for _, c, _ in NonSeekingReader(f, validate_crcs=True).iter_messages()]
+    assert streamed == [
+        *("/can/frames", "/can/SYNC", "/can/IMU_RATE", "/trace"),
+        *("/can/frames", "/can/SYNC", "/trace"),
+    ]
 
 
 def test_the_writer_holds_one_chunk_however_long_the_file(tmp_path):

@@ -111,6 +111,21 @@ class McapFile:
         if len(chunk) >= self.chunk_size:
             self._close_chunk()
 
+    def messages(self, time: int, channels: list[int], messages: list[bytes]) -> None:
+        """Messages at one `time` (ns), each on its channel: `message()` for each, in one call (a tick's
+        frames)."""
+        chunk, index, pack, size = self._chunk, self._index, _MESSAGE.pack, self.chunk_size
+        for channel, data in zip(channels, messages, strict=True):
+            pairs = index.get(channel)
+            if pairs is None:
+                pairs = index[channel] = []
+            pairs += (time, len(chunk))
+            chunk += pack(Opcode.MESSAGE, 22 + len(data), channel, 0, time, time)
+            chunk += data
+            if len(chunk) >= size:  # where message() would close it: the same chunks
+                self._close_chunk()
+                chunk, index = self._chunk, self._index
+
     def metadata(self, name: str, values: dict[str, str]) -> None:
         self._close_chunk()  # a metadata record sits between chunks
         record = _record(Metadata(name=name, metadata=values))
