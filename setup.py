@@ -25,6 +25,9 @@ COMPILED = [
     "drivers/can_codec.py",
     "drivers/e2e.py",
     "drivers/can_bus.py",
+    # zenoh: every node's subscriptions, puts and the lockstep fence (the bench's ZenohAccess, a msgspec
+    # Struct, is drivers/zenoh_access.py).
+    "drivers/zenoh_link.py",
     # Not drivers/shared_bus.py: compiled, its SharedBus (a python-can BusABC) is not cleared from the weak
     # references its channel holds when it is collected, and the next look at them crashed the interpreter
     # (tests/test_shared_bus.py, a bus never shut down).
@@ -35,10 +38,11 @@ COMPILED = [
     "safety/recovery.py",
     "safety/arbiter.py",
     "safety/node.py",
-    # The reference controller: its estimator, balancer, step and node (controller/embedded.py, its
-    # handle, stays Python: benchmarks/lockstep.py times its poll by wrapping it).
+    # The reference controller: its estimator, balancer, commanded speed and yaw, step and node
+    # (controller/embedded.py, its handle, stays Python: benchmarks/lockstep.py times its poll by wrapping it).
     "controller/estimator.py",
     "controller/balance.py",
+    "controller/command.py",
     "controller/core.py",
     "controller/node.py",
     # The rig's tick (hil/run/rig.py: Rig allows Python subclasses, which tests and the benchmark use).

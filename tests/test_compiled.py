@@ -21,6 +21,7 @@ COMPILED_SUITE = (
     "tests/test_compiled.py",
     "tests/test_can.py",  # drivers/can_codec.py, drivers/e2e.py, drivers/can_bus.py
     "tests/test_shared_bus.py",  # drivers/shared_bus.py (Python) under the compiled CanNode
+    "tests/test_zenoh.py",  # drivers/zenoh_link.py
     "tests/test_safety_machine.py",  # safety/machine.py
     "tests/test_safety_monitors.py",  # safety/monitors.py
     "tests/test_safety_diagnostics.py",  # safety/diagnostics.py
