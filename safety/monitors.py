@@ -391,8 +391,10 @@ class Monitors:
         speed-trend check the plane's attitude, rate or accelerometer by the accelerometer's own tilt
         (safety/recovery.py `blame`)."""
         named = self._named
-        out = set(named)
         failed = self._failed
+        if not failed:
+            return frozenset(named)
+        out = set(named)
         if "yaw" in failed and not named & {"Encoder1", "Encoder2", "Encoder3", "RateZ"}:
             out.add(self.isolated.odd_one_out())
         for i, (plane, attitude, rate) in enumerate(PLANES):
@@ -506,23 +508,22 @@ class Monitors:
 
     def _isolate(self, t: float) -> None:
         """Feed the recovery law's estimator with the fresh trusted streams and what the diagnosis names."""
-        imu = self.config.watchdogs.imu
-        seen = self._imu_seen
-
-        def fresh(name: MessageName) -> list[float] | None:
-            return self.imu[name] if t - seen[name] <= imu else None
-
         drives = self.config.watchdogs.drives
         self.named = self.suspects()
+        failed = self._failed
         self.isolated.update(
             t,
-            fresh(MessageName.IMU_ATTITUDE),
-            fresh(MessageName.IMU_RATE),
+            self._fresh_imu(MessageName.IMU_ATTITUDE, t),
+            self._fresh_imu(MessageName.IMU_RATE, t),
             [d.velocity if t - d.seen <= drives else None for d in self.drives],
             self.named,
-            fresh(MessageName.IMU_ACCEL),
-            frozenset(a for p, a, _ in PLANES if p in self._failed or f"{p} trend" in self._failed),
+            self._fresh_imu(MessageName.IMU_ACCEL, t),
+            frozenset(a for p, a, _ in PLANES if p in failed or f"{p} trend" in failed),
         )
+
+    def _fresh_imu(self, name: str, t: float) -> list[float] | None:
+        """An IMU stream's last values if fresh (None: silent)."""
+        return self.imu[name] if t - self._imu_seen[name] <= self.config.watchdogs.imu else None
 
     def margins(self) -> dict[str, float]:
         """Each check's largest |residual| / bound so far (1: where it would fire)."""

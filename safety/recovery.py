@@ -242,12 +242,8 @@ class IsolatedEstimator:
             if norm < 1.0:
                 continue  # free fall or a dead accelerometer: no tilt to be had
             offset = math.atan2(f_fwd, f_up)
-
-            def tilt(a: float, norm: float = norm, offset: float = offset) -> float:
-                return math.asin(min(max(a / norm, -1.0), 1.0)) - offset
-
-            tilt_if_rate_wrong = tilt((v_attitude - first[1]) / span)
-            tilt_if_attitude_wrong = tilt((v_rate - first[0]) / span)
+            tilt_if_rate_wrong = accelerometer_tilt((v_attitude - first[1]) / span, norm, offset)
+            tilt_if_attitude_wrong = accelerometer_tilt((v_rate - first[0]) / span, norm, offset)
             # The accelerometer's tilt is the window's mean: compare with the tilt half a window ago.
             k = min(dt / ATTITUDE_VOTE, 1.0)
             lag = rate[i] * span / 2
@@ -334,6 +330,12 @@ class IsolatedEstimator:
     def tilt(self) -> float:
         roll, pitch = self.planes
         return max(abs(roll.tilt), abs(pitch.tilt))
+
+
+def accelerometer_tilt(a: float, norm: float, offset: float) -> float:
+    """The tilt at which a specific force of magnitude `norm`, `offset` from the body's up in the plane,
+    makes the horizontal acceleration `a` (`IsolatedEstimator._vote_attitude`)."""
+    return math.asin(min(max(a / norm, -1.0), 1.0)) - offset
 
 
 def plane_gain(robot: RobotGeometry, rules: RecoveryRules, rider_mass: float, inertia: float) -> np.ndarray:
