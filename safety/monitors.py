@@ -17,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import Counter, deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 
 import numpy as np
 
@@ -77,8 +77,9 @@ CONTRACT_STEP: dict[str, float] = {
 coarser (xsens: 2^-7 deg, 2^-9 rad/s, 2^-8 m/s²); the stuck check takes each stream's step from its values."""
 MOVED = 3 * ATTITUDE_LSB
 G0 = 9.80665
-Signals = Mapping[str, float | int]
-"""A trusted frame's decoded signals (Received.signals)."""
+Signals = dict[str, float | int]
+"""A trusted frame's decoded signals (Received.signals; a dict, not a Mapping: compiled, its look-ups are
+then the dict's own)."""
 
 
 class Drive:
@@ -253,8 +254,9 @@ class Monitors:
         if not rx.ok:
             return
         s, name = rx.signals, rx.name
-        if name in self._replay:
-            replayed = self._replay[name].frame(tuple(v for k, v in s.items() if k not in (COUNTER, CRC)))
+        replay = self._replay.get(name)
+        if replay is not None:
+            replayed = replay.frame(tuple(v for k, v in s.items() if k not in (COUNTER, CRC)))
             self._found[name, "replay"] = (
                 Finding(
                     Cause.SENSOR_STUCK,

@@ -296,11 +296,7 @@ class IsolatedEstimator:
         self, velocities: Sequence[float | None], rate: Sequence[float] | None, suspects: frozenset[str]
     ) -> tuple[float, float, float] | None:
         """Ball-to-body rates (x, y, z) from the trusted encoders (and the gyro's yaw rate if one is not)."""
-        bad = [
-            i
-            for i, (v, name) in enumerate(zip(velocities, ENCODERS, strict=True))
-            if v is None or name in suspects
-        ]
+        bad = [i for i in range(3) if velocities[i] is None or ENCODERS[i] in suspects]
         if not bad:
             m0, m1, m2 = velocities
             if m0 is not None and m1 is not None and m2 is not None:  # none is bad: always
