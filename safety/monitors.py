@@ -321,11 +321,8 @@ class Monitors:
             turned = (abs(rates[0]) + abs(rates[1]) + abs(rates[2])) * self.period
             evidence = [turned] * 3
             self._imu_motion += turned
-        stuck = [
-            i
-            for i, (checker, moved) in enumerate(zip(self._imu_stuck[name], evidence, strict=True))
-            if checker.sample(s[signals[i]], moved)
-        ]
+        checkers = self._imu_stuck[name]
+        stuck = [i for i in range(3) if checkers[i].sample(s[signals[i]], evidence[i])]
         self._found[name, "stuck"] = (
             Finding(
                 Cause.SENSOR_STUCK,
