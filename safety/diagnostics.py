@@ -138,7 +138,12 @@ class Stuck:
             self.evidence += evidence
         else:
             last = self.last
-            if self.resolution is not None and isinstance(raw, int | float) and isinstance(last, int | float):
+            # Types as a tuple: `int | float` would be made anew at every frame (compiled too).
+            if (
+                self.resolution is not None
+                and isinstance(raw, (int, float))
+                and isinstance(last, (int, float))
+            ):
                 self.resolution.moved(abs(raw - last))
             self.last, self.run, self.evidence = raw, 1, 0.0
         return self.run >= self.required and self.evidence >= self.need

@@ -64,6 +64,8 @@ CHANNEL_INPUT: dict[str, tuple[str, ...]] = {
 }
 """The parts (safety.machine.PARTS) each stream carries, per channel for the IMU ('': none: the yaw angle
 is used by no one)."""
+CROSS_CHECKS = ("yaw", "roll", "pitch", "pitch trend", "roll trend")
+"""The checks `_cross_checks` runs, in its order (the forward speed trend is the pitch plane's)."""
 PLANES = (("roll", "Roll", "RateX"), ("pitch", "Pitch", "RateY"))
 """Per plane: its checks' name, its attitude input, its rate input."""
 ATTITUDE_LSB = 1e-4
@@ -473,9 +475,9 @@ class Monitors:
         ax, ay, _ = world_acceleration(self.imu[MessageName.IMU_ACCEL], roll, pitch)
         found.append(self.trend[0].update(forward + h * math.cos(pitch) * rate[1], ax, dt))
         found.append(self.trend[1].update(left - h * math.cos(roll) * rate[0], ay, dt))
-        for failed, finding in zip(("yaw", "roll", "pitch", "pitch trend", "roll trend"), found, strict=True):
+        for i, finding in enumerate(found):
             if finding is not None:
-                self._failed.add(failed)
+                self._failed.add(CROSS_CHECKS[i])
         return [f for f in found if f is not None]
 
     def findings(self, t: float) -> tuple[Finding, ...]:

@@ -31,6 +31,8 @@ from safety.diagnostics import motor_jacobian
 
 G0 = 9.80665
 ENCODERS = ("Encoder1", "Encoder2", "Encoder3")
+PLANE_INPUTS = (("Roll", "RateX"), ("Pitch", "RateY"))
+"""Per plane (roll, pitch): its attitude input and its rate input."""
 ATTITUDE_WINDOW = 40
 """Ticks (100 ms) over which the IMU point's acceleration is taken for the accelerometer's tilt."""
 ATTITUDE_VOTE = 0.05
@@ -150,9 +152,9 @@ class IsolatedEstimator:
         self._t = t
         rules = self.rules
         planes_ok = True
-        for i, (plane, attitude_name, rate_name) in enumerate(
-            zip(self.planes, ("Roll", "Pitch"), ("RateX", "RateY"), strict=True)
-        ):
+        # Indexed loops here, not zip(..., strict=True): compiled, that is generic iteration every update.
+        for i, plane in enumerate(self.planes):
+            attitude_name, rate_name = PLANE_INPUTS[i]
             measured = None if attitude is None or attitude_name in suspects else attitude[i]
             body_rate = None if rate is None or rate_name in suspects else rate[i]
             if attitude is not None and dt > 0.0:
@@ -183,8 +185,8 @@ class IsolatedEstimator:
             self._vote_attitude(attitude, rate, accel, relative, dt)
         gyro_z = None if rate is None or "RateZ" in suspects else rate[2]
         self.yaw_rate = gyro_z if gyro_z is not None else -relative[2]
-        for plane, rel in zip(self.planes, relative[:2], strict=True):
-            plane.ball_rate = rel + plane.tilt_rate
+        for i, plane in enumerate(self.planes):
+            plane.ball_rate = relative[i] + plane.tilt_rate
             plane.ball_angle += plane.ball_rate * dt
 
     def _track_hypotheses(self, velocities: Sequence[float | None], rate: Sequence[float] | None) -> None:
@@ -199,8 +201,9 @@ class IsolatedEstimator:
         for solve, others in self._leave_one_out:
             candidates.append(solve([known[j] for j in others], rate[2]))
         if self._candidates is not None:
-            for rough, now, before in zip(self._roughness, candidates, self._candidates, strict=True):
-                rough.append(abs(now[0] - before[0]) + abs(now[1] - before[1]))
+            for i, before in enumerate(self._candidates):
+                now = candidates[i]
+                self._roughness[i].append(abs(now[0] - before[0]) + abs(now[1] - before[1]))
         self._candidates = candidates
 
     def _vote_attitude(
