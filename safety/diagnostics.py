@@ -53,7 +53,8 @@ class Window:
 
 
 class Check:
-    """A residual against its bound: `judge` records the peak ratio and returns a finding when over."""
+    """A residual against its bound: `exceeds` records the peak ratio and says when it is over; `finding` says
+    what was seen (its text is built only then: formatting it at every frame cost more than the check)."""
 
     cause: ClassVar[Cause] = Cause.SENSOR_DISAGREE
 
@@ -63,10 +64,13 @@ class Check:
         """The parts a failure isolates by itself (empty: it needs other evidence, safety/monitors.py)."""
         self.peak = 0.0
 
-    def judge(self, residual: float, bound: float, detail: str) -> Finding | None:
+    def exceeds(self, residual: float, bound: float) -> bool:
         ratio = abs(residual) / bound
         self.peak = max(self.peak, ratio)
-        return Finding(self.cause, f"{self.name}: {detail}", self.parts) if ratio > 1.0 else None
+        return ratio > 1.0
+
+    def finding(self, detail: str) -> Finding:
+        return Finding(self.cause, f"{self.name}: {detail}", self.parts)
 
 
 def live_run(step: float, contract: float, noise: float, samples: int) -> float:
@@ -134,7 +138,12 @@ class Stuck:
             self.evidence += evidence
         else:
             last = self.last
-            if self.resolution is not None and isinstance(raw, int | float) and isinstance(last, int | float):
+            # Types as a tuple: `int | float` would be made anew at every frame (compiled too).
+            if (
+                self.resolution is not None
+                and isinstance(raw, (int, float))
+                and isinstance(last, (int, float))
+            ):
                 self.resolution.moved(abs(raw - last))
             self.last, self.run, self.evidence = raw, 1, 0.0
         return self.run >= self.required and self.evidence >= self.need
@@ -189,11 +198,9 @@ class EncoderCheck(Check):
         span = self.time.total
         derived, reported = self.moved.total / span, self.integral.total / span
         bound = self.rules.encoder_tolerance + self.rules.relative * self.magnitude.total / span
-        return self.judge(
-            derived - reported,
-            bound,
-            f"{derived:.2f} rad/s from the position, {reported:.2f} rad/s reported",
-        )
+        if not self.exceeds(derived - reported, bound):
+            return None
+        return self.finding(f"{derived:.2f} rad/s from the position, {reported:.2f} rad/s reported")
 
     def reset(self) -> None:
         """A gap the window must not span (a frame it could not trust)."""
@@ -225,11 +232,9 @@ class YawCheck(Check):
             return None
         span = self.time.total
         bound = self.rules.yaw_tolerance + self.rules.relative * self.magnitude.total / span
-        return self.judge(
-            self.difference.total / span,
-            bound,
-            f"{encoders:.3f} rad/s from the encoders, {gyro:.3f} rad/s from the gyro",
-        )
+        if not self.exceeds(self.difference.total / span, bound):
+            return None
+        return self.finding(f"{encoders:.3f} rad/s from the encoders, {gyro:.3f} rad/s from the gyro")
 
 
 class AttitudeCheck(Check):
@@ -250,11 +255,9 @@ class AttitudeCheck(Check):
         keep = math.exp(-dt / self.rules.attitude_memory)
         self.error = keep * self.error + (angle - previous[0]) - 0.5 * (rate + previous[1]) * dt
         self.allowance = keep * self.allowance + coupling * dt
-        return self.judge(
-            self.error,
-            self.rules.attitude_tolerance + self.allowance,
-            f"attitude ran {self.error * 1e3:+.1f} mrad off the integrated rate",
-        )
+        if not self.exceeds(self.error, self.rules.attitude_tolerance + self.allowance):
+            return None
+        return self.finding(f"attitude ran {self.error * 1e3:+.1f} mrad off the integrated rate")
 
     def reset(self) -> None:
         self.previous, self.error, self.allowance = None, 0.0, 0.0
@@ -284,11 +287,9 @@ class TrendCheck(Check):
             return None
         v0, i0 = self.history[0]
         changed, integrated = velocity - v0, self.integral - i0
-        return self.judge(
-            changed - integrated,
-            self.rules.trend_tolerance,
-            f"speed changed {changed:+.3f} m/s, the accelerometer says {integrated:+.3f} m/s",
-        )
+        if not self.exceeds(changed - integrated, self.rules.trend_tolerance):
+            return None
+        return self.finding(f"speed changed {changed:+.3f} m/s, the accelerometer says {integrated:+.3f} m/s")
 
     def reset(self) -> None:
         self.history.clear()

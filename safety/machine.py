@@ -196,64 +196,107 @@ class Finding:
     parts: tuple[str, ...] = ()
 
 
-@dataclass(frozen=True, slots=True)
+# The records made every update (DriveReport, Observation, Forward, Decision) are plain classes with a typed
+# __init__, not dataclasses: compiled (mypyc), a dataclass keeps the __init__ the dataclasses module writes
+# in Python, a plain class gets a native one. They are not changed once made.
+
+
 class DriveReport:
     """One drive as its feedback and its commands show it."""
 
-    enabled: bool | None
-    """DRIVEn_FEEDBACK.Enabled of the last trusted frame (None: no fresh one)."""
-    watchdog: bool = False
-    """WatchdogTripped: the drive turned itself off because its commands stopped."""
-    fault: bool = False
-    bus_powered: bool | None = None
-    """BusPowered: its DC bus is live (the main contactor is closed)."""
-    commanded_for: float = 0.0
-    """s the controller has asked it to enable without a break (DRIVEn_COMMAND.Enable = 1)."""
+    def __init__(
+        self,
+        enabled: bool | None,
+        watchdog: bool = False,
+        fault: bool = False,
+        bus_powered: bool | None = None,
+        commanded_for: float = 0.0,
+    ):
+        self.enabled = enabled
+        """DRIVEn_FEEDBACK.Enabled of the last trusted frame (None: no fresh one)."""
+        self.watchdog = watchdog
+        """WatchdogTripped: the drive turned itself off because its commands stopped."""
+        self.fault = fault
+        self.bus_powered = bus_powered
+        """BusPowered: its DC bus is live (the main contactor is closed)."""
+        self.commanded_for = commanded_for
+        """s the controller has asked it to enable without a break (DRIVEn_COMMAND.Enable = 1)."""
 
 
-@dataclass(frozen=True, slots=True)
 class Observation:
     """What the supervisor knows at time t, from the bus and zenoh only (never the plant's truth)."""
 
-    t: float
-    speed: float | None
-    """Ground speed estimate, m/s (None: no estimate, a speed stream is silent)."""
-    tilt: float | None
-    """Largest chassis tilt of the two planes, rad."""
-    ages: Mapping[str, float]
-    """Seconds since the last trusted frame or payload per stream in STREAMS (inf: never)."""
-    controller_state: int | None = None
-    """The controller's last heartbeat State (None: never heard)."""
-    torque_peak: float = 0.0
-    """Largest |torque command| since the previous observation, Nm."""
-    e2e_errors: int = 0
-    """E2E errors within the configured window."""
-    seat_load: float | None = None
-    """The rider's weight on the seat (−Fz), N."""
-    button: bool = False
-    """The wired e-stop (OPERATOR_ESTOP frame) is pressed."""
-    request: Request | None = None
-    operator: str | None = None
-    """An operator command since the previous observation: 'estop' or 'reset'."""
-    operator_source: str = ""
-    findings: tuple[Finding, ...] = ()
-    """Diagnostics failing now (FINDINGS causes)."""
-    drives: tuple[DriveReport, ...] = ()
-    """The three drives (empty: not known to this observer; a stop can then not be confirmed)."""
-    recoverable: bool = False
-    """The recovery law has what it needs to balance (attitude or rate per plane, and the ball's rates from
-    three encoders or two and the yaw rate, none of them found faulty). False: no takeover is possible."""
+    def __init__(
+        self,
+        t: float,
+        speed: float | None,
+        tilt: float | None,
+        ages: Mapping[str, float],
+        controller_state: int | None = None,
+        torque_peak: float = 0.0,
+        e2e_errors: int = 0,
+        seat_load: float | None = None,
+        button: bool = False,
+        request: Request | None = None,
+        operator: str | None = None,
+        operator_source: str = "",
+        findings: tuple[Finding, ...] = (),
+        drives: tuple[DriveReport, ...] = (),
+        recoverable: bool = False,
+    ):
+        self.t = t
+        self.speed = speed
+        """Ground speed estimate, m/s (None: no estimate, a speed stream is silent)."""
+        self.tilt = tilt
+        """Largest chassis tilt of the two planes, rad."""
+        self.ages = ages
+        """Seconds since the last trusted frame or payload per stream in STREAMS (inf: never)."""
+        self.controller_state = controller_state
+        """The controller's last heartbeat State (None: never heard)."""
+        self.torque_peak = torque_peak
+        """Largest |torque command| since the previous observation, Nm."""
+        self.e2e_errors = e2e_errors
+        """E2E errors within the configured window."""
+        self.seat_load = seat_load
+        """The rider's weight on the seat (−Fz), N."""
+        self.button = button
+        """The wired e-stop (OPERATOR_ESTOP frame) is pressed."""
+        self.request = request
+        self.operator = operator
+        """An operator command since the previous observation: 'estop' or 'reset'."""
+        self.operator_source = operator_source
+        self.findings = findings
+        """Diagnostics failing now (FINDINGS causes)."""
+        self.drives = drives
+        """The three drives (empty: not known to this observer; a stop can then not be confirmed)."""
+        self.recoverable = recoverable
+        """The recovery law has what it needs to balance (attitude or rate per plane, and the ball's rates
+        from three encoders or two and the yaw rate, none of them found faulty). False: no takeover is
+        possible."""
 
 
-@dataclass(frozen=True, slots=True)
 class Forward:
     """The SC command the supervisor lets through (pure/sc/command)."""
 
-    mode: Literal["idle", "limit"]
-    """Never 'free': what it lets through is always capped (0: idle)."""
-    cap: float
-    source: str
-    reason: str
+    def __init__(self, mode: Literal["idle", "limit"], cap: float, source: str, reason: str):
+        self.mode: Literal["idle", "limit"] = mode
+        """Never 'free': what it lets through is always capped (0: idle)."""
+        self.cap = cap
+        self.source = source
+        self.reason = reason
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Forward):
+            return NotImplemented
+        return (
+            self.mode == other.mode
+            and self.cap == other.cap
+            and self.source == other.source
+            and self.reason == other.reason
+        )
+
+    def __repr__(self) -> str:
+        return f"Forward({self.mode!r}, {self.cap!r}, {self.source!r}, {self.reason!r})"
 
 
 @dataclass(frozen=True, slots=True)
@@ -271,24 +314,43 @@ class Event:
     values: dict[str, float | None] = field(default_factory=dict)
 
 
-@dataclass(frozen=True, slots=True)
 class Decision:
-    state: State
-    cause: Cause
-    drives_permitted: bool
-    cap: float
-    """The cap in force, m/s."""
-    command: Forward
-    since: float
-    contactor_closed: bool = True
-    """The main contactor may stay closed (SUPERVISOR_ESTOP.Contactor)."""
-    takeover: bool = False
-    """The recovery law holds the drives (SUPERVISOR_ESTOP.Takeover): they follow SUPERVISOR_RECOVERY only."""
-    alert: int = 0
-    """What the rider is told: 0 nothing, 1 slow down, 2 stop, sit up and hold still."""
-    estop_by: str = ""
-    """Whose operator e-stop (or category-0 cut) is latched ('' none): the robot ends in ESTOP and waits
-    for a reset, whatever stop was already under way when it came."""
+    def __init__(
+        self,
+        state: State,
+        cause: Cause,
+        drives_permitted: bool,
+        cap: float,
+        command: Forward,
+        since: float,
+        contactor_closed: bool = True,
+        takeover: bool = False,
+        alert: int = 0,
+        estop_by: str = "",
+    ):
+        self.state = state
+        self.cause = cause
+        self.drives_permitted = drives_permitted
+        self.cap = cap
+        """The cap in force, m/s."""
+        self.command = command
+        self.since = since
+        self.contactor_closed = contactor_closed
+        """The main contactor may stay closed (SUPERVISOR_ESTOP.Contactor)."""
+        self.takeover = takeover
+        """The recovery law holds the drives (SUPERVISOR_ESTOP.Takeover): they follow SUPERVISOR_RECOVERY
+        only."""
+        self.alert = alert
+        """What the rider is told: 0 nothing, 1 slow down, 2 stop, sit up and hold still."""
+        self.estop_by = estop_by
+        """Whose operator e-stop (or category-0 cut) is latched ('' none): the robot ends in ESTOP and waits
+        for a reset, whatever stop was already under way when it came."""
+
+
+def silent(ages: Mapping[str, float], stream: str, timeout: float, armed: bool) -> bool:
+    """The stream's last input is older than `timeout` (one never heard counts only once `armed`)."""
+    age = ages.get(stream, math.inf)
+    return age > timeout and (armed or age != math.inf)
 
 
 class Supervisor:
@@ -371,14 +433,9 @@ class Supervisor:
         """The first immediate cause that holds, from source to consequence, and what it saw."""
         c, w = self.config, self.config.watchdogs
         ages = obs.ages
-
-        def silent(stream: str, timeout: float) -> bool:
-            age = ages.get(stream, math.inf)
-            return age > timeout and (armed or age != math.inf)
-
         if obs.operator == "cut_power":
             return Cause.OPERATOR_CUT, f"by {obs.operator_source or '?'}"
-        if silent("heartbeat", w.heartbeat):
+        if silent(ages, "heartbeat", w.heartbeat, armed):
             return Cause.HEARTBEAT_LOST, ""
         tripped = next((i for i, d in enumerate(obs.drives, 1) if d.watchdog), None)
         heartbeat_age = ages.get("heartbeat", math.inf)
@@ -389,9 +446,9 @@ class Supervisor:
             )
         if obs.controller_state == FAULT:
             return Cause.CONTROLLER_FAULT, ""
-        if silent("drives", w.drives):
+        if silent(ages, "drives", w.drives, armed):
             return Cause.DRIVES_SILENT, ""
-        if silent("imu", w.imu):
+        if silent(ages, "imu", w.imu, armed):
             return Cause.IMU_SILENT, ""
         if obs.tilt is not None and obs.tilt > self.tilt_limit:
             return Cause.TILT, ""

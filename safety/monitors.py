@@ -17,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections import Counter, deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 
 import numpy as np
 
@@ -64,6 +64,8 @@ CHANNEL_INPUT: dict[str, tuple[str, ...]] = {
 }
 """The parts (safety.machine.PARTS) each stream carries, per channel for the IMU ('': none: the yaw angle
 is used by no one)."""
+CROSS_CHECKS = ("yaw", "roll", "pitch", "pitch trend", "roll trend")
+"""The checks `_cross_checks` runs, in its order (the forward speed trend is the pitch plane's)."""
 PLANES = (("roll", "Roll", "RateX"), ("pitch", "Pitch", "RateY"))
 """Per plane: its checks' name, its attitude input, its rate input."""
 ATTITUDE_LSB = 1e-4
@@ -77,8 +79,9 @@ CONTRACT_STEP: dict[str, float] = {
 coarser (xsens: 2^-7 deg, 2^-9 rad/s, 2^-8 m/s²); the stuck check takes each stream's step from its values."""
 MOVED = 3 * ATTITUDE_LSB
 G0 = 9.80665
-Signals = Mapping[str, float | int]
-"""A trusted frame's decoded signals (Received.signals)."""
+Signals = dict[str, float | int]
+"""A trusted frame's decoded signals (Received.signals; a dict, not a Mapping: compiled, its look-ups are
+then the dict's own)."""
 
 
 class Drive:
@@ -253,8 +256,9 @@ class Monitors:
         if not rx.ok:
             return
         s, name = rx.signals, rx.name
-        if name in self._replay:
-            replayed = self._replay[name].frame(tuple(v for k, v in s.items() if k not in (COUNTER, CRC)))
+        replay = self._replay.get(name)
+        if replay is not None:
+            replayed = replay.frame(tuple(v for k, v in s.items() if k not in (COUNTER, CRC)))
             self._found[name, "replay"] = (
                 Finding(
                     Cause.SENSOR_STUCK,
@@ -319,11 +323,8 @@ class Monitors:
             turned = (abs(rates[0]) + abs(rates[1]) + abs(rates[2])) * self.period
             evidence = [turned] * 3
             self._imu_motion += turned
-        stuck = [
-            i
-            for i, (checker, moved) in enumerate(zip(self._imu_stuck[name], evidence, strict=True))
-            if checker.sample(s[signals[i]], moved)
-        ]
+        checkers = self._imu_stuck[name]
+        stuck = [i for i in range(3) if checkers[i].sample(s[signals[i]], evidence[i])]
         self._found[name, "stuck"] = (
             Finding(
                 Cause.SENSOR_STUCK,
@@ -391,8 +392,10 @@ class Monitors:
         speed-trend check the plane's attitude, rate or accelerometer by the accelerometer's own tilt
         (safety/recovery.py `blame`)."""
         named = self._named
-        out = set(named)
         failed = self._failed
+        if not failed:
+            return frozenset(named)
+        out = set(named)
         if "yaw" in failed and not named & {"Encoder1", "Encoder2", "Encoder3", "RateZ"}:
             out.add(self.isolated.odd_one_out())
         for i, (plane, attitude, rate) in enumerate(PLANES):
@@ -472,9 +475,9 @@ class Monitors:
         ax, ay, _ = world_acceleration(self.imu[MessageName.IMU_ACCEL], roll, pitch)
         found.append(self.trend[0].update(forward + h * math.cos(pitch) * rate[1], ax, dt))
         found.append(self.trend[1].update(left - h * math.cos(roll) * rate[0], ay, dt))
-        for failed, finding in zip(("yaw", "roll", "pitch", "pitch trend", "roll trend"), found, strict=True):
+        for i, finding in enumerate(found):
             if finding is not None:
-                self._failed.add(failed)
+                self._failed.add(CROSS_CHECKS[i])
         return [f for f in found if f is not None]
 
     def findings(self, t: float) -> tuple[Finding, ...]:
@@ -506,23 +509,22 @@ class Monitors:
 
     def _isolate(self, t: float) -> None:
         """Feed the recovery law's estimator with the fresh trusted streams and what the diagnosis names."""
-        imu = self.config.watchdogs.imu
-        seen = self._imu_seen
-
-        def fresh(name: MessageName) -> list[float] | None:
-            return self.imu[name] if t - seen[name] <= imu else None
-
         drives = self.config.watchdogs.drives
         self.named = self.suspects()
+        failed = self._failed
         self.isolated.update(
             t,
-            fresh(MessageName.IMU_ATTITUDE),
-            fresh(MessageName.IMU_RATE),
+            self._fresh_imu(MessageName.IMU_ATTITUDE, t),
+            self._fresh_imu(MessageName.IMU_RATE, t),
             [d.velocity if t - d.seen <= drives else None for d in self.drives],
             self.named,
-            fresh(MessageName.IMU_ACCEL),
-            frozenset(a for p, a, _ in PLANES if p in self._failed or f"{p} trend" in self._failed),
+            self._fresh_imu(MessageName.IMU_ACCEL, t),
+            frozenset(a for p, a, _ in PLANES if p in failed or f"{p} trend" in failed),
         )
+
+    def _fresh_imu(self, name: str, t: float) -> list[float] | None:
+        """An IMU stream's last values if fresh (None: silent)."""
+        return self.imu[name] if t - self._imu_seen[name] <= self.config.watchdogs.imu else None
 
     def margins(self) -> dict[str, float]:
         """Each check's largest |residual| / bound so far (1: where it would fire)."""

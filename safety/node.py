@@ -82,6 +82,10 @@ class SupervisorNode:
         self._events_seen = 0
         self._sc_seq = self._state_seq = self._alert_seq = 0
         self._diagnosis: dict[str, int] = {}
+        """The diagnosis last sent."""
+        self._diagnosis_now: dict[str, int] = {}
+        self._diagnosis_shown: tuple[frozenset[str], int] | None = None
+        """What `_diagnosis_now` shows: (the parts named, the alert)."""
         self._frame_sent = self._sc_sent = self._state_sent = -math.inf
         self._forwarded: Forward | None = None
         self._estop_by = ""
@@ -122,7 +126,18 @@ class SupervisorNode:
         self._drain_zenoh(t, fence)
         self.observation = self.monitors.observe(t)
         decision = self.machine.update(self.observation)
+        changed, refused = False, ""
+        if len(self.machine.events) > self._events_seen:  # most updates make no event
+            changed, refused = self._take_events()
+        self.decision = decision
+        self._emit(t, decision, changed, refused)
+        return decision
+
+    def _take_events(self) -> tuple[bool, str]:
+        """Act on the machine's new events and log them: whether the state or the contactor changed, and
+        why the last reset was refused ('' none)."""
         new = self.machine.events[self._events_seen :]
+        self._events_seen = len(self.machine.events)
         changed = any(e.kind in ("transition", "contactor_opened") for e in new)
         if any(e.kind == "transition" and e.to_state == State.RECOVERY.name for e in new):
             self.monitors.isolated.engage()
@@ -140,10 +155,7 @@ class SupervisorNode:
                 event.cause,
                 event.detail,
             )
-        self._events_seen = len(self.machine.events)
-        self.decision = decision
-        self._emit(t, decision, changed, refused)
-        return decision
+        return changed, refused
 
     def _emit(self, t: float, d: Decision, changed: bool, refused: str = "") -> None:
         out = self.config.output
@@ -194,8 +206,13 @@ class SupervisorNode:
             )
 
     def _diagnosis_signals(self, d: Decision) -> dict[str, int]:
-        named = self.monitors.named
-        return {**{name: int(name in named) for name in PARTS}, "Alert": d.alert}
+        """SUPERVISOR_DIAGNOSIS's signals, made again only when what they show changed."""
+        shown = (self.monitors.named, d.alert)
+        if shown != self._diagnosis_shown:
+            named = self.monitors.named
+            self._diagnosis_now = {**{name: int(name in named) for name in PARTS}, "Alert": d.alert}
+            self._diagnosis_shown = shown
+        return self._diagnosis_now
 
     def _recover(self, d: Decision) -> None:
         """While the recovery law holds the drives: its torques for this tick, every update."""

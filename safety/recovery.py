@@ -31,6 +31,8 @@ from safety.diagnostics import motor_jacobian
 
 G0 = 9.80665
 ENCODERS = ("Encoder1", "Encoder2", "Encoder3")
+PLANE_INPUTS = (("Roll", "RateX"), ("Pitch", "RateY"))
+"""Per plane (roll, pitch): its attitude input and its rate input."""
 ATTITUDE_WINDOW = 40
 """Ticks (100 ms) over which the IMU point's acceleration is taken for the accelerometer's tilt."""
 ATTITUDE_VOTE = 0.05
@@ -150,9 +152,9 @@ class IsolatedEstimator:
         self._t = t
         rules = self.rules
         planes_ok = True
-        for i, (plane, attitude_name, rate_name) in enumerate(
-            zip(self.planes, ("Roll", "Pitch"), ("RateX", "RateY"), strict=True)
-        ):
+        # Indexed loops here, not zip(..., strict=True): compiled, that is generic iteration every update.
+        for i, plane in enumerate(self.planes):
+            attitude_name, rate_name = PLANE_INPUTS[i]
             measured = None if attitude is None or attitude_name in suspects else attitude[i]
             body_rate = None if rate is None or rate_name in suspects else rate[i]
             if attitude is not None and dt > 0.0:
@@ -183,8 +185,8 @@ class IsolatedEstimator:
             self._vote_attitude(attitude, rate, accel, relative, dt)
         gyro_z = None if rate is None or "RateZ" in suspects else rate[2]
         self.yaw_rate = gyro_z if gyro_z is not None else -relative[2]
-        for plane, rel in zip(self.planes, relative[:2], strict=True):
-            plane.ball_rate = rel + plane.tilt_rate
+        for i, plane in enumerate(self.planes):
+            plane.ball_rate = relative[i] + plane.tilt_rate
             plane.ball_angle += plane.ball_rate * dt
 
     def _track_hypotheses(self, velocities: Sequence[float | None], rate: Sequence[float] | None) -> None:
@@ -199,8 +201,9 @@ class IsolatedEstimator:
         for solve, others in self._leave_one_out:
             candidates.append(solve([known[j] for j in others], rate[2]))
         if self._candidates is not None:
-            for rough, now, before in zip(self._roughness, candidates, self._candidates, strict=True):
-                rough.append(abs(now[0] - before[0]) + abs(now[1] - before[1]))
+            for i, before in enumerate(self._candidates):
+                now = candidates[i]
+                self._roughness[i].append(abs(now[0] - before[0]) + abs(now[1] - before[1]))
         self._candidates = candidates
 
     def _vote_attitude(
@@ -242,12 +245,8 @@ class IsolatedEstimator:
             if norm < 1.0:
                 continue  # free fall or a dead accelerometer: no tilt to be had
             offset = math.atan2(f_fwd, f_up)
-
-            def tilt(a: float, norm: float = norm, offset: float = offset) -> float:
-                return math.asin(min(max(a / norm, -1.0), 1.0)) - offset
-
-            tilt_if_rate_wrong = tilt((v_attitude - first[1]) / span)
-            tilt_if_attitude_wrong = tilt((v_rate - first[0]) / span)
+            tilt_if_rate_wrong = accelerometer_tilt((v_attitude - first[1]) / span, norm, offset)
+            tilt_if_attitude_wrong = accelerometer_tilt((v_rate - first[0]) / span, norm, offset)
             # The accelerometer's tilt is the window's mean: compare with the tilt half a window ago.
             k = min(dt / ATTITUDE_VOTE, 1.0)
             lag = rate[i] * span / 2
@@ -300,11 +299,7 @@ class IsolatedEstimator:
         self, velocities: Sequence[float | None], rate: Sequence[float] | None, suspects: frozenset[str]
     ) -> tuple[float, float, float] | None:
         """Ball-to-body rates (x, y, z) from the trusted encoders (and the gyro's yaw rate if one is not)."""
-        bad = [
-            i
-            for i, (v, name) in enumerate(zip(velocities, ENCODERS, strict=True))
-            if v is None or name in suspects
-        ]
+        bad = [i for i in range(3) if velocities[i] is None or ENCODERS[i] in suspects]
         if not bad:
             m0, m1, m2 = velocities
             if m0 is not None and m1 is not None and m2 is not None:  # none is bad: always
@@ -334,6 +329,12 @@ class IsolatedEstimator:
     def tilt(self) -> float:
         roll, pitch = self.planes
         return max(abs(roll.tilt), abs(pitch.tilt))
+
+
+def accelerometer_tilt(a: float, norm: float, offset: float) -> float:
+    """The tilt at which a specific force of magnitude `norm`, `offset` from the body's up in the plane,
+    makes the horizontal acceleration `a` (`IsolatedEstimator._vote_attitude`)."""
+    return math.asin(min(max(a / norm, -1.0), 1.0)) - offset
 
 
 def plane_gain(robot: RobotGeometry, rules: RecoveryRules, rider_mass: float, inertia: float) -> np.ndarray:
