@@ -39,7 +39,8 @@ COMPILED = [
     "safety/arbiter.py",
     "safety/node.py",
     # The reference controller: its estimator, balancer, commanded speed and yaw, step and node
-    # (controller/embedded.py, its handle, stays Python: benchmarks/lockstep.py times its poll by wrapping it).
+    # (controller/embedded.py, its handle, stays Python: benchmarks/lockstep.py times its poll by wrapping
+    # it).
     "controller/estimator.py",
     "controller/balance.py",
     "controller/command.py",
