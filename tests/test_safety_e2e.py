@@ -237,8 +237,12 @@ def test_a_supervisor_behind_the_rig_judges_each_zenoh_input_at_the_tick_it_was_
 
     # Control: the same puts untagged (as before the fix) are judged at whatever tick the supervisor is at
     # when they arrive: here, held at k - 1 or further behind, before their own tick.
-    untagged = ZenohLink.put_bytes
-    monkeypatch.setattr(ZenohLink, "put_bytes", lambda link, key, data, tick=None: untagged(link, key, data))
+    class UntaggedRig(AheadRig):
+        def _put_bytes(self, tick, key, data, link=None):
+            (link or self.link).put_bytes(key, data)
+            self._record(tick, key, data)
+
+    monkeypatch.setattr(build, "Rig", UntaggedRig)
     put.clear()
     early = first(external_supervisor_run(scenario, rx_hook=held_at_the_tick_before).trace, "OPERATOR_ESTOP")
     assert early.t < k * TICK - TICK / 2

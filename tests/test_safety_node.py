@@ -10,7 +10,7 @@ import pytest
 
 from drivers.bus_config import BusConfig
 from drivers.can_bus import CanNode, open_bus, private_channel
-from drivers.schemas import ScCommand, ScRequest, TesWrench
+from drivers.schemas import EstopCommand, ScCommand, ScRequest, TesWrench
 from drivers.zenoh_link import ZenohLink, open_session
 from hil.bench.rigs import HUB_VARIABLE, announce
 from hil.cli import main
@@ -215,15 +215,16 @@ def test_an_estop_without_a_hub_never_reaches_another_rig(bench, tmp_path, monke
 
 
 def test_estop_confirms_its_own_latch_when_a_stop_is_already_under_way(bench, capsys):
-    endpoint, node, robot, _ = bench
+    endpoint, node, robot, link = bench
     time.sleep(0.7)
     robot.heartbeat = False  # the supervisor stops for its own cause first
     assert wait_for(lambda: node.machine.cause.name == "HEARTBEAT_LOST", 2.0)
     assert main(["estop", "--hub", endpoint, "--source", "dave"]) == 0
     out = capsys.readouterr().out
     assert "estop by dave latched" in out and "HEARTBEAT_LOST" in out
-    # Positive control: a supervisor that takes in no operator command confirms nothing.
-    node.operator.drain = lambda: []
+    # Positive control: a supervisor that takes in no operator command confirms nothing (its operator
+    # subscription swapped for one on a key nobody puts to: a compiled Subscription cannot be patched).
+    node.operator = link.subscribe(link.keys.rig("deaf"), EstopCommand)
     assert main(["estop", "--hub", endpoint, "--source", "erin", "--timeout", "1"]) == 1
     assert "nothing confirmed its estop latched" in capsys.readouterr().err
 
