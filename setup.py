@@ -50,7 +50,7 @@ COMPILED = [
     "hil/run/rig.py",
     # The plant: its tick and outputs, drives, rider's torso, planar dynamics, sensors and wheel maps (Plant
     # and MotorDrive allow Python subclasses, which benchmarks/lockstep.py and tests/test_failop.py use:
-    # plant/native.py). Not plant/rider.py: msgspec does not see the class keywords (tag=..., frozen=True)
+    # @mypyc_attr). Not plant/rider.py: msgspec does not see the class keywords (tag=..., frozen=True)
     # of a Struct compiled by mypyc, and the rider's segments are a tagged union (its per-tick maths is
     # plant/torso.py).
     "plant/ballbot.py",

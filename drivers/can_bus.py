@@ -21,11 +21,11 @@ from pathlib import Path
 from typing import Any
 
 import can
+from mypy_extensions import mypyc_attr
 
 from drivers.bus_config import BusConfig, BusConfigError
 from drivers.can_codec import CanCodecError, Catalog, MessageCodec
 from drivers.e2e import E2EChecker, E2EEvent, E2EProtector, E2EStatus, is_protected
-from drivers.native import mypyc_attr
 
 log = logging.getLogger(__name__)
 

@@ -15,7 +15,8 @@ import math
 from dataclasses import dataclass
 from enum import IntEnum
 
-from plant.native import mypyc_attr
+from mypy_extensions import mypyc_attr
+
 from plant.params import Drive
 
 

@@ -16,7 +16,7 @@ ALLOWED = {
     "plant": set(),
 }
 # plant/ is physics only: numerics and typed records, nothing that does I/O, threads or clocks.
-PLANT_THIRD_PARTY = {"numpy", "scipy", "msgspec", "mypy_extensions"}  # mypy_extensions: plant/native.py
+PLANT_THIRD_PARTY = {"numpy", "scipy", "msgspec", "mypy_extensions"}  # mypy_extensions: @mypyc_attr
 PLANT_FORBIDDEN_STDLIB = {"time", "threading", "socket", "os", "io", "asyncio", "subprocess", "pathlib"}
 
 

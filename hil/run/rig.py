@@ -29,10 +29,11 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
+from mypy_extensions import mypyc_attr
+
 from drivers.can_bus import BusRecorder, CanNode, Received
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MessageName
 from drivers.dut import DutHandle
-from drivers.native import mypyc_attr
 from drivers.schemas import (
     TICK_MODULO,
     ControllerCommand,
