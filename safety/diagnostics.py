@@ -313,15 +313,11 @@ class TorqueCheck(Check):
             return None
         expected = min(max(commanded, -self.limit), self.limit) if producing else 0.0
         bound = self.tolerance + self.relative * abs(expected)
-        self.peak = max(self.peak, abs(measured - expected) / bound)
-        self.over = self.over + 1 if abs(measured - expected) > bound else 0
+        self.over = self.over + 1 if self.exceeds(measured - expected, bound) else 0
         if self.over < self.samples:
             return None
-        return Finding(
-            self.cause,
-            f"{self.name}: measured {measured:+.3f} Nm, expected {expected:+.3f} Nm "
-            f"for {self.over} samples in a row",
-            self.parts,
+        return self.finding(
+            f"measured {measured:+.3f} Nm, expected {expected:+.3f} Nm for {self.over} samples in a row"
         )
 
 
@@ -359,14 +355,13 @@ class SeatCheck(Check):
         values = (*force, *moment)
         self.history.append(values)
         if self.stuck.sample(values, moved):
-            return Finding(self.cause, f"seat: every value frozen for {self.stuck.run} samples")
+            return self.finding(f"every value frozen for {self.stuck.run} samples")
         # A dead or frozen cell only shifts the wrench along its own calibration column, often by less
         # than the weight band allows (a lean unloads it); its raw reading repeating shows it at once.
         for i, value in enumerate(cells or ()):
             if self.cells_stuck[i].sample(value, moved):
-                return Finding(
-                    self.cause,
-                    f"seat: load cell {i + 1} reads {value:.1f} N, unchanged for {self.cells_stuck[i].run} "
+                return self.finding(
+                    f"load cell {i + 1} reads {value:.1f} N, unchanged for {self.cells_stuck[i].run} "
                     "samples while the chassis moved",
                 )
         load = -force[2]
@@ -384,30 +379,27 @@ class SeatCheck(Check):
         if load >= self.min_load:
             over = self._ratio("weight", abs(load - expected), r.weight_band * self.tare)
             if over:
-                return Finding(
-                    self.cause,
-                    f"seat: load {load:.0f} N, a rider tared at {self.tare:.0f} N gives {expected:.0f} N",
+                return self.finding(
+                    f"load {load:.0f} N, a rider tared at {self.tare:.0f} N gives {expected:.0f} N",
                 )
             distance = math.hypot(*cop)
             if self._ratio("cop", distance, r.radius):
-                return Finding(self.cause, f"seat: centre of pressure {distance:.3f} m off the centre")
+                return self.finding(f"centre of pressure {distance:.3f} m off the centre")
             fx, fy, fz = force
             mx, my, _ = moment
             h = self.seat_height
             derived = ((h * fx - my) / fz, (mx + h * fy) / fz)
             gap = math.hypot(derived[0] - cop[0], derived[1] - cop[1])
             if self._ratio("consistency", gap, r.cop_tolerance):
-                return Finding(
-                    self.cause, f"seat: reported COP {gap * 1e3:.0f} mm from the force and moment's"
-                )
+                return self.finding(f"reported COP {gap * 1e3:.0f} mm from the force and moment's")
         if len(self.history) == self.history.maxlen:
             old = self.history[0]
             dforce = max(abs(values[i] - old[i]) for i in range(3)) / self.span
             dmoment = max(abs(values[i] - old[i]) for i in range(3, 6)) / self.span
             if self._ratio("force rate", dforce, r.force_rate):
-                return Finding(self.cause, f"seat: force changing at {dforce:.0f} N/s")
+                return self.finding(f"force changing at {dforce:.0f} N/s")
             if self._ratio("moment rate", dmoment, r.moment_rate):
-                return Finding(self.cause, f"seat: moment changing at {dmoment:.0f} Nm/s")
+                return self.finding(f"moment changing at {dmoment:.0f} Nm/s")
         return None
 
     def _ratio(self, part: str, value: float, bound: float) -> bool:
