@@ -48,6 +48,10 @@ DRIVE_COMMAND = (MessageName.DRIVE1_COMMAND, MessageName.DRIVE2_COMMAND, Message
 DRIVE_FEEDBACK = (MessageName.DRIVE1_FEEDBACK, MessageName.DRIVE2_FEEDBACK, MessageName.DRIVE3_FEEDBACK)
 DRIVE_TORQUE = (MessageName.DRIVE1_TORQUE, MessageName.DRIVE2_TORQUE, MessageName.DRIVE3_TORQUE)
 """Each drive's messages, in motor order (motor 1 first)."""
+MOTOR_OF: dict[str, int] = {
+    name: motor for names in (DRIVE_FEEDBACK, DRIVE_COMMAND, DRIVE_TORQUE) for motor, name in enumerate(names)
+}
+"""Which motor (0, 1, 2) a drive's message is about, keyed as a frame carries its name (a str)."""
 
 
 class CanCodecError(ValueError):

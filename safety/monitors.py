@@ -22,7 +22,7 @@ from collections.abc import Callable
 import numpy as np
 
 from drivers.can_bus import Received
-from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MessageName
+from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MOTOR_OF, MessageName
 from drivers.e2e import COUNTER, COUNTER_MODULO, CRC, E2EStatus
 from drivers.schemas import EstopCommand, ScRequest, TesWrench
 from safety.arbiter import ScArbiter
@@ -43,11 +43,6 @@ from safety.diagnostics import (
 from safety.machine import STREAMS, Cause, DriveReport, Finding, Observation, Request
 from safety.recovery import ENCODERS, IsolatedEstimator, leave_one_out
 
-# Keyed by message name as a frame carries it (Received.name, a str; MessageName members are str).
-MOTOR: dict[str, int] = {
-    name: motor for names in (DRIVE_FEEDBACK, DRIVE_COMMAND, DRIVE_TORQUE) for motor, name in enumerate(names)
-}
-"""Which motor (0, 1, 2) a drive's message is about."""
 IMU_CHANNELS: dict[str, tuple[str, str, str]] = {
     MessageName.IMU_ATTITUDE: ("Roll", "Pitch", "Yaw"),
     MessageName.IMU_RATE: ("RateX", "RateY", "RateZ"),
@@ -274,13 +269,13 @@ class Monitors:
             read(name, s, t, 0 if e2e is None else e2e.lost)
 
     def _feedback(self, name: str, s: Signals, t: float, lost: int) -> None:
-        self.drives[MOTOR[name]].feedback(s, t, lost)
+        self.drives[MOTOR_OF[name]].feedback(s, t, lost)
         self.last["drives"] = min(d.seen for d in self.drives)
 
     def _commanded(self, name: str, s: Signals, t: float, lost: int) -> None:
         self.torque_peak = max(self.torque_peak, abs(float(s["Torque"])))
         if not self.recovering:
-            self.drives[MOTOR[name]].commanded(s, t)
+            self.drives[MOTOR_OF[name]].commanded(s, t)
 
     def recovery_commanded(self, torques: tuple[float, float, float]) -> None:
         """The recovery law holds the drives: its commands are the ones they follow (for the torque check),
@@ -290,7 +285,7 @@ class Monitors:
             drive.command = (torque, True)
 
     def _measured(self, name: str, s: Signals, t: float, lost: int) -> None:
-        self.drives[MOTOR[name]].measured(float(s["Torque"]))
+        self.drives[MOTOR_OF[name]].measured(float(s["Torque"]))
 
     def _heartbeat(self, name: str, s: Signals, t: float, lost: int) -> None:
         self.controller_state = int(s["State"])

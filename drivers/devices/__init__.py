@@ -22,7 +22,7 @@ import can
 import msgspec
 
 from drivers.can_bus import CanNode, Received
-from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, Catalog, MessageName
+from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MOTOR_OF, Catalog, MessageName
 
 Role = Literal["controller", "supervisor"]
 DRIVE_PROFILES = ("pure", "odrive", "cia402")
@@ -259,7 +259,7 @@ class DriveHost(Translator):
             return [m for i, torque in enumerate(torques) for m in self._recovery(i, torque)]
         if self.takeover:
             return []  # one master at a time (docs/contract.md): the recovery law's torques hold the drives
-        return self._command(DRIVE_COMMAND.index(name), float(values["Torque"]), bool(values["Enable"]))
+        return self._command(MOTOR_OF[name], float(values["Torque"]), bool(values["Enable"]))
 
     def _estop_frames(self, values: Mapping[str, float]) -> list[can.Message]:
         """The contract's SUPERVISOR_ESTOP (the drives' permission line) and, on an e-stop's rising edge, the

@@ -24,7 +24,7 @@ import canopen
 from canopen.pdo.base import PdoBase, PdoMaps
 
 from drivers.can_bus import Received
-from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE
+from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MOTOR_OF
 from drivers.devices import Devices, Translator
 from drivers.devices.cia402 import (
     CST,
@@ -342,18 +342,17 @@ class Cia402Drives(Translator):
     # ------------------------------------------------------------------------------ the drives' output
     def frame_id_as(self, msg: can.Message, name: str) -> int:
         """The same COB (its function code) from the drive that sends `name`."""
-        index = DRIVE_FEEDBACK.index(name) if name in DRIVE_FEEDBACK else DRIVE_TORQUE.index(name)
         function = msg.arbitration_id - (msg.arbitration_id & 0x7F)
-        return function + self.drives[index].node_id
+        return function + self.drives[MOTOR_OF[name]].node_id
 
     def outgoing(self, name: str, values: Mapping[str, float]) -> list[can.Message]:
         self.network.take()  # nothing pending outside a call
         if name in DRIVE_TORQUE:
-            drive = self.drives[DRIVE_TORQUE.index(name)]
+            drive = self.drives[MOTOR_OF[name]]
             drive.torque_actual = round(float(values["Torque"]) * 1e6 / RATED_MNM)
             drive.tpdos((TPDO3,))  # transmission type 4: the rig samples torque every 4th tick
             return self.network.take()
-        drive = self.drives[DRIVE_FEEDBACK.index(name)]
+        drive = self.drives[MOTOR_OF[name]]
         if not drive.booted:
             drive.boot()
         if drive.stop_pending:

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import can
 
 from drivers.can_bus import Received
-from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE
+from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MOTOR_OF
 from drivers.devices import Devices, Translator
 from drivers.devices.odrive import (
     REQUESTED,
@@ -105,15 +105,14 @@ class OdriveAxes(Translator):
     # ------------------------------------------------------------------------------ the drives' output
     def frame_id_as(self, msg: can.Message, name: str) -> int:
         """The same command from the axis that sends `name`."""
-        index = DRIVE_FEEDBACK.index(name) if name in DRIVE_FEEDBACK else DRIVE_TORQUE.index(name)
-        return frame_id(self.axes[index].node_id, split_id(msg.arbitration_id)[1])
+        return frame_id(self.axes[MOTOR_OF[name]].node_id, split_id(msg.arbitration_id)[1])
 
     def outgoing(self, name: str, values: Mapping[str, float]) -> list[can.Message]:
         if name in DRIVE_TORQUE:
-            axis = self.axes[DRIVE_TORQUE.index(name)]
+            axis = self.axes[MOTOR_OF[name]]
             axis.torque = float(values["Torque"])
             return [self._reply(axis, Cmd.GET_TORQUES)] if self.torques else []
-        axis = self.axes[DRIVE_FEEDBACK.index(name)]
+        axis = self.axes[MOTOR_OF[name]]
         self._follow_plant(axis, values)
         frames = []
         if self.encoder_every and axis.sent % self.encoder_every == 0:
