@@ -441,9 +441,9 @@ class Fence:
         self._take_fences()
         return self.tick >= k and all(self._short(s) <= 0 for s in self.reads)
 
-    @property
     def heard(self) -> bool:
-        """A lockstep rig's fence has arrived (such a rig also tags its puts with their tick)."""
+        """A lockstep rig's fence has arrived (such a rig also tags its puts with their tick): takes in the
+        fences that are here, so a method, not a property."""
         self._take_fences()
         return self.tick >= 0
 

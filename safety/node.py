@@ -288,7 +288,7 @@ class SupervisorNode:
             self.frame(rx, self._stamp(0.0))
             if rx.name != MessageName.SYNC:
                 continue
-            if self.fence.heard:
+            if self.fence.heard():
                 # A rig that sends fences tags its zenoh puts with their tick: however far behind (a busy
                 # machine), each SYNC is its own update, with the frames before it and the zenoh inputs of
                 # its tick and earlier, the same in every run.
