@@ -17,7 +17,7 @@ from __future__ import annotations
 import struct
 import tempfile
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import zstandard
@@ -101,18 +101,10 @@ class McapFile:
 
     def message(self, channel: int, time: int, data: bytes) -> None:
         """One message on `channel` at `time` (ns; log and publish time)."""
-        chunk = self._chunk
-        index = self._index.get(channel)
-        if index is None:
-            index = self._index[channel] = []
-        index += (time, len(chunk))
-        chunk += _MESSAGE.pack(Opcode.MESSAGE, 22 + len(data), channel, 0, time, time)
-        chunk += data
-        if len(chunk) >= self.chunk_size:
-            self._close_chunk()
+        self.messages(time, (channel,), (data,))
 
-    def messages(self, time: int, channels: list[int], messages: list[bytes]) -> None:
-        """Messages at one `time` (ns), each on its channel: `message()` for each, in one call (a tick's
+    def messages(self, time: int, channels: Sequence[int], messages: Sequence[bytes]) -> None:
+        """Messages at one `time` (ns; log and publish time), each on its channel, in one call (a tick's
         frames)."""
         chunk, index, pack, size = self._chunk, self._index, _MESSAGE.pack, self.chunk_size
         for channel, data in zip(channels, messages, strict=True):
@@ -122,7 +114,7 @@ class McapFile:
             pairs += (time, len(chunk))
             chunk += pack(Opcode.MESSAGE, 22 + len(data), channel, 0, time, time)
             chunk += data
-            if len(chunk) >= size:  # where message() would close it: the same chunks
+            if len(chunk) >= size:
                 self._close_chunk()
                 chunk, index = self._chunk, self._index
 

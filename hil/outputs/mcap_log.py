@@ -303,14 +303,8 @@ class McapLog(can.Listener):
                 channels, messages = [], []
                 channel_of, message_of = channels.append, messages.append
                 decoder = self._decoder(m)
-            if (
-                decoder is None
-                or len(data) != decoder[1]
-                or m.is_extended_id
-                or m.is_remote_frame
-                or m.is_error_frame
-            ):
-                continue  # not a DBC message (_plain(), inline): /can/frames keeps it
+            if decoder is None or len(data) != decoder[1] or not _plain(m):
+                continue  # not a DBC message: /can/frames keeps it
             decode, _, channel = decoder
             channel_of(channel)
             message_of(encode(decode(int.from_bytes(data, "little"))))
