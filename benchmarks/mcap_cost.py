@@ -2,7 +2,9 @@
 on, alternated in one process (the machine's drift hits both alike), each tick loop measured in wall time
 and in its thread's CPU time (which other processes on a busy machine disturb less), then one more run
 with the writer's own calls timed (its share of a tick, and the dearest single call: a chunk closing).
-The recording and the plots are off in all runs: they are written after the loop and cost the same.
+The recording and the plots are off in all runs: they are written after the loop and cost the same. The
+logs are written on the tick's thread here (`RunOptions(logs_in_process=True)`): what they would cost the
+tick there; a run writes them in a process of its own (hil/outputs/run_logs.py).
 
 --replay N: instead, the writer alone: one run's calls to it (every frame with the simulated time it was
 taken at, every zenoh input and row) kept, then fed N times to a fresh writer, its thread's CPU time per
@@ -32,8 +34,10 @@ from drivers.keys import Keys
 from hil.bench.bench import load_bench
 from hil.outputs.mcap_log import McapLog
 from hil.pipeline import load_scenario, run
+from hil.run.build import RunOptions
 
 TIMED = ("on_message_received", "zenoh", "trace")
+IN_PROCESS = RunOptions(logs_in_process=True)
 
 
 def bench_with(mcap: bool):
@@ -56,7 +60,7 @@ def us_per_tick(scenario, mcap: bool, out: Path) -> tuple[float, float]:
 
     pipeline.tick_loop = timed_loop
     try:
-        result = run(scenario, bench_with(mcap), out=out)
+        result = run(scenario, bench_with(mcap), out=out, options=IN_PROCESS)
     finally:
         pipeline.tick_loop = loop
     if result.trace.failure is not None:
@@ -85,7 +89,7 @@ def writer_share(scenario, out: Path) -> tuple[float, float, int]:
     for name, fn in originals.items():
         setattr(McapLog, name, timed(fn))
     try:
-        result = run(scenario, bench_with(True), out=out)
+        result = run(scenario, bench_with(True), out=out, options=IN_PROCESS)
     finally:
         for name, fn in originals.items():
             setattr(McapLog, name, fn)
@@ -113,7 +117,7 @@ def replay(scenario, out: Path, times: int) -> tuple[list[float], int]:
     McapLog.on_message_received, McapLog.zenoh, McapLog.trace = on_message_received, zenoh, trace
     bench = bench_with(True)
     try:
-        run(scenario, bench, out=out / "recorded")
+        run(scenario, bench, out=out / "recorded", options=IN_PROCESS)
     finally:
         for name, fn in originals.items():
             setattr(McapLog, name, fn)

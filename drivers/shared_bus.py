@@ -120,7 +120,7 @@ class SharedBus(can.BusABC):
             self._channel.remove(self)
 
 
-_MESSAGE_FIELDS = (
+MESSAGE_FIELDS = (
     "timestamp",
     "arbitration_id",
     "is_extended_id",
@@ -134,8 +134,9 @@ _MESSAGE_FIELDS = (
     "bitrate_switch",
     "error_state_indicator",
 )
-"""Every field of a python-can Message (its __slots__ but __weakref__): _received_copy sets each one
-(tests/test_shared_bus.py holds this list to python-can's)."""
+"""Every field of a python-can Message (its __slots__ but __weakref__): _received_copy sets each one, the
+run's log writer process rebuilds frames from them (tests/test_shared_bus.py holds this list to
+python-can's)."""
 
 
 def _received_copy(msg: can.Message, channel: Any) -> can.Message:

@@ -18,7 +18,7 @@ from drivers.config import load_toml
 from drivers.resources import find
 from hil.bench.bench import Bench, load_bench
 from hil.report.folder import write_outputs
-from hil.run.build import RunOptions, build, clock_of, law_of, start_up, supervisor_config
+from hil.run.build import RunOptions, build, clock_of, law_of, run_logs, start_up, supervisor_config
 from hil.run.judge import RunResult, judge
 from hil.run.loop import tick_loop
 from hil.run.scenario import Scenario
@@ -62,15 +62,22 @@ def run(
 def execute(bench: Bench, scenario: Scenario, seed: int, options: RunOptions, out: Path | None) -> Trace:
     """Build, hand-shake and tick; a failure before the first tick is an empty trace saying why."""
     stage = "build"
+    logs = None
     try:
         with ExitStack() as stack:  # every resource of the run, closed in reverse on any exit
-            built = build(bench, scenario, seed, options, out, stack)
+            logs = run_logs(bench, scenario, seed, options, out)
+            if logs is not None:
+                stack.callback(logs.stop)  # last: the recorder hands it the bus's last frames first
+            built = build(bench, scenario, seed, options, out, logs, stack)
             stage = "start-up"
             start_up(built, bench)
-            return tick_loop(built, options)
+            trace = tick_loop(built, options)
     except Exception as exc:  # nothing ran: keep the reason
         stage = "start-up" if isinstance(exc, ControllerUnavailable) else stage
-        return Trace.empty(Failure(stage, reason(exc), isinstance(exc, CONFIG_ERRORS)))
+        trace = Trace.empty(Failure(stage, reason(exc), isinstance(exc, CONFIG_ERRORS)))
+    if logs is not None:
+        trace.outputs_failed.update(logs.failed)
+    return trace
 
 
 def describe(bench: Bench) -> dict:

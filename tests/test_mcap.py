@@ -29,6 +29,7 @@ from hil.outputs.mcap_file import McapFile
 from hil.outputs.mcap_log import McapLog
 from hil.outputs.trace_log import COLUMNS, TELEMETRY
 from hil.pipeline import run
+from hil.run.build import RunOptions
 from hil.run.scenario import Intent, OperatorEntry, Scenario, ScEntry
 from plant.rider import Ramp
 from tests.zenoh_helpers import private_bench
@@ -231,9 +232,10 @@ def test_a_writer_error_keeps_the_file_up_to_it_and_is_named_in_the_summary(tmp_
             raise OSError(28, "No space left on device")
         messages(self, time, channels, data)
 
-    monkeypatch.setattr(McapFile, "messages", failing_batch)
+    monkeypatch.setattr(McapFile, "messages", failing_batch)  # here: the writer on the tick's thread
     short = msgspec.structs.replace(SCENARIO, duration=0.5, faults=[])
-    result = run(short, bench(recording=False), out=tmp_path)
+    options = RunOptions(logs_in_process=True)
+    result = run(short, bench(recording=False), out=tmp_path, options=options)
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert result.trace.failure is None and result.trace.stats.ticks == 200, "the run goes on"
     assert "No space left on device" in summary["outputs_failed"]["run.mcap"]

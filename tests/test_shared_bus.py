@@ -8,7 +8,7 @@ import can
 import pytest
 
 from drivers.can_bus import private_channel
-from drivers.shared_bus import _MESSAGE_FIELDS, SharedBus
+from drivers.shared_bus import MESSAGE_FIELDS, SharedBus
 
 
 @pytest.fixture
@@ -47,7 +47,7 @@ def test_every_other_bus_on_the_channel_gets_one_shared_frame(channel):
 def test_a_received_frame_carries_every_field_of_the_sent_one(channel):
     """The receivers' copy is built field by field (drivers/shared_bus.py): a field python-can adds to its
     Message must be copied too, so the list is held to python-can's own slots."""
-    assert set(_MESSAGE_FIELDS) == set(can.Message.__slots__) - {"__weakref__"}
+    assert set(MESSAGE_FIELDS) == set(can.Message.__slots__) - {"__weakref__"}
     a, b = (can.Bus(interface="pure_shared", channel=channel) for _ in range(2))
     try:
         sent = can.Message(

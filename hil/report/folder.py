@@ -186,6 +186,7 @@ def write_outputs(
             write()
         except Exception as exc:  # one output failing must not lose the others or the summary
             failed[name] = f"{type(exc).__name__}: {exc}"
+    failed.update(result.trace.outputs_failed)  # the writer's own word on why, over what the file shows
     if failed:
         write_summary(failed)
     return failed

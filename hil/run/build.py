@@ -38,7 +38,7 @@ from hil.bench.rigs import announce
 from hil.devices import rig_node
 from hil.faults import FaultError, FaultSet
 from hil.outputs.inputs_log import InputsLog
-from hil.outputs.mcap_log import McapLog
+from hil.outputs.run_logs import LocalLogs, LogProcess, McapSpec, open_logs
 from hil.run.rig import AgentLinks, OperatorStep, Rig, ScStep
 from hil.run.scenario import Scenario
 from hil.run.trace import ControllerUnavailable
@@ -81,6 +81,9 @@ class RunOptions:
     fault_set: FaultSet | None = None
     """The run's faults, kept by a caller that injects more live (the service)."""
     stop_on_fall: bool = True
+    logs_in_process: bool = False
+    """Write can.log and run.mcap on the tick's thread, not in a process of their own
+    (hil/outputs/run_logs.py): for a test that makes a writer fail and the benchmark that times them."""
 
 
 @dataclass(slots=True)
@@ -97,8 +100,8 @@ class Built:
     """Where the run's rows stream (hil/outputs/trace_log.py); None: kept in memory."""
     realtime: RealtimePart = RealtimePart()  # noqa: RUF009 (frozen msgspec struct: one shared default is fine)
     """The loop's scheduling under the real-time clock."""
-    mcap: McapLog | None = None
-    """run.mcap, which the loop hands every tick's row (None: not written)."""
+    logs: LocalLogs | LogProcess | None = None
+    """can.log and run.mcap, which the loop hands every tick's row (None: neither written)."""
 
 
 BOOT_TIMEOUT = {"embedded": 10.0, "spawned": 30.0, "external": 120.0}
@@ -129,11 +132,17 @@ def supervisor_config(bench: Bench, scenario: Scenario) -> SupervisorConfig:
 
 
 def build(
-    bench: Bench, scenario: Scenario, seed: int, options: RunOptions, out: Path | None, stack: ExitStack
+    bench: Bench,
+    scenario: Scenario,
+    seed: int,
+    options: RunOptions,
+    out: Path | None,
+    logs: LocalLogs | LogProcess | None,
+    stack: ExitStack,
 ) -> Built:
     """The run's parts in order: the bus and zenoh, the plant, the parts where the bench puts them, then
-    the rig once. out: the run folder, where the CAN log and the zenoh inputs stream (None: none)."""
-    mcap = _mcap(bench, scenario, seed, out, stack)  # first: a run that fails to build still leaves its file
+    the rig once. out: the run folder, where the zenoh inputs stream (None: none); logs: `run_logs`'s, which
+    the caller opened first (a run that fails to build still leaves complete files) and stops last."""
     clock = clock_of(bench, scenario)
     lockstep = clock == "lockstep"
     faults = options.fault_set if options.fault_set is not None else FaultSet(scenario.faults, seed)
@@ -141,9 +150,9 @@ def build(
         raise FaultError(f"bench {bench.name} says a person is on the robot (rider_on_board): no faults")
     wire = _connect(bench, scenario, options, lockstep, stack)
     plant = _plant(bench, scenario, seed)
-    if mcap is not None:
-        mcap.clock = lambda: plant.t
-    recorder = _recorder(bench, wire.bus_config, out, mcap, stack)  # before the parts: their boot-up too
+    if logs is not None:
+        logs.clock = lambda: plant.t
+    recorder = _recorder(wire.bus_config, logs, stack)  # before the parts: their boot-up too
     parts = _start_parts(bench, scenario, plant, wire, lockstep, stack)
     rig = Rig(
         plant,
@@ -159,13 +168,13 @@ def build(
         dut=parts.dut,
         driven=lockstep,
         recorder=recorder,
-        inputs=_inputs(out, mcap, stack),
+        inputs=_inputs(out, logs, stack),
     )
     faults.attach(rig)
     trace = None if out is None else out / "trace.npy"
     law = law_of(bench, scenario)
     return Built(
-        rig, plant, wire.bus_config, law, clock, scenario.duration, parts.dut, trace, bench.realtime, mcap
+        rig, plant, wire.bus_config, law, clock, scenario.duration, parts.dut, trace, bench.realtime, logs
     )
 
 
@@ -192,11 +201,18 @@ class Parts:
     """The embedded controller's handle (process faults stop or pause it); None: in another process."""
 
 
-def _mcap(bench: Bench, scenario: Scenario, seed: int, out: Path | None, stack: ExitStack) -> McapLog | None:
-    if out is None or not bench.outputs.mcap:
+def run_logs(
+    bench: Bench, scenario: Scenario, seed: int, options: RunOptions, out: Path | None
+) -> LocalLogs | LogProcess | None:
+    """can.log and run.mcap as the bench asks for them, into `out` (None: no folder, no logs)."""
+    if out is None:
         return None
-    meta = {"scenario": scenario.name, "seed": str(seed), "bench": bench.name}
-    return stack.enter_context(McapLog(out / "run.mcap", scenario.tick_hz, Keys(bench.zenoh.prefix), meta))
+    mcap = None
+    if bench.outputs.mcap:
+        meta = {"scenario": scenario.name, "seed": str(seed), "bench": bench.name}
+        mcap = McapSpec(out / "run.mcap", scenario.tick_hz, bench.zenoh.prefix, meta)
+    can_log = out / "can.log" if bench.outputs.can_log else None
+    return open_logs(can_log, mcap, options.logs_in_process)
 
 
 def _connect(
@@ -314,21 +330,20 @@ def _spawn_part(kind: str, plugin: str, spec: bytes, work: Path, stack: ExitStac
 
 
 def _recorder(
-    bench: Bench, bus_config: BusConfig, out: Path | None, mcap: McapLog | None, stack: ExitStack
+    bus_config: BusConfig, logs: LocalLogs | LogProcess | None, stack: ExitStack
 ) -> BusRecorder | None:
-    if out is None or not (bench.outputs.can_log or mcap is not None):
+    """The bus's frames into the run's logs (their writers own the files: the recorder writes none)."""
+    if logs is None:
         return None
-    recorder = BusRecorder(
-        bus_config, out / "can.log" if bench.outputs.can_log else None, [mcap] if mcap else []
-    )
-    stack.callback(recorder.stop)
+    recorder = BusRecorder(bus_config, None, [logs])
+    stack.callback(recorder.stop)  # before the logs stop: it hands them the last frames
     return recorder
 
 
-def _inputs(out: Path | None, mcap: McapLog | None, stack: ExitStack) -> InputsLog:
+def _inputs(out: Path | None, logs: LocalLogs | LogProcess | None, stack: ExitStack) -> InputsLog:
     if out is None:
         return InputsLog()
-    inputs = InputsLog(out / "zenoh_inputs.msgpack", mcap.zenoh if mcap is not None else None)
+    inputs = InputsLog(out / "zenoh_inputs.msgpack", logs.zenoh if logs is not None else None)
     stack.callback(inputs.close)
     return inputs
 

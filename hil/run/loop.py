@@ -40,7 +40,7 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
             log.telemetry(sample.seq - first_tick, sample.command_speed, sample.tilt_command)
 
     supervisor = rig.supervisor  # its record outlives a kill
-    mcap = built.mcap
+    logs = built.logs
     n = 0
     began = time.monotonic()
     next_report = began + 0.5
@@ -56,8 +56,8 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
             tr = plant.truth()
             row = _row(tr, rig)
             log.append(row)
-            if mcap is not None:
-                mcap.trace(row)
+            if logs is not None:
+                logs.trace(row)
             n += 1
             if n % TELEMETRY_EVERY == 0:  # long before the subscription's ring could overflow
                 take_telemetry()

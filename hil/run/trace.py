@@ -94,6 +94,8 @@ class Trace:
     """Why the run stopped before its end (None: it ran to the end, or to a fall)."""
     stopped_early: bool = False
     """Its caller stopped it (an operator's Ctrl-C, the service's stop) before the scenario's end."""
+    outputs_failed: dict[str, str] = field(default_factory=dict)
+    """Logs the run streamed that failed as it wrote them (can.log, run.mcap), and why."""
 
     @classmethod
     def empty(cls, failure: Failure) -> Trace:

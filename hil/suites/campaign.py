@@ -295,6 +295,7 @@ def run_case(case: Case, out: Path | None = None, bench: Bench | None = None) ->
     there (summary, CAN log, trace, recording, plots: the bench's outputs)."""
     from drivers.zenoh_link import free_loopback_endpoint
     from hil.pipeline import run
+    from hil.run.build import RunOptions
 
     bench = bench or load_bench()
     if bench.self_contained and bench.zenoh.mode == "loopback" and bench.zenoh.endpoint is None:
@@ -302,7 +303,9 @@ def run_case(case: Case, out: Path | None = None, bench: Bench | None = None) ->
     bench = bench.with_overrides(clock="lockstep")
     start = time.monotonic()
     try:
-        result = run(case.build(), bench, out=out)
+        # The logs on the case's own thread: a campaign's workers fill every core already, and a writer
+        # process per case would only add its hand-over (hil/outputs/run_logs.py).
+        result = run(case.build(), bench, out=out, options=RunOptions(logs_in_process=True))
     except Exception as exc:  # a broken case is a result (an error), never the end of the campaign
         detail = "".join(traceback.format_exception_only(type(exc), exc)).strip()
         return CaseResult.errored(case, detail, time.monotonic() - start)
