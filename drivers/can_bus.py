@@ -79,6 +79,7 @@ class Received:
     ) -> None:
         self.name = name
         self.signals = signals
+        """Shared by every node that read the same payload (MessageCodec.decode_shared): read-only."""
         self.timestamp = timestamp
         self.e2e = e2e
         """None for unprotected messages (SYNC)."""
@@ -184,7 +185,7 @@ class CanNode:
             return None
         codec, protected = known
         try:
-            signals = codec.decode(msg.data)
+            signals = codec.decode_shared(msg.data)
         except CanCodecError:
             self._reject("wrong_length", msg)
             return None

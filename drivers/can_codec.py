@@ -105,6 +105,10 @@ class MessageCodec:
         self.signals = tuple(signals)
         self.signal_names = tuple(s.name for s in signals)
         self._by_name = {s.name: s for s in signals}
+        zero = bytes(self.length)
+        self._last_decoded: tuple[bytes, dict[str, float | int]] = (zero, self.decode(zero))
+        """(payload, its signals) of the last `decode_shared`: one tuple, replaced whole, so a reader on
+        another thread never pairs one frame's payload with another's signals."""
 
     def encode(self, values: Mapping[str, float]) -> bytes:
         """Physical values -> payload. Missing signals encode as 0 (raw); out-of-range values saturate."""
@@ -145,6 +149,18 @@ class MessageCodec:
             out[s.name] = r if s.integer else r * s.scale + s.offset
         return out
 
+    def decode_shared(self, data: bytes | bytearray) -> dict[str, float | int]:
+        """`decode(data)`, but the very dict of the previous call when the payload is the same: on the
+        in-process bus every reader of a frame decodes the same payload, and the nodes of one DBC share its
+        codecs (Catalog), so only the first of them decodes it. The dict is shared: read-only to its callers.
+        Keyed on the payload's bytes, not the frame object: the signals are a function of those alone."""
+        last = self._last_decoded
+        if data == last[0]:
+            return last[1]
+        signals = self.decode(data)
+        self._last_decoded = (bytes(data), signals)
+        return signals
+
     def decode_int(self, raw: int) -> dict[str, float | int]:
         out: dict[str, float | int] = {}
         for s in self.signals:
@@ -170,16 +186,30 @@ class MessageCodec:
         return {int(raw): str(name) for raw, name in choices.items()}
 
 
+_loaded: dict[tuple[Path, bytes], tuple[cantools.database.can.Database, tuple[MessageCodec, ...]]] = {}
+"""Every CAN database loaded in this process and its codecs, by resolved path and content (a file rewritten
+in place is loaded afresh): the Catalogs of one file share them, so it is parsed once and a frame read by
+several nodes is decoded once (MessageCodec.decode_shared). Nothing changes a database or a codec once
+made."""
+
+
+def _load(path: Path) -> tuple[cantools.database.can.Database, tuple[MessageCodec, ...]]:
+    key = (path.resolve(), path.read_bytes())
+    loaded = _loaded.get(key)
+    if loaded is None:
+        database = cantools.database.load_file(str(path))
+        if not isinstance(database, cantools.database.can.Database):
+            raise CanCodecError(f"{path}: not a CAN database (DBC, KCD, ARXML, SYM)")
+        loaded = _loaded[key] = (database, tuple(MessageCodec(m) for m in database.messages))
+    return loaded
+
+
 class Catalog:
-    """All messages of a DBC, by name and by frame id."""
+    """All messages of a DBC, by name and by frame id (its codecs shared with every Catalog of the file)."""
 
     def __init__(self, dbc: Path | str = DEFAULT_DBC):
         self.path = Path(dbc)
-        database = cantools.database.load_file(str(self.path))
-        if not isinstance(database, cantools.database.can.Database):
-            raise CanCodecError(f"{self.path}: not a CAN database (DBC, KCD, ARXML, SYM)")
-        self.database = database
-        self.codecs = tuple(MessageCodec(m) for m in self.database.messages)
+        self.database, self.codecs = _load(self.path)
         self._by_name = {c.name: c for c in self.codecs}
         self._by_id = {c.frame_id: c for c in self.codecs}
 
