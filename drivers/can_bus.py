@@ -146,7 +146,22 @@ class CanNode:
             payload = self._protector.seal(codec, raw)
         else:
             payload = raw.to_bytes(codec.length, "little")
-        return can.Message(arbitration_id=codec.frame_id, is_extended_id=False, data=payload)
+        # What can.Message(arbitration_id=..., is_extended_id=False, data=payload) makes, field by field:
+        # its __init__ is Python, half a frame's making (tests/test_can.py holds the two equal).
+        msg = can.Message.__new__(can.Message)
+        msg.timestamp = 0.0
+        msg.arbitration_id = codec.frame_id
+        msg.is_extended_id = False
+        msg.is_remote_frame = False
+        msg.is_error_frame = False
+        msg.channel = None
+        msg.dlc = len(payload)
+        msg.data = bytearray(payload)
+        msg.is_fd = False
+        msg.is_rx = True
+        msg.bitrate_switch = False
+        msg.error_state_indicator = False
+        return msg
 
     def send(self, name: str, values: Mapping[str, float]) -> bool:
         """Send a frame; a full transmit queue (ENOBUFS on SocketCAN with a real qdisc) or a bus that

@@ -14,6 +14,7 @@ from drivers.bus_load import BusLoadError, bus_load, check_bus_load, frame_bits
 from drivers.can_bus import BusRecorder, CanNode, open_bus, private_channel
 from drivers.can_codec import Catalog, MessageCodec
 from drivers.e2e import E2EChecker, E2EProtector, E2EStatus, counter_of, crc8, is_protected, with_counter
+from drivers.shared_bus import MESSAGE_FIELDS
 
 CATALOG = Catalog()
 DB = CATALOG.database
@@ -149,6 +150,17 @@ def test_round_trip_over_the_virtual_bus(pair, message):
 
     check()
     assert rx.stats.e2e == {} and rx.stats.malformed == {}
+
+
+@pytest.mark.parametrize("name", ["SYNC", "DRIVE1_COMMAND", "IMU_RATE"])
+def test_a_nodes_frame_is_the_one_python_cans_constructor_makes(pair, name):
+    """CanNode.message sets a Message's fields one by one (its __init__ is Python): every field must be what
+    `can.Message(arbitration_id=..., is_extended_id=False, data=...)` gives."""
+    tx, _, _ = pair
+    msg = tx.message(name, {})
+    made = can.Message(arbitration_id=msg.arbitration_id, is_extended_id=False, data=bytes(msg.data))
+    assert {f: getattr(msg, f) for f in MESSAGE_FIELDS} == {f: getattr(made, f) for f in MESSAGE_FIELDS}
+    assert type(msg.data) is bytearray and msg.equals(made, timestamp_delta=None)
 
 
 def frames(tx, name, n):
