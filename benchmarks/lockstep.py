@@ -1,5 +1,6 @@
 """Lockstep speed of a scenario with everything on (plant, CAN frames through the DBC codec and E2E, zenoh,
-the reference controller, the embedded supervisor, the CAN log recorder, run.mcap: its cost alone is
+the reference controller, the embedded supervisor, the CAN log recorder; can.log and run.mcap written in
+their own process, whose CPU time a tick it prints too: their cost on the tick's thread is
 benchmarks/mcap_cost.py), the per-stage cost of the rig's tick (from a second run of the same scenario with
 its stages timed: the tick loop's own figure comes from a run with nothing timed), and, measured in the same
 run:
@@ -41,6 +42,7 @@ from drivers.contract import CONTRACT_VERSION
 from drivers.dut import DutSpec
 from drivers.e2e import COUNTER, CRC
 from hil.bench.bench import load_bench
+from hil.outputs import run_logs
 from hil.pipeline import load_scenario, run
 from hil.run.build import RunOptions
 from plant.ballbot import Plant
@@ -184,6 +186,17 @@ def instrument(totals: dict[str, float]) -> None:
     embedded.poll = timed(totals, "controller", embedded.poll)
 
 
+def watch_log_writers(cpu: list[float]) -> None:
+    """Keep each run's log writer process's CPU time (can.log and run.mcap, off the tick's thread)."""
+    stop = run_logs.LogProcess.stop
+
+    def watched(self: run_logs.LogProcess) -> None:
+        stop(self)
+        cpu.append(self.cpu_s)
+
+    run_logs.LogProcess.stop = watched  # type: ignore[method-assign]
+
+
 COMPILED_PROBES = ("drivers.can_codec", "drivers.can_bus", "hil.run.rig")
 
 
@@ -208,7 +221,10 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="lockstep-bench-") as tmp:
         out = Path(tmp)
         only_us = rig_only(scenario, out)
+        writers: list[float] = []
+        watch_log_writers(writers)
         result, wall = timed_run(scenario, load_bench(), out / "full")
+        logs_cpu = writers[-1] if writers else float("nan")
         totals: dict[str, float] = {}
         instrument(totals)
         staged, _ = timed_run(scenario, load_bench(), out / "staged")
@@ -251,6 +267,7 @@ def main() -> None:
         "rig_only_us_per_tick": only_us,
         "floor_us_per_tick": floor / ticks * 1e6,
         "frame_work_us_per_tick": frames / ticks * 1e6,
+        "logs_process_cpu_us_per_tick": logs_cpu / ticks * 1e6,
         "stages_us_per_tick": {
             name: totals.get(name, 0.0) / staged.trace.stats.ticks * 1e6 for name in STAGES
         },
@@ -279,6 +296,10 @@ def main() -> None:
     )
     for name, label in STAGES.items():
         print(f"    {label:<40} {figures['stages_us_per_tick'][name]:8.0f} us/tick")
+    print(
+        f"  can.log and run.mcap in their own process: {figures['logs_process_cpu_us_per_tick']:.0f} us "
+        "CPU a tick there, off the tick's thread (its start-up's imports included)"
+    )
     print(
         f"  rig only (instant responder, clamped): {only_us:.0f} us/tick = "
         f"{1e6 / scenario.tick_hz / only_us:.1f}x real time"
