@@ -77,9 +77,10 @@ def test_the_process_writes_the_same_bytes_as_the_ticks_thread(tmp_path):
     assert {"/can/SYNC", "/can/IMU_RATE", "/can/frames", "/trace", "/zenoh/rejected"} <= topics
 
 
-def test_the_process_reports_its_cpu_and_ends(tmp_path):
+def test_the_process_is_its_own_session_reports_its_cpu_and_ends(tmp_path):
     logs = LogProcess(tmp_path / "can.log", None)
     pid = logs.pid
+    assert os.getsid(pid) != os.getsid(0), "a terminal's Ctrl-C does not reach it: the run stops it"
     feed(logs)
     assert logs.failed == {} and logs.cpu_s > 0
     assert not Path(f"/proc/{pid}").exists(), "stop() waited for it"

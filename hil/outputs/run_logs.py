@@ -12,10 +12,11 @@ into the same writers (`LocalLogs`), so both files are byte for byte those an in
 The process is `python -m hil.outputs.run_logs` (the run's interpreter, importing the same pure-hil; started
 as the run is built, its ~0.25 s of imports overlap the run's start-up): a fresh interpreter, never a fork
 of a process that runs zenoh's threads, and nothing of the caller's `__main__` re-run. The pipe holds the run
-back only if the process falls more than its buffer behind (a core busy with something else). It ignores
-Ctrl-C (the run stops it, and its files end complete) and ends when its input
-closes, also when the run's process dies. Writing never fails a run: an output that fails, or a writer
-process that dies, is in `failed` after stop(), which the run's summary lists in `outputs_failed`.
+back only if the process falls more than its buffer behind (a core busy with something else). It runs in a
+session of its own (a terminal's Ctrl-C is the run's: the run stops it, and its files end complete) and ends
+when its input closes, also when the run's process dies. Writing never fails a run: an output that fails,
+or a writer process that dies, is in `failed` after stop(), which the run's summary lists in
+`outputs_failed`.
 """
 
 from __future__ import annotations
@@ -143,7 +144,11 @@ class LogProcess(can.Listener):
         self._broken: str | None = None
         env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONPATH": _import_path()}
         self._process = subprocess.Popen(
-            [sys.executable, "-m", __name__], stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env
+            [sys.executable, "-m", __name__],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            env=env,
+            start_new_session=True,  # a terminal's Ctrl-C is the run's to handle: it stops us, files complete
         )
         self._stopped = False
         assert self._process.stdin is not None  # Popen(stdin=PIPE)
@@ -181,11 +186,12 @@ class LogProcess(can.Listener):
             self._pipe.close()
         report = None
         try:
-            report = _read(process.stdout)  # the process's last word, once the files are finished
             process.wait(STOP_TIMEOUT)
+            report = _read(process.stdout)  # its last word, written as it ended (a pipe's buffer holds it)
         except subprocess.TimeoutExpired:
             process.kill()
             process.wait()
+            self._broken = self._broken or f"it did not finish within {STOP_TIMEOUT:g} s"
         finally:
             process.stdout.close()
         if report is None:
@@ -279,7 +285,6 @@ def _serve(calls: IO[bytes], report: IO[bytes]) -> None:
 
 
 if __name__ == "__main__":
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the run stops us
     report = os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)  # a stray print goes to stderr, not into the report
     _serve(sys.stdin.buffer, report)
