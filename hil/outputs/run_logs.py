@@ -220,9 +220,11 @@ class LogProcess(can.Listener):
             log.warning("the run's log writer process is gone (%s): can.log and run.mcap stop here", exc)
 
 
-def open_logs(
-    can_log: Path | None, mcap: McapSpec | None, in_process: bool = False
-) -> LocalLogs | LogProcess | None:
+RunLogs = LocalLogs | LogProcess
+"""What a run feeds its logs through, on whichever side of the pipe they are written."""
+
+
+def open_logs(can_log: Path | None, mcap: McapSpec | None, in_process: bool = False) -> RunLogs | None:
     """The run's logs: None when it writes neither; on the caller's thread when asked or in a daemonic
     process (a Dask worker)."""
     if can_log is None and mcap is None:

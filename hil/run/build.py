@@ -38,7 +38,7 @@ from hil.bench.rigs import announce
 from hil.devices import rig_node
 from hil.faults import FaultError, FaultSet
 from hil.outputs.inputs_log import InputsLog
-from hil.outputs.run_logs import LocalLogs, LogProcess, McapSpec, open_logs
+from hil.outputs.run_logs import McapSpec, RunLogs, open_logs
 from hil.run.rig import AgentLinks, OperatorStep, Rig, ScStep
 from hil.run.scenario import Scenario
 from hil.run.trace import ControllerUnavailable
@@ -100,7 +100,7 @@ class Built:
     """Where the run's rows stream (hil/outputs/trace_log.py); None: kept in memory."""
     realtime: RealtimePart = RealtimePart()  # noqa: RUF009 (frozen msgspec struct: one shared default is fine)
     """The loop's scheduling under the real-time clock."""
-    logs: LocalLogs | LogProcess | None = None
+    logs: RunLogs | None = None
     """can.log and run.mcap, which the loop hands every tick's row (None: neither written)."""
 
 
@@ -137,7 +137,7 @@ def build(
     seed: int,
     options: RunOptions,
     out: Path | None,
-    logs: LocalLogs | LogProcess | None,
+    logs: RunLogs | None,
     stack: ExitStack,
 ) -> Built:
     """The run's parts in order: the bus and zenoh, the plant, the parts where the bench puts them, then
@@ -203,7 +203,7 @@ class Parts:
 
 def run_logs(
     bench: Bench, scenario: Scenario, seed: int, options: RunOptions, out: Path | None
-) -> LocalLogs | LogProcess | None:
+) -> RunLogs | None:
     """can.log and run.mcap as the bench asks for them, into `out` (None: no folder, no logs)."""
     if out is None:
         return None
@@ -329,9 +329,7 @@ def _spawn_part(kind: str, plugin: str, spec: bytes, work: Path, stack: ExitStac
     _spawn([*_pure_hil(), "part", kind, plugin, str(path)], kind, stack)
 
 
-def _recorder(
-    bus_config: BusConfig, logs: LocalLogs | LogProcess | None, stack: ExitStack
-) -> BusRecorder | None:
+def _recorder(bus_config: BusConfig, logs: RunLogs | None, stack: ExitStack) -> BusRecorder | None:
     """The bus's frames into the run's logs (their writers own the files: the recorder writes none)."""
     if logs is None:
         return None
@@ -340,7 +338,7 @@ def _recorder(
     return recorder
 
 
-def _inputs(out: Path | None, logs: LocalLogs | LogProcess | None, stack: ExitStack) -> InputsLog:
+def _inputs(out: Path | None, logs: RunLogs | None, stack: ExitStack) -> InputsLog:
     if out is None:
         return InputsLog()
     inputs = InputsLog(out / "zenoh_inputs.msgpack", logs.zenoh if logs is not None else None)
