@@ -88,8 +88,7 @@ class ControllerNode:
         self._sc: ScCommand | None = None
         self._sc_input: ScInput | None = None
         """The newest SC command as the controller takes it (made again only when a new one arrives)."""
-        # What every tick reads, read once (a Keys property formats its key on each read).
-        self._telemetry_key = keys.controller_telemetry
+        # What every tick reads, read once.
         self._mode = controller.config.mode
         self._permission_timeout = controller.robot.drive.permission_timeout
 
@@ -159,7 +158,7 @@ class ControllerNode:
             },
         )
         self.link.put(
-            self._telemetry_key,
+            self.keys.controller_telemetry,
             ControllerTelemetry(
                 seq=self.tick,
                 stamp=t,
