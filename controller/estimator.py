@@ -20,6 +20,8 @@ from typing import Final
 
 import numpy as np
 
+from drivers.can_codec import ENCODERS, TILT_INPUTS
+
 # Final: compiled (mypyc), a constant rather than a look-up in the module's globals at every use.
 PITCH: Final = 0
 ROLL: Final = 1
@@ -28,10 +30,6 @@ DERIVATIVE_FILTER = 0.02
 """s: low-pass of the attitude's derivative that stands in for a rate channel."""
 DRIVES = ("drive0", "drive1", "drive2")
 STREAMS = ("imu_attitude", "imu_rate", *DRIVES)
-ENCODERS = ("Encoder1", "Encoder2", "Encoder3")
-"""SUPERVISOR_DIAGNOSIS's names of the drives' encoders."""
-TILT_INPUTS = (("Roll", "RateX"), ("Pitch", "RateY"))
-"""SUPERVISOR_DIAGNOSIS's names of each plane's (roll, pitch) attitude and rate."""
 
 
 def _dot(row: tuple[float, ...], v: Sequence[float]) -> float:

@@ -18,7 +18,7 @@ from typing import Any, Final
 
 from controller.core import Controller, Fault, Output, ScInput, State, Wrench
 from drivers.can_bus import CanNode, Received
-from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, MessageName
+from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, PARTS, MessageName
 from drivers.contract import CONTRACT_VERSION
 from drivers.keys import Keys
 from drivers.schemas import TICK_MODULO, ControllerCommand, ControllerTelemetry, ScCommand, TesWrench
@@ -32,8 +32,6 @@ SEAT_FLAGGED = frozenset({"WRENCH_IMPLAUSIBLE"})
 """SUPERVISOR_ESTOP.Reason values that say the seat's wrench is not a rider's: the controller stops using it
 (as if the seat were silent) until the supervisor is back in NORMAL, instead of balancing on a phantom lean
 through the controlled stop."""
-NOT_PARTS = frozenset({"Alert", "Counter", "Crc"})
-"""SUPERVISOR_DIAGNOSIS signals that are not a part's flag."""
 LATE_RUN = 3
 SHORT_WAIT = 0.005
 """s the lockstep controller waits for the rig's fence once it has been late LATE_RUN ticks in a row."""
@@ -73,12 +71,6 @@ class ControllerNode:
         """The supervisor was lost and this controller stopped the robot itself: disabled until an enable."""
         reasons = can.catalog[MessageName.SUPERVISOR_ESTOP].values("Reason")
         self._seat_flags = frozenset(code for code, name in reasons.items() if name in SEAT_FLAGGED)
-        self._parts = tuple(
-            name
-            for name in can.catalog[MessageName.SUPERVISOR_DIAGNOSIS].signal_names
-            if name not in NOT_PARTS
-        )
-        """The parts SUPERVISOR_DIAGNOSIS can name (its flags)."""
         self.tick: int | None = None
         self.late = 0
         """Lockstep ticks computed before the rig's fence of that tick arrived (the wait timed out)."""
@@ -88,8 +80,7 @@ class ControllerNode:
         self._sc: ScCommand | None = None
         self._sc_input: ScInput | None = None
         """The newest SC command as the controller takes it (made again only when a new one arrives)."""
-        # What every tick reads, read once (a Keys property formats its key on each read).
-        self._telemetry_key = keys.controller_telemetry
+        # What every tick reads, read once.
         self._mode = controller.config.mode
         self._permission_timeout = controller.robot.drive.permission_timeout
 
@@ -111,7 +102,7 @@ class ControllerNode:
         elif name == MessageName.IMU_RATE and s["Valid"]:
             est.imu_rate(s["RateX"], s["RateY"], s["RateZ"], t)
         elif name == MessageName.SUPERVISOR_DIAGNOSIS:
-            est.drop(frozenset(part for part in self._parts if s[part]))
+            est.drop(frozenset(part for part in PARTS if s[part]))
         elif name == MessageName.SUPERVISOR_ESTOP:
             # The supervisor's recovery law holding the drives is an e-stop for this controller: its commands
             # are ignored, and it waits for an operator's enable after the reset (docs/contract.md).
@@ -159,7 +150,7 @@ class ControllerNode:
             },
         )
         self.link.put(
-            self._telemetry_key,
+            self.keys.controller_telemetry,
             ControllerTelemetry(
                 seq=self.tick,
                 stamp=t,

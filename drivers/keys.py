@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Final
 
 from drivers.schemas import (
     ControllerCommand,
@@ -30,88 +30,78 @@ PAYLOADS: dict[str, type[Payload]] = {
     "controller_telemetry": ControllerTelemetry,
     "rig_tick": RigTick,
 }
-"""Each key (a `Keys` property) that carries a payload -> its payload type (drivers/schemas.py)."""
+"""Each key (a `Keys` attribute) that carries a payload -> its payload type (drivers/schemas.py)."""
 
 
-@dataclass(frozen=True, slots=True)
 class Keys:
-    prefix: str = DEFAULT_PREFIX
+    """Every key of the rig under `prefix`, formatted once (nodes read them on every tick)."""
 
-    def __post_init__(self) -> None:
-        p = self.prefix
+    __slots__ = (
+        "controller_command",
+        "controller_telemetry",
+        "everything",
+        "prefix",
+        "rig_file",
+        "rig_history",
+        "rig_live",
+        "rig_status",
+        "rig_tick",
+        "safety_alert",
+        "safety_estop",
+        "safety_state",
+        "sc_command",
+        "sc_request",
+        "tes_wrench",
+    )
+
+    def __init__(self, prefix: str = DEFAULT_PREFIX) -> None:
+        p = prefix
         if not p or p.startswith("/") or p.endswith("/") or any(c in p for c in "*$?#"):
             raise ValueError(f"zenoh key prefix {p!r}: expected a plain path like 'pure' or 'bench2/pure'")
-
-    @property
-    def tes_wrench(self) -> str:
+        self.prefix: Final[str] = prefix
+        self.tes_wrench: Final[str] = f"{prefix}/tes/wrench"
         """TesWrench: the rider's wrench on the seat, from the emulated TES."""
-        return f"{self.prefix}/tes/wrench"
-
-    @property
-    def sc_request(self) -> str:
+        self.sc_request: Final[str] = f"{prefix}/sc/request"
         """ScRequest: what a shared-controller agent asks for."""
-        return f"{self.prefix}/sc/request"
-
-    @property
-    def sc_command(self) -> str:
+        self.sc_command: Final[str] = f"{prefix}/sc/command"
         """ScCommand: what the supervisor lets through; the only SC input the controller reads."""
-        return f"{self.prefix}/sc/command"
-
-    @property
-    def safety_state(self) -> str:
+        self.safety_state: Final[str] = f"{prefix}/safety/state"
         """SafetyState: the supervisor's state on every transition and periodically."""
-        return f"{self.prefix}/safety/state"
-
-    @property
-    def safety_alert(self) -> str:
+        self.safety_alert: Final[str] = f"{prefix}/safety/alert"
         """SafetyAlert: what the rider is told (slow down, stop and sit up)."""
-        return f"{self.prefix}/safety/alert"
-
-    @property
-    def safety_estop(self) -> str:
+        self.safety_estop: Final[str] = f"{prefix}/safety/estop"
         """EstopCommand: operator e-stop and reset."""
-        return f"{self.prefix}/safety/estop"
-
-    @property
-    def controller_command(self) -> str:
+        self.controller_command: Final[str] = f"{prefix}/controller/command"
         """ControllerCommand: operator enable/disable of the controller (enable is needed after an e-stop)."""
-        return f"{self.prefix}/controller/command"
-
-    @property
-    def controller_telemetry(self) -> str:
+        self.controller_telemetry: Final[str] = f"{prefix}/controller/telemetry"
         """ControllerTelemetry: the controller's internal commands per tick, for recording and metrics."""
-        return f"{self.prefix}/controller/telemetry"
-
-    @property
-    def rig_tick(self) -> str:
+        self.rig_tick: Final[str] = f"{prefix}/rig/tick"
         """RigTick: lockstep only, the rig has put every zenoh input of a tick (the nodes' fence)."""
-        return f"{self.prefix}/rig/tick"
-
-    @property
-    def rig_status(self) -> str:
+        self.rig_status: Final[str] = f"{prefix}/rig/status"
         """Queryable: the rig service's status."""
-        return f"{self.prefix}/rig/status"
-
-    @property
-    def rig_live(self) -> str:
+        self.rig_live: Final[str] = f"{prefix}/rig/live"
         """JSON, about 20 Hz of wall time while the service runs a scenario: what the console draws
         (hil/live.py)."""
-        return f"{self.prefix}/rig/live"
-
-    @property
-    def rig_history(self) -> str:
+        self.rig_history: Final[str] = f"{prefix}/rig/history"
         """Queryable: the service's past runs (hil/history.py)."""
-        return f"{self.prefix}/rig/history"
-
-    @property
-    def rig_file(self) -> str:
+        self.rig_file: Final[str] = f"{prefix}/rig/file"
         """Queryable: a file of a past run's folder, in chunks (hil/service.py)."""
-        return f"{self.prefix}/rig/file"
+        self.everything: Final[str] = f"{prefix}/**"
 
     def rig(self, name: str) -> str:
         """Queryables and topics of the rig service's control API (start, stop, intent, ...)."""
         return f"{self.prefix}/rig/{name}"
 
-    @property
-    def everything(self) -> str:
-        return f"{self.prefix}/**"
+    # A value, made of its prefix alone: equal, hashed, shown and pickled by it (Final: mypy refuses any
+    # later assignment, so the keys and the hash cannot drift from it).
+    def __eq__(self, other: object) -> bool:
+        return self.prefix == other.prefix if other.__class__ is self.__class__ else NotImplemented
+
+    def __hash__(self) -> int:
+        return hash(self.prefix)
+
+    def __repr__(self) -> str:
+        return f"Keys(prefix={self.prefix!r})"
+
+    def __reduce__(self) -> tuple[type[Keys], tuple[str]]:
+        return Keys, (self.prefix,)

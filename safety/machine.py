@@ -179,17 +179,10 @@ class Request:
     source: str
 
 
-PARTS = (
-    *("Encoder1", "Encoder2", "Encoder3", "Roll", "Pitch", "RateX", "RateY", "RateZ", "Accel", "Seat"),
-    *("Drive1", "Drive2", "Drive3"),
-)
-"""What a diagnosis can name faulty, the sensors' channels, the seat and the drives: SUPERVISOR_DIAGNOSIS's
-flags, spelled as its signals."""
-
-
 @dataclass(frozen=True, slots=True)
 class Finding:
-    """A diagnostic that fails now: its cause, what it saw, and the parts it isolates (in PARTS)."""
+    """A diagnostic that fails now: its cause, what it saw, and the parts it isolates (drivers.can_codec's
+    PARTS)."""
 
     cause: Cause
     detail: str

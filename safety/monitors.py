@@ -22,7 +22,7 @@ from collections.abc import Callable
 import numpy as np
 
 from drivers.can_bus import Received
-from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MOTOR_OF, MessageName
+from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, ENCODERS, MOTOR_OF, MessageName
 from drivers.e2e import COUNTER, COUNTER_MODULO, CRC, E2EStatus
 from drivers.schemas import EstopCommand, ScRequest, TesWrench
 from safety.arbiter import ScArbiter
@@ -41,7 +41,7 @@ from safety.diagnostics import (
     world_acceleration,
 )
 from safety.machine import STREAMS, Cause, DriveReport, Finding, Observation, Request
-from safety.recovery import ENCODERS, IsolatedEstimator, leave_one_out
+from safety.recovery import IsolatedEstimator, leave_one_out
 
 IMU_CHANNELS: dict[str, tuple[str, str, str]] = {
     MessageName.IMU_ATTITUDE: ("Roll", "Pitch", "Yaw"),
@@ -57,7 +57,7 @@ CHANNEL_INPUT: dict[str, tuple[str, ...]] = {
     MessageName.IMU_RATE: ("RateX", "RateY", "RateZ"),
     MessageName.IMU_ACCEL: ("Accel", "Accel", "Accel"),
 }
-"""The parts (safety.machine.PARTS) each stream carries, per channel for the IMU ('': none: the yaw angle
+"""The parts (drivers.can_codec.PARTS) each stream carries, per channel for the IMU ('': none: the yaw angle
 is used by no one)."""
 CROSS_CHECKS = ("yaw", "roll", "pitch", "pitch trend", "roll trend")
 """The checks `_cross_checks` runs, in its order (the forward speed trend is the pitch plane's)."""
@@ -378,7 +378,7 @@ class Monitors:
         self._failed.clear()
 
     def suspects(self) -> frozenset[str]:
-        """The parts the diagnosis names faulty (safety.machine.PARTS), latched until a reset.
+        """The parts the diagnosis names faulty (drivers.can_codec.PARTS), latched until a reset.
 
         What a check isolates by itself (an encoder's position against its velocity, a frozen or replayed
         channel) is named directly. A cross-check that fails names its likeliest input unless a direct

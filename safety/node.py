@@ -22,7 +22,7 @@ from collections.abc import Callable
 from typing import cast
 
 from drivers.can_bus import CanNode, Received
-from drivers.can_codec import MessageName
+from drivers.can_codec import PARTS, MessageName
 from drivers.schemas import (
     TICK_MODULO,
     EstopCommand,
@@ -37,7 +37,7 @@ from drivers.schemas import (
 )
 from drivers.zenoh_link import Fence, ZenohLink
 from safety.config import RobotGeometry, SupervisorConfig
-from safety.machine import PARTS, Cause, Decision, Event, Forward, Observation, State, Supervisor
+from safety.machine import Cause, Decision, Event, Forward, Observation, State, Supervisor
 from safety.monitors import Monitors
 from safety.recovery import RecoveryLaw
 

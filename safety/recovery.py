@@ -26,13 +26,11 @@ from typing import cast
 import numpy as np
 from scipy.linalg import solve_continuous_are
 
+from drivers.can_codec import ENCODERS, TILT_INPUTS
 from safety.config import RecoveryRules, RobotGeometry
 from safety.diagnostics import motor_jacobian
 
 G0 = 9.80665
-ENCODERS = ("Encoder1", "Encoder2", "Encoder3")
-PLANE_INPUTS = (("Roll", "RateX"), ("Pitch", "RateY"))
-"""Per plane (roll, pitch): its attitude input and its rate input."""
 ATTITUDE_WINDOW = 40
 """Ticks (100 ms) over which the IMU point's acceleration is taken for the accelerometer's tilt."""
 ATTITUDE_VOTE = 0.05
@@ -154,7 +152,7 @@ class IsolatedEstimator:
         planes_ok = True
         # Indexed loops here, not zip(..., strict=True): compiled, that is generic iteration every update.
         for i, plane in enumerate(self.planes):
-            attitude_name, rate_name = PLANE_INPUTS[i]
+            attitude_name, rate_name = TILT_INPUTS[i]
             measured = None if attitude is None or attitude_name in suspects else attitude[i]
             body_rate = None if rate is None or rate_name in suspects else rate[i]
             if attitude is not None and dt > 0.0:

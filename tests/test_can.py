@@ -338,3 +338,11 @@ def test_message_names_are_exactly_the_dbcs():
     assert {m.value for m in MessageName} == {codec.name for codec in Catalog()}
     for kind, group in (("COMMAND", DRIVE_COMMAND), ("FEEDBACK", DRIVE_FEEDBACK), ("TORQUE", DRIVE_TORQUE)):
         assert [str(m) for m in group] == [f"DRIVE{i}_{kind}" for i in (1, 2, 3)]
+
+
+def test_diagnosis_parts_are_exactly_the_dbcs_flags():
+    from drivers.can_codec import ENCODERS, PARTS, TILT_INPUTS, MessageName
+
+    signals = Catalog()[MessageName.SUPERVISOR_DIAGNOSIS].signal_names
+    assert list(PARTS) == [name for name in signals if name not in ("Alert", "Counter", "Crc")]
+    assert set(ENCODERS) | {name for plane in TILT_INPUTS for name in plane} <= set(PARTS)

@@ -2,6 +2,8 @@
 
 import contextlib
 import math
+import pickle
+import re
 
 import msgspec
 import pytest
@@ -122,6 +124,35 @@ def test_key_expressions_follow_the_prefix():
     for bad in ("", "/pure", "pure/", "pure/*"):
         with pytest.raises(ValueError):
             Keys(bad)
+
+
+def test_keys_are_the_same_strings_for_any_prefix():
+    # Formatted once when made: the same strings the keys were formatted to at every read.
+    k = Keys(prefix="bench2/pure")
+    assert {name: getattr(k, name) for name in Keys.__slots__} == {
+        "prefix": "bench2/pure",
+        "tes_wrench": "bench2/pure/tes/wrench",
+        "sc_request": "bench2/pure/sc/request",
+        "sc_command": "bench2/pure/sc/command",
+        "safety_state": "bench2/pure/safety/state",
+        "safety_alert": "bench2/pure/safety/alert",
+        "safety_estop": "bench2/pure/safety/estop",
+        "controller_command": "bench2/pure/controller/command",
+        "controller_telemetry": "bench2/pure/controller/telemetry",
+        "rig_tick": "bench2/pure/rig/tick",
+        "rig_status": "bench2/pure/rig/status",
+        "rig_live": "bench2/pure/rig/live",
+        "rig_history": "bench2/pure/rig/history",
+        "rig_file": "bench2/pure/rig/file",
+        "everything": "bench2/pure/**",
+    }
+    assert k.rig("start") == "bench2/pure/rig/start"
+    assert k == Keys("bench2/pure") and hash(k) == hash(Keys("bench2/pure")) and k != Keys()
+    assert repr(k) == "Keys(prefix='bench2/pure')" and pickle.loads(pickle.dumps(k)) == k
+    assert Keys() == Keys("pure") and Keys().tes_wrench == "pure/tes/wrench"
+    message = "zenoh key prefix 'bench2/*': expected a plain path like 'pure' or 'bench2/pure'"
+    with pytest.raises(ValueError, match=re.escape(message)):
+        Keys("bench2/*")
 
 
 # ----------------------------------------------------------------------------- over real sessions

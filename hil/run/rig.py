@@ -149,10 +149,9 @@ class Rig:
         self.plant, self.can, self.link = plant, can, link
         self.sc_link = link if agent_link is None else agent_link.sc_agent
         self.operator_link = link if agent_link is None else agent_link.operator
-        self.keys = link.keys
-        self._tes_key = self.keys.tes_wrench
-        self._logged_keys = frozenset((self._tes_key, self.keys.sc_command, self.keys.controller_command))
-        """The keys whose puts the inputs log keeps (a Keys property formats its key at every read)."""
+        self.keys = keys = link.keys
+        self._logged_keys = frozenset((keys.tes_wrench, keys.sc_command, keys.controller_command))
+        """The keys whose puts the inputs log keeps."""
         self.sc_schedule = sorted(sc_schedule, key=lambda s: s.tick)
         self.operator = sorted(operator, key=lambda s: s.tick)
         self.command_guard = command_guard
@@ -174,9 +173,8 @@ class Rig:
         """Commands a loop-delay fault holds back: (due tick, drive, torque, enable)."""
         self.stats = TickStats()
         self.telemetry = link.subscribe(
-            self.keys.controller_telemetry, ControllerTelemetry, capacity=TELEMETRY_CAPACITY
+            keys.controller_telemetry, ControllerTelemetry, capacity=TELEMETRY_CAPACITY
         )
-        keys = self.keys
         link.declare_publishers([keys.tes_wrench, keys.rig_tick])
         self.sc_link.declare_publishers([keys.sc_request])
         self.operator_link.declare_publishers([keys.safety_estop, keys.controller_command])
@@ -357,7 +355,7 @@ class Rig:
 
     def _publish_tes(self, k: int, s: TesSample) -> None:
         """Publish the seat sample of tick k (as seat faults alter it)."""
-        key = self._tes_key
+        key = self.keys.tes_wrench
         payload = TesWrench(
             seq=k, stamp=self.plant.t, force=s.force, moment=s.moment, cop=s.cop, cells=s.cells
         )
