@@ -149,3 +149,16 @@ def test_a_run_writes_both_logs_either_way(tmp_path, in_process):
         synced = sum(1 for _ in reader.iter_messages(topics="/can/SYNC"))
     assert sync == synced == 100
     assert json.loads((tmp_path / "summary.json").read_text())["outputs_failed"] == {}
+
+
+def test_the_process_imports_the_runs_pure_hil_not_the_working_directorys(tmp_path, monkeypatch):
+    """Run from a folder that holds another checkout (a compiled build run from its source tree): the
+    process must import what the run imported, never the folder's."""
+    decoy = tmp_path / "decoy"
+    (decoy / "hil").mkdir(parents=True)
+    (decoy / "hil" / "__init__.py").write_text('raise ImportError("the working directory\'s hil")\n')
+    monkeypatch.chdir(decoy)
+    logs = LogProcess(tmp_path / "can.log", None)
+    feed(logs)
+    assert logs.failed == {}
+    assert len((tmp_path / "can.log").read_text().splitlines()) == 4 * TICKS

@@ -144,7 +144,7 @@ class LogProcess(can.Listener):
         self._broken: str | None = None
         env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONPATH": _import_path()}
         self._process = subprocess.Popen(
-            [sys.executable, "-m", __name__],
+            [sys.executable, "-P", "-m", __name__],  # -P: not the working directory's pure-hil, the run's
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             env=env,
