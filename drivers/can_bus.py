@@ -79,7 +79,7 @@ class Received:
     ) -> None:
         self.name = name
         self.signals = signals
-        """Shared by every node that read the same payload (MessageCodec.decode_shared): read-only."""
+        """This node's own (MessageCodec.decode_shared copies a payload's decode for each reader)."""
         self.timestamp = timestamp
         self.e2e = e2e
         """None for unprotected messages (SYNC)."""

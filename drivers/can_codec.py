@@ -158,16 +158,15 @@ class MessageCodec:
         return out
 
     def decode_shared(self, data: bytes | bytearray) -> dict[str, float | int]:
-        """`decode(data)`, but the very dict of the previous call when the payload is the same: on the
-        in-process bus every reader of a frame decodes the same payload, and the nodes of one DBC share its
-        codecs (Catalog), so only the first of them decodes it. The dict is shared: read-only to its callers.
-        Keyed on the payload's bytes, not the frame object: the signals are a function of those alone."""
+        """`decode(data)`, copied from the previous call's when the payload is the same: on the in-process
+        bus every reader of a frame decodes the same payload, and the nodes of one DBC share its codecs
+        (Catalog), so only the first of them decodes it. Each caller gets a dict of its own: a reader that
+        changes its signals (a controller under test) must never change what the supervisor reads. Keyed
+        on the payload's bytes, not the frame object: the signals are a function of those alone."""
         last = self._last_decoded
-        if data == last[0]:
-            return last[1]
-        signals = self.decode(data)
-        self._last_decoded = (bytes(data), signals)
-        return signals
+        if data != last[0]:
+            last = self._last_decoded = (bytes(data), self.decode(data))
+        return dict(last[1])
 
     def decode_int(self, raw: int) -> dict[str, float | int]:
         out: dict[str, float | int] = {}

@@ -1,6 +1,6 @@
 """Nodes of one DBC share its codecs, and a payload every reader decodes is decoded once
-(MessageCodec.decode_shared): each receiver still checks E2E for itself, a changed payload is decoded afresh,
-and a node on another DBC is never served the default DBC's signals."""
+(MessageCodec.decode_shared): each receiver still gets signals of its own and checks E2E for itself, a
+changed payload is decoded afresh, and a node on another DBC is never served the default DBC's signals."""
 
 import can
 import pytest
@@ -33,8 +33,11 @@ def test_a_frame_read_by_two_nodes_on_the_shared_bus_is_decoded_once():
         assert got_a is not None and got_b is not None
         assert got_a.signals == got_b.signals
         assert got_a.signals["Position"] == 7 and got_a.signals["Velocity"] == pytest.approx(1.25)
-        assert got_a.signals is got_b.signals, "the second reader is served the first one's decode"
         assert got_a.e2e == got_b.e2e and got_a.ok
+        got_a.signals["Position"] = 99  # a reader (a controller under test) that changes what it got
+        assert got_b.signals["Position"] == 7, "the other reader's signals are its own"
+        tx.send(FEEDBACK, {"Position": 7, "Velocity": 1.25})  # the same payload, the codec's copy reused
+        assert b.recv(0.0).signals["Position"] == 7
 
 
 def test_each_reader_checks_e2e_for_itself():
@@ -44,7 +47,7 @@ def test_each_reader_checks_e2e_for_itself():
     # b never saw m[1]: the payload a decoded last is b's next, and b alone finds the loss.
     assert b.decode(m[0]).e2e.status is E2EStatus.OK
     lost = b.decode(m[2])
-    assert lost.signals is a.decode(m[2]).signals
+    assert lost.signals == a.decode(m[2]).signals
     assert lost.e2e.status is E2EStatus.LOST and lost.e2e.lost == 1
     assert b.stats.e2e == {(FEEDBACK, "LOST"): 1} and b.stats.lost_frames[FEEDBACK] == 1
     assert a.stats.e2e == {(FEEDBACK, "REPEATED"): 1}, "a's repeat of m[2] is a's own"
@@ -64,7 +67,7 @@ def test_a_changed_payload_is_decoded_afresh():
     before = a.decode(altered).signals
     altered.data[0] ^= 0x01  # the same frame object, one bit changed in place
     after = b.decode(altered)
-    assert after.signals is not before and after.signals["Position"] == 301 and before["Position"] == 300
+    assert after.signals["Position"] == 301 and before["Position"] == 300
     assert after.e2e.status is E2EStatus.CRC_ERROR
     assert seen["Position"] == 100, "a served dict never changes afterwards"
 
@@ -72,7 +75,8 @@ def test_a_changed_payload_is_decoded_afresh():
 def test_an_equal_payload_in_another_frame_is_served_the_same_signals():
     codec = Catalog()[FEEDBACK]
     data = feedback(CanNode(None), 5).data
-    assert codec.decode_shared(bytes(data)) is codec.decode_shared(bytearray(data))
+    first, again = codec.decode_shared(bytes(data)), codec.decode_shared(bytearray(data))
+    assert first == again and first is not again
     assert codec.decode_shared(data) == codec.decode(data)
 
 

@@ -53,8 +53,9 @@ the pickling)."""
 STOP_TIMEOUT = 60.0
 """s stop() waits for the process to finish the files (it is behind by at most a pipe's buffer)."""
 PIPE_BYTES = 1 << 20
-"""The pipe's buffer (Linux's default limit for an unprivileged process, 64 kB by default): ~800 ticks of
-calls, so the run is held back only when the process falls behind for longer than that."""
+"""The pipe's buffer, asked for (64 kB otherwise; 1 MB is Linux's default pipe-max-size, the most an
+unprivileged process may ask): ~800 ticks of calls, so the run is held back only when the process falls
+behind for longer than that."""
 CAN_LOG, MCAP = "can.log", "run.mcap"
 
 _fields = operator.attrgetter(*MESSAGE_FIELDS)
