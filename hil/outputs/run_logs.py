@@ -260,14 +260,21 @@ def _message(values: tuple[Any, ...]) -> can.Message:
 
 
 def _exit_reason(code: int) -> str:
-    return f"signal {signal.Signals(-code).name}" if code < 0 else f"exit code {code}"
+    if code >= 0:
+        return f"exit code {code}"
+    try:
+        return f"signal {signal.Signals(-code).name}"
+    except ValueError:  # a real-time signal has no name
+        return f"signal {-code}"
 
 
 def _serve(calls: IO[bytes], report: IO[bytes]) -> None:
     """The writer process: replay every call handed over into a `LocalLogs` until the end (None) or the
     end of the input (the run's process died); then finish the files and report."""
-    can_log, mcap = _read(calls)
-    logs = LocalLogs(can_log, mcap)
+    spec = _read(calls)
+    if spec is None:  # the run's process died before it said what to write
+        return
+    logs = LocalLogs(*spec)
     now = 0.0
     logs.clock = lambda: now
     while (batch := _read(calls)) is not None:
