@@ -57,7 +57,11 @@ ENCODERS = ("Encoder1", "Encoder2", "Encoder3")
 """SUPERVISOR_DIAGNOSIS's flags of the drives' encoders, in motor order."""
 TILT_INPUTS = (("Roll", "RateX"), ("Pitch", "RateY"))
 """SUPERVISOR_DIAGNOSIS's flags of each plane's (roll, pitch) attitude and rate."""
-PARTS = (*ENCODERS, "Roll", "Pitch", "RateX", "RateY", "RateZ", "Accel", "Seat", "Drive1", "Drive2", "Drive3")
+PARTS = (
+    *ENCODERS,
+    *(name for names in zip(*TILT_INPUTS, strict=True) for name in names),  # Roll, Pitch, RateX, RateY
+    *("RateZ", "Accel", "Seat", "Drive1", "Drive2", "Drive3"),
+)
 """What a diagnosis can name faulty, the sensors' channels, the seat and the drives: SUPERVISOR_DIAGNOSIS's
 flags, spelled as its signals (tests/test_can.py: all its signals but Alert and the E2E's, in order)."""
 

@@ -36,24 +36,6 @@ PAYLOADS: dict[str, type[Payload]] = {
 class Keys:
     """Every key of the rig under `prefix`, formatted once (nodes read them on every tick)."""
 
-    __slots__ = (
-        "controller_command",
-        "controller_telemetry",
-        "everything",
-        "prefix",
-        "rig_file",
-        "rig_history",
-        "rig_live",
-        "rig_status",
-        "rig_tick",
-        "safety_alert",
-        "safety_estop",
-        "safety_state",
-        "sc_command",
-        "sc_request",
-        "tes_wrench",
-    )
-
     def __init__(self, prefix: str = DEFAULT_PREFIX) -> None:
         p = prefix
         if not p or p.startswith("/") or p.endswith("/") or any(c in p for c in "*$?#"):

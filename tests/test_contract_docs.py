@@ -83,7 +83,7 @@ def test_the_e2e_worked_example_is_what_a_node_sends():
 def test_every_key_and_payload_is_in_the_contract():
     text = CONTRACT.read_text()
     keys = Keys()
-    for name in Keys.__slots__:
+    for name in vars(keys):
         if name not in ("prefix", "everything"):
             key = getattr(keys, name)
             if not key.startswith("pure/rig/status"):

@@ -129,7 +129,7 @@ def test_key_expressions_follow_the_prefix():
 def test_keys_are_the_same_strings_for_any_prefix():
     # Formatted once when made: the same strings the keys were formatted to at every read.
     k = Keys(prefix="bench2/pure")
-    assert {name: getattr(k, name) for name in Keys.__slots__} == {
+    assert vars(k) == {
         "prefix": "bench2/pure",
         "tes_wrench": "bench2/pure/tes/wrench",
         "sc_request": "bench2/pure/sc/request",
