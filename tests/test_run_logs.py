@@ -19,11 +19,13 @@ from drivers.can_bus import CanNode, open_bus, private_channel
 from drivers.can_codec import Catalog, MessageName
 from drivers.keys import Keys
 from drivers.schemas import TesWrench, encode
+from hil.bench.bench import load_bench
 from hil.outputs import run_logs
 from hil.outputs.run_logs import LocalLogs, LogProcess, McapSpec, open_logs
 from hil.outputs.trace_log import TELEMETRY
 from hil.pipeline import run
 from hil.run.build import RunOptions
+from hil.run.build import run_logs as build_run_logs
 from tests.test_mcap import SCENARIO, bench
 
 TICKS = 300  # more than a batch's ticks, not a multiple of them: stop() hands over the rest
@@ -162,3 +164,21 @@ def test_the_process_imports_the_runs_pure_hil_not_the_working_directorys(tmp_pa
     feed(logs)
     assert logs.failed == {}
     assert len((tmp_path / "can.log").read_text().splitlines()) == 4 * TICKS
+
+
+def test_a_bench_with_parts_in_other_processes_writes_on_the_ticks_thread(tmp_path):
+    """The lockstep tick waits on a controller or supervisor in a process of its own: no writer process
+    competes with them for the CPU."""
+    embedded = bench(recording=False)
+    here = run_logs_of(embedded, tmp_path / "embedded")
+    assert isinstance(here, LogProcess), "positive control: a rig alone in its process"
+    spawned = load_bench("vcan")  # a shipped bench whose controller and supervisor are spawned
+    assert isinstance(run_logs_of(spawned, tmp_path / "vcan"), LocalLogs)
+
+
+def run_logs_of(b, folder: Path) -> LocalLogs | LogProcess:
+    folder.mkdir()
+    logs = build_run_logs(b, SCENARIO, 0, RunOptions(), folder)
+    assert logs is not None
+    logs.stop()
+    return logs

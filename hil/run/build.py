@@ -212,7 +212,9 @@ def run_logs(
         meta = {"scenario": scenario.name, "seed": str(seed), "bench": bench.name}
         mcap = McapSpec(out / "run.mcap", scenario.tick_hz, bench.zenoh.prefix, meta)
     can_log = out / "can.log" if bench.outputs.can_log else None
-    return open_logs(can_log, mcap, options.logs_in_process)
+    # A writer process pays only beside a rig alone in its process: where the controller or the supervisor
+    # runs in a process of its own, the lockstep tick waits on them, and a writer would compete for their CPU.
+    return open_logs(can_log, mcap, options.logs_in_process or not bench.self_contained)
 
 
 def _connect(
