@@ -62,7 +62,10 @@ class SharedBus(can.BusABC):
         self.channel_id = channel
         self.channel_info = f"shared in-process bus channel {channel}"
         self.receive_own_messages = receive_own_messages
-        self._queue: queue.SimpleQueue[can.Message] = queue.SimpleQueue()
+        self.frames: queue.SimpleQueue[can.Message] = queue.SimpleQueue()
+        """What this bus received and nobody has taken yet, in order. A reader on the hot path may take from
+        it directly (`empty()`, then `get_nowait()`: what `recv(0)` does, without a Python call per frame;
+        drivers/can_bus.py's nodes do)."""
         self._ids: frozenset[int] | None = None
         """The filters as a set of exact standard ids, when they are that (the common case); else None."""
         self._open = True
@@ -88,7 +91,7 @@ class SharedBus(can.BusABC):
         # most of a receive's cost (0.41 -> 0.09 us a frame). The tick's drains (timeout 0) take the short
         # path: about 40 a tick, each ending on an empty queue (a check, not an exception raised and caught).
         if timeout is not None and timeout <= 0 and self._open:
-            frames = self._queue
+            frames = self.frames
             return None if frames.empty() else frames.get_nowait()
         return self._recv_internal(timeout)[0]
 
@@ -96,8 +99,8 @@ class SharedBus(can.BusABC):
         self._check_if_open()
         try:
             if timeout is not None and timeout <= 0:
-                return (None if self._queue.empty() else self._queue.get_nowait()), True
-            return self._queue.get(timeout=timeout), True
+                return (None if self.frames.empty() else self.frames.get_nowait()), True
+            return self.frames.get(timeout=timeout), True
         except queue.Empty:  # timed out, or another reader of this bus took the frame
             return None, True
 
@@ -109,9 +112,13 @@ class SharedBus(can.BusABC):
             bus = ref()
             if bus is None or (bus is self and not self.receive_own_messages):
                 continue
-            ids = bus._ids  # exact ids (a set look-up) or python-can's own filter matching
-            if (not extended and frame_id in ids) if ids is not None else bus._matches_filters(frame):
-                bus._queue.put(frame)
+            ids = bus._ids  # exact ids (a set look-up), no filters (every frame) or python-can's own matching
+            if ids is not None:
+                if extended or frame_id not in ids:
+                    continue
+            elif bus._filters is not None and not bus._matches_filters(frame):
+                continue
+            bus.frames.put(frame)
 
     def shutdown(self) -> None:
         super().shutdown()

@@ -87,7 +87,7 @@ def test_filters_apply_at_send_so_a_filtered_bus_never_queues_the_frame(channel)
     try:
         tx.send(frame(0x181))
         tx.send(frame(0x080))
-        assert only_sync._queue.qsize() == 1  # the 0x181 never reached its queue
+        assert only_sync.frames.qsize() == 1  # the 0x181 never reached its queue
         assert only_sync.recv(0).arbitration_id == 0x080
         assert [everything.recv(0).arbitration_id for _ in range(2)] == [0x181, 0x080]  # positive control
     finally:
