@@ -230,6 +230,43 @@ def test_a_drain_reads_past_a_rejected_frame_in_the_same_tick(pair):
     assert rx.stats.malformed["unknown_id"] == 1 and rx.recv(timeout=0.0) is None
 
 
+@pytest.mark.parametrize("interface", ["pure_shared", "virtual"])
+def test_a_drain_and_the_recorder_take_the_same_frames_from_either_bus(tmp_path, interface):
+    """On the in-process shared bus a node's drain and the recorder take frames from its queue directly;
+    on any other bus (python-can's virtual here) through recv: the same frames, in order, hooks applied."""
+    channel = private_channel("drain")
+    with (
+        can.Bus(interface=interface, channel=channel) as a,
+        can.Bus(interface=interface, channel=channel) as b,
+        can.Bus(interface=interface, channel=channel) as c,
+    ):
+        tx, rx = CanNode(a, CATALOG, "tx"), CanNode(b, CATALOG, "rx")
+        rx.rx_hook = lambda msg: None if msg.arbitration_id == 0x080 and msg.data[0] == 2 else msg
+        for tick in (1, 2, 3):
+            tx.send("SYNC", {"Tick": tick})
+        tx.bus.send(can.Message(arbitration_id=0x7F0, is_extended_id=False, data=bytes(8)))  # not in the DBC
+        tx.send("SYNC", {"Tick": 4})
+        ticks = []
+        while (frame := rx.recv(timeout=0.0)) is not None:
+            ticks.append(frame.signals["Tick"])
+        assert ticks == [1, 3, 4], "the hook dropped tick 2; the unknown id is counted, not returned"
+        assert rx.stats.malformed["unknown_id"] == 1
+        seen: list[int] = []
+
+        class Seen(can.Listener):
+            def on_message_received(self, msg: can.Message) -> None:
+                seen.append(msg.arbitration_id)
+
+        recorder = BusRecorder(BusConfig(interface=interface, channel=channel), None, [Seen()])
+        try:
+            tx.send("SYNC", {"Tick": 5})
+            recorder.poll()
+        finally:
+            recorder.stop(settle=0.0)
+        assert seen == [0x080]
+        assert c.recv(0) is not None, "every reader has its own queue"
+
+
 @settings(max_examples=400, deadline=None)
 @given(st.lists(frame_strategy, max_size=30))
 def test_fuzzed_frames_never_raise_and_are_all_counted(frames_in):
