@@ -336,7 +336,11 @@ def test_a_controller_killed_at_speed_is_caught_by_the_supervisors_recovery_law_
     steps = [(e["to_state"], e["cause"]) for e in s["events"]]
     assert steps[:2] == [("RECOVERY", "HEARTBEAT_LOST"), ("ESTOP", "HEARTBEAT_LOST")], steps
     assert s["recovery_commands"] > 0, "the drives followed the supervisor's SUPERVISOR_RECOVERY"
-    assert run.summary["fallen"] is False and s["ended_resting"], "at rest and upright, power off at rest"
+    # Its outcome depends on when the rig hears the takeover: beside a supervisor in another process the
+    # rig waits for its frames only once the last is half the permission timeout old (docs/rig.md), so the
+    # recovery law may start a few ticks later than in one process. On failure: what the rig saw.
+    seen = (s["events"], run.summary["rig"], run.actions)
+    assert run.summary["fallen"] is False and s["ended_resting"], ("at rest, upright, then power off", seen)
 
 
 # --- Device profiles (docs/devices.md): the shipped odrive and cia402 benches' [devices] on vcan0 ---------
