@@ -40,7 +40,8 @@ def private_channel(prefix: str = "pure") -> str:
 
 def queued_frames(bus: can.BusABC) -> queue.SimpleQueue[can.Message] | None:
     """The receive queue of an in-process shared bus (drivers/shared_bus.py), which the tick's drains take
-    from directly; None for any other bus (its own `recv`)."""
+    from directly (what it had queued stays there after a shutdown, where its `recv` would raise); None for
+    any other bus (its own `recv`)."""
     return bus.frames if isinstance(bus, SharedBus) else None
 
 

@@ -231,7 +231,7 @@ def test_a_drain_reads_past_a_rejected_frame_in_the_same_tick(pair):
 
 
 @pytest.mark.parametrize("interface", ["pure_shared", "virtual"])
-def test_a_drain_and_the_recorder_take_the_same_frames_from_either_bus(tmp_path, interface):
+def test_a_drain_and_the_recorder_take_the_same_frames_from_either_bus(interface):
     """On the in-process shared bus a node's drain and the recorder take frames from its queue directly;
     on any other bus (python-can's virtual here) through recv: the same frames, in order, hooks applied."""
     channel = private_channel("drain")
