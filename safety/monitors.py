@@ -22,7 +22,15 @@ from collections.abc import Callable
 import numpy as np
 
 from drivers.can_bus import Received
-from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, ENCODERS, MOTOR_OF, MessageName
+from drivers.can_codec import (
+    DRIVE_COMMAND,
+    DRIVE_FEEDBACK,
+    DRIVE_TORQUE,
+    ENCODERS,
+    MOTOR_OF,
+    TILT_INPUTS,
+    MessageName,
+)
 from drivers.e2e import COUNTER, COUNTER_MODULO, CRC, E2EStatus
 from drivers.schemas import EstopCommand, ScRequest, TesWrench
 from safety.arbiter import ScArbiter
@@ -51,7 +59,7 @@ IMU_CHANNELS: dict[str, tuple[str, str, str]] = {
 REPLAY_CHECKED = (*DRIVE_FEEDBACK, *DRIVE_TORQUE, *IMU_CHANNELS)
 """Sensor streams checked for a replay from one counter period back."""
 CHANNEL_INPUT: dict[str, tuple[str, ...]] = {
-    **{name: (f"Encoder{motor + 1}",) for name, motor in zip(DRIVE_FEEDBACK, range(3), strict=True)},
+    **{name: (encoder,) for name, encoder in zip(DRIVE_FEEDBACK, ENCODERS, strict=True)},
     **{name: () for name in DRIVE_TORQUE},  # an actuator's read-back, not an input of balance
     MessageName.IMU_ATTITUDE: ("Roll", "Pitch", ""),
     MessageName.IMU_RATE: ("RateX", "RateY", "RateZ"),
@@ -61,8 +69,12 @@ CHANNEL_INPUT: dict[str, tuple[str, ...]] = {
 is used by no one)."""
 CROSS_CHECKS = ("yaw", "roll", "pitch", "pitch trend", "roll trend")
 """The checks `_cross_checks` runs, in its order (the forward speed trend is the pitch plane's)."""
-PLANES = (("roll", "Roll", "RateX"), ("pitch", "Pitch", "RateY"))
+PLANES = tuple(
+    (plane, attitude, rate) for plane, (attitude, rate) in zip(("roll", "pitch"), TILT_INPUTS, strict=True)
+)
 """Per plane: its checks' name, its attitude input, its rate input."""
+ATTITUDES = frozenset(attitude for _, attitude, _ in PLANES)
+"""The IMU's attitude inputs (Roll, Pitch)."""
 ATTITUDE_LSB = 1e-4
 """rad: IMU_ATTITUDE's resolution (the DBC); "it moved" means several of these."""
 CONTRACT_STEP: dict[str, float] = {
@@ -121,7 +133,7 @@ class Drive:
             Finding(
                 Cause.SENSOR_STUCK,
                 f"drive {self.index} velocity frozen at {self.velocity:.2f} rad/s while its position moved",
-                (f"Encoder{self.index}",),
+                (ENCODERS[self.index - 1],),
             )
             if frozen
             else None
@@ -391,7 +403,7 @@ class Monitors:
         if not failed:
             return frozenset(named)
         out = set(named)
-        if "yaw" in failed and not named & {"Encoder1", "Encoder2", "Encoder3", "RateZ"}:
+        if "yaw" in failed and not named & {*ENCODERS, "RateZ"}:
             out.add(self.isolated.odd_one_out())
         for i, (plane, attitude, rate) in enumerate(PLANES):
             trend = f"{plane} trend" in failed
@@ -439,7 +451,7 @@ class Monitors:
     def tilt(self) -> float | None:
         if not math.isfinite(self._imu_seen[MessageName.IMU_ATTITUDE]):
             return None
-        if self.named & {"Roll", "Pitch"} and self.isolated.ready:
+        if self.named & ATTITUDES and self.isolated.ready:
             return self.isolated.tilt  # the attitude lies: the rates integrated from where it was good
         attitude = self.imu[MessageName.IMU_ATTITUDE]
         return max(abs(attitude[0]), abs(attitude[1]))
