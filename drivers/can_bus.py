@@ -53,6 +53,10 @@ def take_queued(bus: can.BusABC, queued: queue.SimpleQueue[can.Message] | None) 
     return None if queued.empty() else queued.get_nowait()
 
 
+WARNED_IDS = 16
+"""Frame ids a node logs at WARNING per reason (unknown id, E2E error, ...), the first time each is seen."""
+
+
 class BusUnavailable(BusConfigError):
     """The configured bus cannot open on this machine (the message says why and what to do)."""
 
@@ -149,7 +153,8 @@ class CanNode:
         """frame id -> (codec, E2E-protected): one lookup per received frame."""
         self._outgoing = {c.name: (c, protected) for c, protected in self._codecs.values()}
         """message name -> (codec, E2E-protected): one lookup per sent frame."""
-        self._warned: set[tuple[str, int]] = set()
+        self._warned: dict[str, set[int]] = {}
+        """Per reason, the frame ids already logged at WARNING (at most WARNED_IDS each)."""
         self.tx_hook: Callable[[str, can.Message], Iterable[can.Message]] | None = None
         """Sees every frame `send` makes and returns the frames to put on the bus instead (fault injection:
         none, altered, several)."""
@@ -266,11 +271,22 @@ class CanNode:
         self._warn(reason, msg.arbitration_id, msg)
 
     def _warn(self, reason: str, frame_id: int, detail: object) -> None:
-        # First occurrence per (reason, id) at WARNING; a flood must not flood the log too.
-        key = (reason, frame_id)
-        level = logging.DEBUG if key in self._warned else logging.WARNING
-        self._warned.add(key)
-        log.log(level, "%s: %s on 0x%03X: %s", self.name, reason, frame_id, detail)
+        # The first occurrence per (reason, id) at WARNING, for WARNED_IDS ids per reason: a flood must not
+        # flood the log too, and random ids (2^29 extended ones) must not grow this node's memory.
+        ids = self._warned.setdefault(reason, set())
+        if frame_id in ids or len(ids) >= WARNED_IDS:
+            log.debug("%s: %s on 0x%03X: %s", self.name, reason, frame_id, detail)
+            return
+        ids.add(frame_id)
+        more = len(ids) == WARNED_IDS
+        log.warning(
+            "%s: %s on 0x%03X: %s%s",
+            self.name,
+            reason,
+            frame_id,
+            detail,
+            f" (the {WARNED_IDS}th id for {reason}: further ones at DEBUG, all counted)" if more else "",
+        )
 
 
 class BusRecorder:

@@ -1,6 +1,7 @@
 """CAN catalog, codecs, E2E protection, bus load and buses (python-can `virtual`)."""
 
 import itertools
+import logging
 
 import can
 import cantools
@@ -11,7 +12,7 @@ from hypothesis import strategies as st
 
 from drivers.bus_config import BusConfig, BusConfigError, parse_can_spec
 from drivers.bus_load import BusLoadError, bus_load, check_bus_load, frame_bits
-from drivers.can_bus import BusRecorder, CanNode, open_bus, private_channel
+from drivers.can_bus import WARNED_IDS, BusRecorder, CanNode, open_bus, private_channel
 from drivers.can_codec import Catalog, MessageCodec
 from drivers.e2e import E2EChecker, E2EProtector, E2EStatus, counter_of, crc8, is_protected, with_counter
 from drivers.shared_bus import MESSAGE_FIELDS
@@ -228,6 +229,27 @@ def test_a_drain_reads_past_a_rejected_frame_in_the_same_tick(pair):
     frame = rx.recv(timeout=0.0)
     assert frame is not None and frame.name == "SYNC" and frame.signals["Tick"] == 7
     assert rx.stats.malformed["unknown_id"] == 1 and rx.recv(timeout=0.0) is None
+
+
+def test_a_flood_of_random_ids_is_counted_but_logged_and_remembered_only_so_far(pair, caplog):
+    """A babbling node's random ids: every frame counted; at WARNING only the first WARNED_IDS ids per
+    reason (then DEBUG), and the node remembers no more than that (2^29 extended ids would grow it)."""
+    tx, rx, _ = pair
+    caplog.set_level(logging.DEBUG, logger="drivers.can_bus")
+    extended = [0x1000 + 7919 * i for i in range(3000)]
+    for frame_id in extended:
+        tx.bus.send(can.Message(arbitration_id=frame_id, is_extended_id=True, data=bytes(8)))
+    for _ in range(2):  # seen twice: the second time never at WARNING
+        tx.bus.send(can.Message(arbitration_id=0x7F0, is_extended_id=False, data=bytes(8)))
+    while rx.recv(timeout=0.0) is not None:
+        pass
+    assert rx.stats.malformed == {"extended_id": 3000, "unknown_id": 2}
+    warned = [r for r in caplog.records if r.levelno == logging.WARNING]
+    assert len([r for r in warned if "extended_id" in r.getMessage()]) == WARNED_IDS
+    assert "further ones at DEBUG" in warned[WARNED_IDS - 1].getMessage()
+    assert len([r for r in warned if "unknown_id" in r.getMessage()]) == 1, "another reason has its own"
+    assert sum(r.levelno == logging.DEBUG for r in caplog.records) == 3000 - WARNED_IDS + 1
+    assert sum(map(len, rx._warned.values())) == WARNED_IDS + 1
 
 
 @pytest.mark.parametrize("interface", ["pure_shared", "virtual"])
