@@ -373,3 +373,82 @@ def test_an_idle_axis_that_makes_torque_is_reported_powered(torque, enabled):
         wire.frame(node, Cmd.GET_ENCODER_ESTIMATES, {"Pos_Estimate": 1.0, "Vel_Estimate": 0.0})
     )
     assert isinstance(rx, Received) and rx.name == DRIVE_FEEDBACK[0] and rx.signals["Enabled"] == enabled
+
+
+# ------------------------------------------------------------------------------ arming within a tick
+class HoldSetAxisState:
+    """The controller's tx_hook: its Set_Axis_State frames of a tick go on the wire `offset` frames later
+    than it sent them, at most right after its heartbeat (the tick's last frame): the host's request at
+    every offset within the rig's tick, as frames from a host on another thread or bus can arrive."""
+
+    def __init__(self, offset: int):
+        self.offset, self.held, self.after = offset, [], 0
+
+    def __call__(self, name: str, msg: can.Message) -> list[can.Message]:
+        from drivers.can_codec import MessageName
+        from drivers.devices.odrive import Cmd
+
+        if msg.arbitration_id & 0x1F == Cmd.SET_AXIS_STATE:
+            self.held.append(msg)
+            return []
+        if not self.held:
+            return [msg]
+        self.after += 1
+        if self.after < self.offset and name != MessageName.CONTROLLER_HEARTBEAT:
+            return [msg]
+        released, self.held, self.after = self.held, [], 0
+        return [msg, *released]
+
+
+@pytest.mark.parametrize("offset", range(8), ids=lambda o: f"after-{o}-frames" if o < 7 else "after-heartbeat")
+def test_an_axis_armed_at_any_offset_within_a_tick_arms_without_a_false_estop(offset):
+    """Issue 36: a Set_Axis_State(CLOSED_LOOP_CONTROL) that reached the rig after the controller's heartbeat
+    armed the axis, but the rig applies a tick's commands only until that heartbeat, so the power stage
+    was still off at the next tick's sample and the axis disarmed itself with ESTOP_REQUESTED, though no
+    Estop frame was on the bus; the supervisor then took over (DRIVE_FAULT). A real ODrive arms on the
+    frame, whenever it comes. In an arming tick the reference controller sends Set_Axis_State and
+    Set_Input_Torque to each axis, then its heartbeat: 7 frames, so offset 7 is after the heartbeat."""
+    from contextlib import ExitStack
+
+    from hil.run.build import RunOptions, build, start_up
+    from hil.run.loop import tick_loop
+    from hil.pipeline import load_scenario
+
+    scenario = msgspec.structs.replace(load_scenario("balance"), duration=0.25)
+    bench = private_bench("odrive")
+    with ExitStack() as stack:
+        built = build(bench, scenario, scenario.seed, RunOptions(), None, None, stack)
+        built.dut.node.can.tx_hook = HoldSetAxisState(offset)
+        start_up(built, bench)
+        trace = tick_loop(built, RunOptions())
+        axes = built.rig.can.translators[0].axes
+        errors = [axis.error for axis in axes]
+        states = [axis.state for axis in axes]
+    assert trace.failure is None and trace.fallen is None
+    assert errors == [0, 0, 0], [str(AxisError(e)) for e in errors]
+    assert states == [AxisState.CLOSED_LOOP_CONTROL] * 3
+    assert [e for e in trace.safety_events if e.kind == "transition"] == [], "no takeover"
+
+
+def test_an_axis_reports_estop_requested_for_an_estop_frame_and_for_nothing_else():
+    """The supervisor's permission line cuts the power stage outside the firmware (the plant's drive says
+    off): the axis stays armed with no error, as an ODrive behind an STO relay does. Only CAN Simple's
+    Estop raises ESTOP_REQUESTED (the positive control)."""
+    from drivers.can_codec import DRIVE_FEEDBACK
+    from drivers.devices.odrive import REQUESTED, Cmd
+
+    axes = OdriveAxes(Devices(drives="odrive"), 8192, 1 / TICK)
+    wire, node = OdriveWire(), NODES[0]
+    arm = wire.frame(node, Cmd.SET_AXIS_STATE, {REQUESTED: AxisState.CLOSED_LOOP_CONTROL})
+    assert axes.incoming(arm).signals["Enable"] == 1
+    stage_off = {"Position": 0, "Velocity": 0.0, "Enabled": 0, "WatchdogTripped": 0, "BusPowered": 1}
+    heartbeats = []
+    for _ in range(8):
+        frames = axes.outgoing(DRIVE_FEEDBACK[0], stage_off)
+        heartbeats += [wire.decode(f) for f in frames if f.arbitration_id & 0x1F == Cmd.HEARTBEAT]
+    assert heartbeats and all(h["Axis_Error"] == 0 for h in heartbeats)
+    assert all(h["Axis_State"] == AxisState.CLOSED_LOOP_CONTROL for h in heartbeats)
+    axes.incoming(wire.frame(node, Cmd.ESTOP))
+    axis = axes.axes[0]
+    assert axis.state == AxisState.IDLE
+    assert axis.error == axis.disarm_reason == AxisError.ESTOP_REQUESTED

@@ -1,10 +1,11 @@
 """Three emulated ODrive axes on CAN Simple (firmware 0.6), one per omniwheel motor (docs/devices.md).
 
 Each axis is IDLE until a host asks for CLOSED_LOOP_CONTROL, makes torque only there and only in torque
-control, and disarms as the firmware does: on Estop (ESTOP_REQUESTED), when its watchdog expires
-(WATCHDOG_TIMER_EXPIRED), when the DC bus is lost (DC_BUS_UNDER_VOLTAGE) and when the power stage stops
-without being asked to (here: the supervisor's permission line, reported as ESTOP_REQUESTED). An axis with
-an error refuses to arm until Clear_Errors. It sends Heartbeat and Get_Encoder_Estimates at the bench's
+control, and disarms as the firmware does: on an Estop frame (ESTOP_REQUESTED, and only then), when its
+watchdog expires (WATCHDOG_TIMER_EXPIRED), when the DC bus is lost (DC_BUS_UNDER_VOLTAGE) and on a power
+stage fault (DRV_FAULT). The supervisor's permission line cuts the power stage outside the firmware, as an
+STO input does: the axis's state does not show it. An axis with an error refuses to arm until
+Clear_Errors. It sends Heartbeat and Get_Encoder_Estimates at the bench's
 rates and Get_Torques at 100 Hz, and answers an RTR of any Get_* message at once.
 
 Set_Input_Torque reaches the rig as the contract's DRIVEn_COMMAND tagged with the current tick (a CAN
@@ -133,8 +134,11 @@ class OdriveAxes(Translator):
             axis.disarm(AxisError.WATCHDOG_TIMER_EXPIRED)
         if s.get("Fault", 0):
             axis.disarm(AxisError.DRV_FAULT)
-        if axis.armed and not s["Enabled"]:  # the power stage went off unasked: the permission line
-            axis.disarm(AxisError.ESTOP_REQUESTED)
+        # Nothing else of the plant's drive state reaches the axis's state: the firmware's own errors
+        # (above) disarm it, and ESTOP_REQUESTED comes only from an Estop frame. The plant's Enabled this
+        # tick is not the axis's state: an arming request the rig takes after the controller's heartbeat
+        # reaches the power stage with the next setpoint (issue 36), and the supervisor's permission line
+        # cuts the stage outside the firmware (an STO input), which the axis cannot see.
 
     def _reply(self, axis: Axis, cmd: int) -> can.Message:
         values: dict[str, float]
