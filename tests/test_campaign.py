@@ -378,6 +378,10 @@ def test_coverage_classes_what_followed_a_detection_and_a_fall_after_it_fails_th
     assert "FELL 2 (1 of the falls unrecoverable, named in the campaign)" in table
     suite = ET.parse(out / "junit.xml").getroot()
     assert (suite.get("tests"), suite.get("failures")) == ("5", "1")
+    # Each faulty case was timed against its twin run again just before it, on the same worker.
+    timed = {k: c["twin_wall"] for k, c in cases.items() if c["role"] == "faulty"}
+    assert len(timed) == 3 and all(wall > 0 for wall in timed.values()), timed
+    assert all(c["twin_wall"] == 0 for c in cases.values() if c["role"] != "faulty")
 
 
 def test_a_campaign_in_the_benchs_folder_is_in_its_history_beside_the_services_runs(tmp_path):
@@ -408,3 +412,46 @@ def test_a_campaign_in_the_benchs_folder_is_in_its_history_beside_the_services_r
         == 0
     )
     assert History(tmp_path / "runs").count() == 1
+
+
+def test_a_faulty_cases_wall_time_is_judged_against_its_twin_run_back_to_back_on_the_same_worker():
+    """Issue 36: a twin that ran on a quiet machine made a healthy faulty case on a loaded one fail the
+    2x wall-time criterion. The reference is now the twin run again right before the case on its worker
+    (`twin_wall`), whatever the twin's own run took."""
+    from hil.suites.campaign import CaseResult, judge
+    from hil.suites.coverage import Bounds, Outcome
+
+    def still(n: int = 50) -> Outcome:
+        return Outcome(t=[i / 100 for i in range(n)], speed=[0.0] * n, tilt_deg=[0.0] * n, yaw_rate=[0.0] * n)
+
+    def judged(twin_wall: float) -> CaseResult:
+        twin = CaseResult("b-none-seed0", "b", True, wall=1.0, role="twin", outcome=still())
+        case = CaseResult(
+            "b-x-seed0",
+            "b",
+            True,
+            wall=3.0,
+            role="faulty",
+            twin=twin.case_id,
+            outcome=still(),
+            twin_wall=twin_wall,
+        )
+        judge(case, twin, Bounds(wall_ratio=2.0))
+        return case
+
+    loaded = judged(twin_wall=2.5)  # the twin's own run met a quiet machine (1.0 s): 3x, but 1.2x beside it
+    assert not [v for v in loaded.verdicts if v["criterion"] == "wall time vs twin"]
+    slow = judged(twin_wall=1.2)  # the positive control: 2.5x its twin on the same worker
+    [verdict] = [v for v in slow.verdicts if v["criterion"] == "wall time vs twin"]
+    assert not slow.passed and verdict["value"] == pytest.approx(2.5)
+    assert "run just before it on the same worker" in verdict["note"]
+
+
+def test_expansion_gives_each_faulty_case_its_twins_scenario_to_time_it_with():
+    from hil.suites.campaign import expand, load_campaign
+
+    cases = expand(load_campaign("odrive"))
+    by_id = {c.id: c for c in cases}
+    faulty = [c for c in cases if c.role == "faulty"]
+    assert faulty and all(c.twin_text == by_id[c.twin_id].scenario_text for c in faulty)
+    assert not any(c.twin_text for c in cases if c.role != "faulty")

@@ -400,7 +400,9 @@ class HoldSetAxisState:
         return [msg, *released]
 
 
-@pytest.mark.parametrize("offset", range(8), ids=lambda o: f"after-{o}-frames" if o < 7 else "after-heartbeat")
+@pytest.mark.parametrize(
+    "offset", range(8), ids=lambda o: f"after-{o}-frames" if o < 7 else "after-heartbeat"
+)
 def test_an_axis_armed_at_any_offset_within_a_tick_arms_without_a_false_estop(offset):
     """Issue 36: a Set_Axis_State(CLOSED_LOOP_CONTROL) that reached the rig after the controller's heartbeat
     armed the axis, but the rig applies a tick's commands only until that heartbeat, so the power stage
@@ -410,9 +412,9 @@ def test_an_axis_armed_at_any_offset_within_a_tick_arms_without_a_false_estop(of
     Set_Input_Torque to each axis, then its heartbeat: 7 frames, so offset 7 is after the heartbeat."""
     from contextlib import ExitStack
 
+    from hil.pipeline import load_scenario
     from hil.run.build import RunOptions, build, start_up
     from hil.run.loop import tick_loop
-    from hil.pipeline import load_scenario
 
     scenario = msgspec.structs.replace(load_scenario("balance"), duration=0.25)
     bench = private_bench("odrive")
