@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import asyncio
 import json
+import math
+import struct
 import threading
 import time
 
@@ -21,7 +23,7 @@ from drivers.bus_config import BusConfig
 from drivers.can_bus import Received, open_bus, private_channel
 from drivers.can_codec import DRIVE_FEEDBACK
 from drivers.config import ConfigError
-from drivers.devices import Devices
+from drivers.devices import Devices, OdriveOptions
 from drivers.devices.odrive import AxisError, AxisState, OdriveWire
 from hil.devices.odrive import OdriveAxes
 from plant.drives import DriveState
@@ -454,3 +456,264 @@ def test_an_axis_reports_estop_requested_for_an_estop_frame_and_for_nothing_else
     axis = axes.axes[0]
     assert axis.state == AxisState.IDLE
     assert axis.error == axis.disarm_reason == AxisError.ESTOP_REQUESTED
+
+
+# ------------------------------------------------------- every RTR, Address discovery, the endpoints
+def test_every_rtr_firmware_0_6_10_answers_is_answered_to_odrive_cans_client(bench):
+    """Issue 39: Get_Iq, Get_Temperature and Get_Powers timed out, and the bus current was always 0 A.
+    Asked through ODriveCAN's own calls (its typed getters where it has them, its `_request` for the rest),
+    with axis 2 armed at 0.8 Nm and turning at 2 rad/s: Iq is the torque over the torque constant, the
+    electrical power the mechanical plus the copper loss, and the bus current the three drives'
+    electrical power over the bus voltage."""
+    axes, channel = bench
+    emulation = axes.emulation
+    options = Devices(drives="odrive").odrive
+    kt, r = options.torque_constant, options.phase_resistance
+
+    async def session() -> None:
+        client = odrive_can.ODriveCAN(axis_id=NODES[1], can_bus=open_bus(BusConfig(channel=channel)))
+        await client.start()
+        try:
+            feeder = Feeder(client)
+            feeder.torque = 0.8
+            await arm(client, "CLOSED_LOOP_CONTROL")
+            await _until(lambda: emulation.axes[1].torque == pytest.approx(0.8, abs=1e-3))
+            iq = await client.get_iq()
+            assert iq["Iq_Setpoint"] == pytest.approx(0.8 / kt, rel=1e-5)
+            assert iq["Iq_Measured"] == pytest.approx(0.8 / kt, rel=1e-3)
+            temperature = await client._request("Get_Temperature")
+            assert temperature == {"FET_Temperature": 25.0, "Motor_Temperature": 25.0}
+            powers = await client._request("Get_Powers")
+            mechanical = 0.8 * 2.0  # Nm x rad/s: the bench turns every motor at 2 rad/s
+            assert powers["Mechanical_Power"] == pytest.approx(mechanical, rel=1e-3)
+            copper = 1.5 * r * (0.8 / kt) ** 2
+            assert powers["Electrical_Power"] == pytest.approx(mechanical + copper, rel=1e-3)
+            bus = await client.get_bus_voltage_current()
+            assert bus["Bus_Voltage"] == options.bus_voltage
+            # The other two axes are idle (no torque): the whole bus draws what axis 2 does.
+            assert bus["Bus_Current"] == pytest.approx((mechanical + copper) / options.bus_voltage, rel=1e-3)
+            assert bus["Bus_Current"] > 0, "the plant's draw, not 0 A"
+            for name in ("Get_Version", "Get_Error", "Heartbeat", "Get_Encoder_Estimates", "Get_Torques"):
+                assert await client._request(name), name
+            address = await client._request("Address")
+            assert address == {"Node_ID": NODES[1], "Serial_Number": 0x505552450000 + NODES[1]}
+            await feeder.stop()
+        finally:
+            client.stop()
+
+    asyncio.run(session())
+
+
+def test_address_discovery_finds_every_axis_as_odrives_enumeration_does(bench):
+    """ODrive's own discovery (its can_enumerate example): an RTR of Address on the broadcast node 0x3F,
+    every ODrive answers on its node id with Node_ID and its 48-bit serial number, little-endian."""
+    _, channel = bench
+    bus = open_bus(BusConfig(channel=channel))
+    try:
+        bus.send(can.Message(arbitration_id=0x3F << 5 | 0x06, is_extended_id=False, is_remote_frame=True))
+        found, deadline = {}, time.monotonic() + 5.0
+        while len(found) < 3 and time.monotonic() < deadline:
+            msg = bus.recv(0.1)
+            if msg is not None and msg.arbitration_id & 0x1F == 0x06 and not msg.is_remote_frame:
+                found[msg.data[0]] = int.from_bytes(msg.data[1:7], "little")
+        assert found == {n: 0x505552450000 + n for n in NODES}
+    finally:
+        bus.shutdown()
+
+
+ENDPOINT_FORMATS = {"bool": "?", "uint8": "B", "uint32": "I", "float": "f"}
+
+
+class EndpointClient:
+    """CAN endpoint access as ODrive's CAN guide does it (python-can and struct; the ids from the
+    firmware's flat_endpoints.json): RxSdo opcode 0 reads, 1 writes; the answer is a TxSdo."""
+
+    def __init__(self, channel: str, node: int, endpoints: dict):
+        self.bus, self.node, self.endpoints = open_bus(BusConfig(channel=channel)), node, endpoints
+
+    def _frame(self, data: bytes) -> can.Message:
+        # Padded to the DBC's 8 bytes: the guide's 4-byte read is valid CAN Simple, but odrive-can's client
+        # on the same bus stops handling frames after one of its axis that the DBC cannot decode.
+        data = data.ljust(8, b"\0")
+        return can.Message(arbitration_id=self.node << 5 | 0x04, data=data, is_extended_id=False)
+
+    def read(self, path: str):
+        ident, fmt = self.endpoints[path]["id"], ENDPOINT_FORMATS[self.endpoints[path]["type"]]
+        while self.bus.recv(timeout=0) is not None:
+            pass
+        self.bus.send(self._frame(struct.pack("<BHB", 0, ident, 0)))
+        deadline = time.monotonic() + 5.0
+        while time.monotonic() < deadline:
+            msg = self.bus.recv(0.1)
+            if msg is not None and msg.arbitration_id == self.node << 5 | 0x05:
+                _, echoed, _, value = struct.unpack_from("<BHB" + fmt, msg.data)
+                assert echoed == ident
+                return value
+        raise TimeoutError(path)
+
+    def write(self, path: str, value) -> None:
+        ident, fmt = self.endpoints[path]["id"], ENDPOINT_FORMATS[self.endpoints[path]["type"]]
+        self.bus.send(self._frame(struct.pack("<BHB" + fmt, 1, ident, 0, value)))
+
+    def close(self) -> None:
+        self.bus.shutdown()
+
+
+def flat_endpoints(emulation: OdriveAxes) -> dict:
+    """The emulation's endpoint table in flat_endpoints.json's shape."""
+    return {p: {"id": ident, "type": kind} for p, (ident, kind) in emulation.endpoints.items()}
+
+
+def test_the_endpoints_a_labs_configuration_reads_are_served_over_rxsdo_and_txsdo(bench):
+    """Issue 39: RxSdo got no answer. Every endpoint is read as ODrive's CAN guide reads it; the writable
+    ones are written and read back; requested_state arms the axis as Set_Axis_State does (odrive-can's
+    client sees it in the heartbeat), and the torque constant written is the one Get_Iq divides by."""
+    from hil.devices.odrive import ENDPOINTS, WRITABLE
+
+    axes, channel = bench
+    emulation, motor = axes.emulation, axes.drives.motors[0]
+    table = flat_endpoints(emulation)
+    assert set(table) == set(ENDPOINTS)
+    sdo = EndpointClient(channel, NODES[0], table)
+
+    async def read(path: str):  # off the event loop: the client's reader keeps feeding it meanwhile
+        return await asyncio.to_thread(sdo.read, path)
+
+    async def write(path: str, value) -> None:
+        await asyncio.to_thread(sdo.write, path, value)
+
+    async def session() -> None:
+        client = odrive_can.ODriveCAN(axis_id=NODES[0], can_bus=open_bus(BusConfig(channel=channel)))
+        await client.start()
+        try:
+            values = {path: await read(path) for path in ENDPOINTS}
+            assert values["vbus_voltage"] == 48.0 and values["ibus"] == 0.0
+            assert (
+                values["fw_version_major"],
+                values["fw_version_minor"],
+                values["fw_version_revision"],
+            ) == (
+                0,
+                6,
+                10,
+            )
+            version = await client._request("Get_Version")
+            hardware = (
+                version["Hw_Version_Major"],
+                version["Hw_Version_Minor"],
+                version["Hw_Version_Variant"],
+            )
+            assert (
+                values["hw_version_major"],
+                values["hw_version_minor"],
+                values["hw_version_variant"],
+            ) == hardware
+            assert values["axis0.current_state"] == AxisState.IDLE and values["axis0.active_errors"] == 0
+            assert values["axis0.config.motor.torque_constant"] == pytest.approx(0.0827)
+            assert values["axis0.controller.config.control_mode"] == 1  # TORQUE_CONTROL
+            assert values["axis0.config.can.node_id"] == NODES[0]
+            assert values["axis0.pos_estimate"] > 0 and values["axis0.vel_estimate"] == pytest.approx(
+                2 / (2 * math.pi)
+            )
+            for path, value in [
+                ("axis0.controller.config.vel_limit", 7.5),
+                ("axis0.config.motor.current_soft_max", 30.0),
+                ("axis0.config.torque_soft_min", -3.0),
+                ("axis0.config.torque_soft_max", 3.0),
+                ("axis0.config.enable_watchdog", False),
+                ("axis0.config.watchdog_timeout", 0.1),
+                ("axis0.controller.config.input_mode", 6),
+                ("axis0.config.can.heartbeat_msg_rate_ms", 20),
+                ("axis0.config.can.encoder_msg_rate_ms", 5),
+                ("axis0.config.can.torques_msg_rate_ms", 10),
+            ]:
+                assert path in WRITABLE
+                await write(path, value)
+                assert await read(path) == pytest.approx(value), path
+            await write("vbus_voltage", 12.0)  # read-only: ignored, as the firmware does
+            assert await read("vbus_voltage") == 48.0
+            await write("axis0.config.motor.torque_constant", 0.1)
+            feeder = Feeder(client)
+            feeder.torque = 0.5
+            await write("axis0.requested_state", AxisState.CLOSED_LOOP_CONTROL)
+            await _until(lambda: client.axis_state == "CLOSED_LOOP_CONTROL")
+            await _until(lambda: motor.command == pytest.approx(0.5))
+            assert await read("axis0.current_state") == AxisState.CLOSED_LOOP_CONTROL
+            assert (await client.get_iq())["Iq_Setpoint"] == pytest.approx(0.5 / 0.1, rel=1e-5)
+            await write("axis0.controller.config.control_mode", 2)  # VELOCITY_CONTROL: no torque loop here
+            assert await read("axis0.controller.config.control_mode") == 2
+            await write("axis0.requested_state", AxisState.IDLE)
+            await _until(lambda: client.axis_state == "IDLE")
+            await feeder.stop()
+        finally:
+            client.stop()
+            sdo.close()
+
+    asyncio.run(session())
+
+
+def test_a_labs_own_flat_endpoints_json_gives_the_ids_and_the_board(tmp_path):
+    """ODrive publishes flat_endpoints.json per firmware and board: a bench that names a lab's file serves
+    the endpoints at that file's ids and reports its board in Get_Version (ODrive's CAN guide checks both);
+    a file of another firmware is refused, naming the option."""
+    from hil.devices.odrive import ENDPOINTS
+
+    path = tmp_path / "flat_endpoints.json"
+    table = {p: {"id": 300 + i, "type": t} for i, (p, t) in enumerate(ENDPOINTS.items())}
+    path.write_text(json.dumps({"fw_version": "0.6.10", "hw_version": "5.2.0", "endpoints": table}))
+    devices = Devices(drives="odrive", odrive=OdriveOptions(endpoints=str(path)))
+    axes = OdriveAxes(devices, 8192, 1 / TICK)
+    assert axes.endpoints["vbus_voltage"] == (300, "float") and axes.hardware == (5, 2, 0)
+    version = OdriveWire().decode(axes._reply(axes.axes[0], 0x00))
+    assert (version["Hw_Version_Major"], version["Hw_Version_Minor"], version["Hw_Version_Variant"]) == (
+        5,
+        2,
+        0,
+    )
+    path.write_text(json.dumps({"fw_version": "0.6.11", "hw_version": "5.2.0", "endpoints": table}))
+    with pytest.raises(ConfigError, match=r"endpoints = .*fw_version '0.6.11'.*emulates firmware 0.6.10"):
+        OdriveAxes(devices, 8192, 1 / TICK)
+
+
+def test_the_supervisor_counts_ordinary_can_simple_traffic_as_known():
+    """Issue 39: the supervisor's node logged another host's Set_Controller_Mode and Set_Limits, RTRs and
+    their answers, endpoint access and Address discovery as unknown ids. A frame of a node the bench does
+    not have stays unknown (the control)."""
+    from drivers.devices import host_node
+    from hil.devices.odrive import FIRMWARE
+
+    wire, node = OdriveWire(), NODES[2]
+    frames = [
+        wire.frame(node, 0x0B, {"Control_Mode": 1, "Input_Mode": 1}),
+        wire.frame(node, 0x0F, {"Velocity_Limit": 10.0, "Current_Limit": 20.0}),
+        wire.frame(node, 0x14, {"Iq_Setpoint": 1.0, "Iq_Measured": 1.0}),
+        wire.frame(node, 0x15, {"FET_Temperature": 25.0, "Motor_Temperature": 25.0}),
+        wire.frame(node, 0x1D, {"Electrical_Power": 1.0, "Mechanical_Power": 1.0}),
+        wire.frame(node, 0x17, {"Bus_Voltage": 48.0, "Bus_Current": 1.0}),
+        wire.frame(node, 0x03, {"Active_Errors": 0, "Disarm_Reason": 0}),
+        wire.frame(
+            node, 0x00, {**FIRMWARE, "Hw_Version_Major": 4, "Hw_Version_Minor": 4, "Hw_Version_Variant": 58}
+        ),
+        wire.frame(node, 0x06, {"Node_ID": node, "Serial_Number": 1}),
+        can.Message(
+            arbitration_id=node << 5 | 0x04, data=struct.pack("<BHBf", 0, 7, 0, 0.0), is_extended_id=False
+        ),
+        can.Message(
+            arbitration_id=node << 5 | 0x05, data=struct.pack("<BHBf", 0, 7, 0, 1.0), is_extended_id=False
+        ),
+        *(
+            can.Message(arbitration_id=node << 5 | c, is_extended_id=False, is_remote_frame=True)
+            for c in (0x14, 0x15, 0x1D)
+        ),
+        can.Message(arbitration_id=0x3F << 5 | 0x06, is_extended_id=False, is_remote_frame=True),
+    ]
+    bus = can.Bus(interface="virtual", channel="odrive-known-traffic")
+    try:
+        supervisor = host_node(bus, Devices(drives="odrive"), 8192, "supervisor")
+        for frame in frames:
+            assert supervisor.decode(frame) is None
+        assert not supervisor.stats.malformed, dict(supervisor.stats.malformed)
+        supervisor.decode(can.Message(arbitration_id=40 << 5 | 0x14, data=bytes(8), is_extended_id=False))
+        assert supervisor.stats.malformed["unknown_id"] == 1
+    finally:
+        bus.shutdown()

@@ -46,12 +46,24 @@ class OdriveOptions(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
     """Get_Torques cyclic at 100 Hz (the measured torque the supervisor checks); False: only on RTR."""
     control_mode: Literal["torque", "velocity", "position"] = "torque"
     """The axes' control mode at power-up (as configured before the run; Set_Controller_Mode changes it)."""
+    bus_voltage: float = 48.0
+    """V on the DC bus while the contactor is closed (Get_Bus_Voltage_Current, vbus_voltage)."""
+    torque_constant: float = 0.0827
+    """Nm/A at power-up (axis0.config.motor.torque_constant: 8.27 / KV, a 100 KV motor): Iq = torque / it."""
+    phase_resistance: float = 0.05
+    """Ohm: the motor's copper loss, 1.5 R Iq^2, in Get_Powers' Electrical_Power and the bus current."""
+    endpoints: str = ""
+    """A lab's own flat_endpoints.json for firmware 0.6.10 (ODrive publishes one per firmware and board):
+    the endpoints the emulation serves take their ids and types from it. Empty: the emulation's own ids
+    (hil/devices/odrive.py ENDPOINTS; docs/devices.md says why)."""
 
     def __post_init__(self) -> None:
-        if len(set(self.node_ids)) != 3 or not all(0 <= n <= 63 for n in self.node_ids):
-            raise ValueError("node_ids: three different node ids in 0..63")
+        if len(set(self.node_ids)) != 3 or not all(0 <= n <= 62 for n in self.node_ids):
+            raise ValueError("node_ids: three different node ids in 0..62 (63 is CAN Simple's broadcast id)")
         if min(self.encoder_ms, self.heartbeat_ms) < 0:
             raise ValueError("encoder_ms, heartbeat_ms: >= 0 (0: only on request)")
+        if min(self.bus_voltage, self.torque_constant) <= 0 or self.phase_resistance < 0:
+            raise ValueError("bus_voltage, torque_constant: > 0; phase_resistance: >= 0")
 
 
 class Cia402Options(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):

@@ -38,19 +38,29 @@ HEARTBEATS_MISSED = 3
 
 
 class Cmd(IntEnum):
-    """CAN Simple command ids (the low 5 bits of a frame id)."""
+    """CAN Simple command ids (the low 5 bits of a frame id) the profile handles (ODrive's 0.6.10 DBC)."""
 
     GET_VERSION = 0x00
     HEARTBEAT = 0x01
     ESTOP = 0x02
     GET_ERROR = 0x03
+    RX_SDO = 0x04
+    TX_SDO = 0x05
+    ADDRESS = 0x06
     SET_AXIS_STATE = 0x07
     GET_ENCODER_ESTIMATES = 0x09
     SET_CONTROLLER_MODE = 0x0B
     SET_INPUT_TORQUE = 0x0E
+    GET_IQ = 0x14
+    GET_TEMPERATURE = 0x15
     GET_BUS_VOLTAGE_CURRENT = 0x17
     CLEAR_ERRORS = 0x18
     GET_TORQUES = 0x1C
+    GET_POWERS = 0x1D
+
+
+BROADCAST_NODE = 0x3F
+"""The node id every ODrive listens on besides its own (firmware 0.6.9 on): Address discovery's RTR."""
 
 
 class AxisState(IntEnum):
@@ -78,6 +88,8 @@ class AxisError(IntFlag):
 
 HOST_SENDS = (Cmd.ESTOP, Cmd.SET_AXIS_STATE, Cmd.SET_INPUT_TORQUE, Cmd.CLEAR_ERRORS)
 """What a host of this module sends an axis."""
+HOST_READS = (Cmd.HEARTBEAT, Cmd.GET_ENCODER_ESTIMATES, Cmd.GET_TORQUES)
+"""The axes' frames a host of this module turns into the contract's messages."""
 
 
 def frame_id(node_id: int, cmd: int) -> int:
@@ -164,10 +176,10 @@ class OdriveHost(DriveHost):
         nodes = self.options.node_ids
         self.axes = [HostAxis(n) for n in nodes]
         self._axis_of = {n: i for i, n in enumerate(nodes)}
-        # Every host's commands too: a supervisor checks the controller's against what the drives do; a
-        # controller sees the supervisor's (its takeover, its Estop), not used.
-        reads = [Cmd.HEARTBEAT, Cmd.GET_ENCODER_ESTIMATES, Cmd.GET_TORQUES, *HOST_SENDS]
-        self.frame_ids = self.wire.ids(nodes, reads)
+        # Every frame of the axes' protocol is known: a supervisor checks the controller's commands against
+        # what the drives do; the rest (another host's Set_Controller_Mode, Set_Limits, RTRs and their
+        # answers, endpoint access, Address discovery) is ordinary CAN Simple traffic, read and let be.
+        self.frame_ids = self.wire.ids(nodes, _templates()) | {frame_id(BROADCAST_NODE, Cmd.ADDRESS)}
         options = self.options
         self.heartbeat_patience = (
             HEARTBEATS_MISSED * max(1, round(options.heartbeat_ms / options.encoder_ms))
@@ -200,8 +212,10 @@ class OdriveHost(DriveHost):
     # ------------------------------------------------------------------------------------------- in
     def incoming(self, msg: can.Message) -> Received | None:
         node, cmd = split_id(msg.arbitration_id)
-        if msg.is_remote_frame:
-            return None  # another host's request: its answer is what counts
+        if msg.is_remote_frame or node not in self._axis_of:
+            return None  # another host's request (its answer is what counts) or Address discovery
+        if cmd not in HOST_READS and cmd not in HOST_SENDS:
+            return None  # CAN Simple this host does not act on
         i = self._axis_of[node]
         axis = self.axes[i]
         if (self.role == "controller" and cmd in HOST_SENDS) or cmd == Cmd.CLEAR_ERRORS:
