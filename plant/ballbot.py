@@ -157,9 +157,11 @@ class Truth(Record):
         )
 
 
-@mypyc_attr(allow_interpreted_subclasses=True)  # benchmarks/lockstep.py times its step in a subclass
-class Plant:
-    """PURE ballbot + rider. Per tick: `drives.set_commands(...)`, `step()`, then sample or read `truth()`."""
+@mypyc_attr(allow_interpreted_subclasses=True)  # the 3-D plant (plant/ballbot3d.py) is one
+class PlantCore:
+    """What both plants share: the drives, the sensors' models, the rider's intent and torso control, the
+    supervisor's alert, pushes and the outputs' per-tick caches. A plant adds its mechanics: `step()`,
+    `truth()`, `imu_truth()`, `motor_angles_and_rates()`, `_compute_seat_wrench()`, `energy()`."""
 
     def __init__(
         self,
@@ -167,19 +169,12 @@ class Plant:
         rider: RiderParams | None,
         sim: SimParams,
         intent: RiderIntent | None = None,
-        initial_tilt: tuple[float, float] = (0.0, 0.0),
     ):
         self.robot, self.rider, self.sim = robot, rider, sim
         self.dt = sim.dt
-        self.h = sim.dt / sim.substeps
-        self.planes = tuple(PlaneDynamics(plane_params(robot, rider, name)) for name in PLANES)
         self.clamped = sim.fixture == "clamped"
-
         G = motor_jacobian(robot.ball.radius, robot.drivetrain)
         self._g = tuple(tuple(float(v) for v in row) for row in G)
-        _, theta_w_yaw = wheel_inertia_equivalents(robot.ball.radius, robot.drivetrain)
-        rho = robot.ball.radius / robot.drivetrain.wheel_radius
-        segments = [robot_body_segment(robot)]
         intent = intent or RiderIntent()
         self.seated: SeatedRider | None = None
         self.torso: tuple[TorsoController, TorsoController] | None = None
@@ -187,7 +182,6 @@ class Plant:
         self.twist: TwistController | None = None
         if rider is not None:
             self.seated = seat_rider(robot, rider)
-            segments += [*self.seated.lower_limbs, self.seated.hat_segment()]
             hat = self.seated.hat
             self.style = LeanStyle(rider.lean_amplitude_deg, rider.lean_rate_deg)
             self.torso = (
@@ -195,7 +189,6 @@ class Plant:
                 TorsoController(rider, hat.mass, hat.com_distance, Profile(intent.roll, style=self.style)),
             )
             self.twist = TwistController(rider, Profile(intent.twist))
-        self.yaw_inertia = yaw_inertia(segments) + theta_w_yaw * rho * rho
 
         self.drives = DriveArray(robot.drive)
         seeds = np.random.SeedSequence(sim.seed).spawn(3)
@@ -203,11 +196,6 @@ class Plant:
         self.imu_model = ImuModel(robot.imu, np.random.default_rng(seeds[1]))
         self.tes_model = TesModel(robot.tes, robot.body.seat_height, np.random.default_rng(seeds[2]))
 
-        # State: per plane [φ, θ, γ, φ̇, θ̇, γ̇]; yaw [ψ, ψ̇]. The torso starts upright relative to the chassis
-        # and φ = θ, so the ball-body angle (what the encoders count from power-up) starts at zero.
-        tp, tr = initial_tilt
-        self.x = [tp, tp, tp, 0.0, 0.0, 0.0, tr, tr, tr, 0.0, 0.0, 0.0, 0.0, 0.0]
-        self.position = [0.0, 0.0]
         self.t = 0.0
         self.tick = 0
         self.external: list[Wrench | None] = [None, None]
@@ -225,7 +213,6 @@ class Plant:
         hold the robot where it is, as `clamped` does, until a drive is powered again."""
         self._outputs_tick = self._wrench_tick = -1
         self._wrench: tuple[float, float, float, float, float, float] = (0.0,) * 6
-        self._accel_cache: tuple[tuple[float, ...], tuple[float, float]] = ((0.0,) * 6, (0.0, 0.0))
 
     def alert(self, level: int) -> None:
         """The supervisor's alert reaches the rider (0 none, 1 slow down, 2 stop). A rider who heeds it
@@ -244,6 +231,92 @@ class Plant:
             )
         if self.twist is not None:
             self.twist.profile = Profile(intent.twist, start=self.t, value=self.twist.torque)
+
+    def _rider_decides(self) -> None:
+        """The rider's tick: act on a noticed alert, move the lean commands, update the twist."""
+        if self._alerted is not None and self.t >= self._alerted:
+            self._alerted = math.inf  # acted on: once
+            self.set_intent(RiderIntent(pitch=[Step(to=0.0)], roll=[Step(to=0.0)], twist=[Step(to=0.0)]))
+        if self.torso is not None:
+            velocity = self.velocity
+            for k in (PITCH, ROLL):
+                self.torso[k].update(self.t, self.dt, velocity[k])
+            if self.twist is not None:
+                self.twist.update(self.t)
+
+    @property
+    def velocity(self) -> tuple[float, float]:
+        """Ground speed in the heading frame (forward, left), m/s."""
+        raise NotImplementedError
+
+    def step(self) -> None:
+        raise NotImplementedError
+
+    def truth(self) -> Truth:
+        raise NotImplementedError
+
+    def energy(self) -> float:
+        raise NotImplementedError
+
+    def motor_angles_and_rates(self) -> tuple[list[float], list[float]]:
+        raise NotImplementedError
+
+    def imu_truth(
+        self,
+    ) -> tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]:
+        raise NotImplementedError
+
+    def _compute_seat_wrench(self) -> tuple[float, float, float, float, float, float]:
+        raise NotImplementedError
+
+    def sample_drives(self) -> tuple[DriveFeedback, DriveFeedback, DriveFeedback]:
+        angles, rates = self.motor_angles_and_rates()
+        return self.feedback_model.sample(angles, rates, self.drives.torques)
+
+    def sample_imu(self) -> ImuSample:
+        attitude, rate, accel = self.imu_truth()
+        return self.imu_model.sample(attitude, rate, accel)
+
+    def seat_wrench(self) -> tuple[float, float, float, float, float, float]:
+        """True wrench of the rider on the seat at P, body axes (once per tick, shared by TES and truth)."""
+        if self._wrench_tick != self.tick:
+            self._wrench = self._compute_seat_wrench()
+            self._wrench_tick = self.tick
+        return self._wrench
+
+    def sample_tes(self) -> TesSample:
+        return self.tes_model.sample(self.seat_wrench())
+
+
+@mypyc_attr(allow_interpreted_subclasses=True)  # benchmarks/lockstep.py times its step in a subclass
+class Plant(PlantCore):
+    """PURE ballbot + rider in two vertical planes and yaw. Per tick: `drives.set_commands(...)`, `step()`,
+    then sample or read `truth()`."""
+
+    def __init__(
+        self,
+        robot: RobotParams,
+        rider: RiderParams | None,
+        sim: SimParams,
+        intent: RiderIntent | None = None,
+        initial_tilt: tuple[float, float] = (0.0, 0.0),
+    ):
+        super().__init__(robot, rider, sim, intent)
+        self.h = sim.dt / sim.substeps
+        self.planes = tuple(PlaneDynamics(plane_params(robot, rider, name)) for name in PLANES)
+        _, theta_w_yaw = wheel_inertia_equivalents(robot.ball.radius, robot.drivetrain)
+        rho = robot.ball.radius / robot.drivetrain.wheel_radius
+        segments = [robot_body_segment(robot)]
+        if self.seated is not None:
+            segments += [*self.seated.lower_limbs, self.seated.hat_segment()]
+        self.yaw_inertia = yaw_inertia(segments) + theta_w_yaw * rho * rho
+
+        # State: per plane [φ, θ, γ, φ̇, θ̇, γ̇]; yaw [ψ, ψ̇]. The torso starts upright relative to the chassis
+        # and φ = θ, so the ball-body angle (what the encoders count from power-up) starts at zero.
+        tp, tr = initial_tilt
+        self.x = [tp, tp, tp, 0.0, 0.0, 0.0, tr, tr, tr, 0.0, 0.0, 0.0, 0.0, 0.0]
+        self.position = [0.0, 0.0]
+        self._accel_cache: tuple[tuple[float, ...], tuple[float, float]] = ((0.0,) * 6, (0.0, 0.0))
 
     # ------------------------------------------------------------------------------------------ dynamics
     def _yaw_acceleration(self, rate: float, tau_z: float) -> float:
@@ -275,14 +348,7 @@ class Plant:
     # ------------------------------------------------------------------------------------------ one tick
     def step(self) -> None:
         """Advance one tick: the rider decides, drives act (ZOH + current lag), RK4 substeps, fall check."""
-        if self._alerted is not None and self.t >= self._alerted:
-            self._alerted = math.inf  # acted on: once
-            self.set_intent(RiderIntent(pitch=[Step(to=0.0)], roll=[Step(to=0.0)], twist=[Step(to=0.0)]))
-        if self.torso is not None:
-            for k in (PITCH, ROLL):
-                self.torso[k].update(self.t, self.dt, self.velocity[k])
-            if self.twist is not None:
-                self.twist.update(self.t)
+        self._rider_decides()
         hip_pitch, hip_roll = self._hip_policies()
         self._update_rest()
         held = self.clamped or self.resting
@@ -375,10 +441,6 @@ class Plant:
             [g[i][0] * rate[0] + g[i][1] * rate[1] + g[i][2] * rate[2] for i in range(3)],
         )
 
-    def sample_drives(self) -> tuple[DriveFeedback, DriveFeedback, DriveFeedback]:
-        angles, rates = self.motor_angles_and_rates()
-        return self.feedback_model.sample(angles, rates, self.drives.torques)
-
     def imu_truth(
         self,
     ) -> tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]:
@@ -398,17 +460,6 @@ class Plant:
         wx, wy, wz = cp * fx - sp * fz, fy, sp * fx + cp * fz
         body = (wx, cr * wy + sr * wz, -sr * wy + cr * wz)
         return (roll, pitch, x[12]), (x[10], x[4], x[13]), body
-
-    def sample_imu(self) -> ImuSample:
-        attitude, rate, accel = self.imu_truth()
-        return self.imu_model.sample(attitude, rate, accel)
-
-    def seat_wrench(self) -> tuple[float, float, float, float, float, float]:
-        """True wrench of the rider on the seat at P, body axes (once per tick, shared by TES and truth)."""
-        if self._wrench_tick != self.tick:
-            self._wrench = self._compute_seat_wrench()
-            self._wrench_tick = self.tick
-        return self._wrench
 
     def _compute_seat_wrench(self) -> tuple[float, float, float, float, float, float]:
         """Torso load of both planes + the thighs' weight."""
@@ -436,9 +487,6 @@ class Plant:
             my += rz * f[0] - rx * f[2]
         mz = self.twist.torque if self.twist else 0.0
         return fx, fy, fz, mx, my, mz
-
-    def sample_tes(self) -> TesSample:
-        return self.tes_model.sample(self.seat_wrench())
 
     def truth(self) -> Truth:
         x = self.x
