@@ -31,7 +31,6 @@ from plant.model3d import (
     build_model,
 )
 from plant.params import RiderParams, RobotParams, SimParams
-from plant.plane import G0
 
 SLIP_SPEED = 0.01
 """m/s of the ball's contact point over the floor beyond which a tick counts as slipping."""
@@ -109,8 +108,12 @@ class Plant3D(PlantCore):
             thighs = [obj(mujoco.mjtObj.mjOBJ_BODY, f"thigh_{s}") for s in ("left", "right")]
             self._rider_bodies = [self._torso_body, *thighs]
 
+        self._yaw = self._last_yaw = 0.0
+        """The heading, unwrapped (MuJoCo's orientation gives it within ±π)."""
         pitch, roll = initial_tilt
         d.qpos[3:7] = tilt_quaternion(pitch, roll)  # the ball turned with the chassis: encoders read zero
+        mujoco.mj_kinematics(m, d)
+        self._set_hip_controls()  # the rider holds their torso from the start
         self._settle()
         self._forward_current = True
         self.motor_angles = [0.0, 0.0, 0.0]
@@ -118,8 +121,6 @@ class Plant3D(PlantCore):
         self._motor_rates = [0.0, 0.0, 0.0]
         self.ball_angle = [0.0, 0.0]
         """The ball's rotation in the heading frame (pitch: about heading y, roll: about heading x), rad."""
-        self._yaw = 0.0
-        self._last_yaw = 0.0
         self.slip_ticks = 0
         """Ticks whose contact point slid faster than SLIP_SPEED over the floor."""
         self.max_slip = 0.0
@@ -155,10 +156,7 @@ class Plant3D(PlantCore):
         for i, a in enumerate(self._motors):
             ctrl[a] = motor[i]
         self.ball_torque = self._ball_torque(motor)
-        if self.torso is not None:
-            gammas = self._torso_angles()
-            for k in (PITCH, ROLL):
-                ctrl[self._hips[k]] = self.torso[k].hip_feedforward(gammas[k])
+        self._set_hip_controls()
         self._apply_external()
         before = self._motor_rates
         if self._forward_current:
@@ -179,6 +177,20 @@ class Plant3D(PlantCore):
         for i in range(3):
             self.motor_angles[i] += half * (before[i] + after[i])
         self._check_fall()
+
+    def _set_hip_controls(self) -> None:
+        """The rider's hip torques for this tick: the engine adds the PD's terms in the lean's state."""
+        m, ctrl = self.model, self.data.ctrl
+        if self.torso is not None:
+            gammas = self._torso_angles()
+            for k in (PITCH, ROLL):
+                ctrl[self._hips[k]] = self.torso[k].hip_feedforward(gammas[k])
+        elif self._hips and not self._limp:
+            # No torso control (tests set torso to None): the hips go limp, no stiffness, no damping.
+            for a in self._hips:
+                m.actuator_biasprm[a, :3] = 0.0
+                ctrl[a] = 0.0
+            self._limp = True
 
     def _ball_torque(self, motor: tuple[float, float, float]) -> tuple[float, float, float]:
         g = self._g
@@ -282,9 +294,10 @@ class Plant3D(PlantCore):
         )
         ball_pitch_rate = -s * w_ball[0] + c * w_ball[1]
         ball_roll_rate = c * w_ball[0] + s * w_ball[1]
-        r = self.robot.ball.radius
-        # Contact point velocity: v + ω × (−r ẑ) = (vx − r ωy, vy + r ωx).
-        slip = math.hypot(v[0] - r * w_ball[1], v[1] + r * w_ball[0])
+        # The contact point's velocity over the floor: v + ω × (−z ẑ) = (vx − z ωy, vy + z ωx). The soft
+        # contact lets the ball sink by δ (under a millimetre); MuJoCo's contact point is halfway into it.
+        z = 0.5 * (float(d.qpos[2]) + self.robot.ball.radius)
+        slip = math.hypot(v[0] - z * w_ball[1], v[1] + z * w_ball[0])
         rates = d.actuator_velocity.tolist()
         self._motor_rates = [rates[a] for a in self._motors]
         lean = (0.0, 0.0)
@@ -427,4 +440,4 @@ class Plant3D(PlantCore):
         return self._state[9], self._state[10]
 
     _pushed = False
-    _ = G0
+    _limp = False

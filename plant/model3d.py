@@ -155,13 +155,13 @@ def build_model(robot: RobotParams, rider: RiderParams | None, engine: MujocoPar
     )
     xml = f"""<mujoco model="{robot.name}">
   <compiler angle="radian" inertiafromgeom="false" autolimits="true"/>
-  <option timestep="{h!r}" gravity="0 0 {-G0!r}" integrator="implicitfast" cone="elliptic" impratio="{engine.impratio!r}"
+  <option timestep="{h!r}" gravity="0 0 {-G0!r}" integrator="{engine.integrator}" cone="elliptic" impratio="{engine.impratio!r}"
           jacobian="dense">
     <flag energy="enable"/>
   </option>
   <default><geom contype="0" conaffinity="0"/></default>
   <worldbody>
-    <geom name="{FLOOR}" type="plane" size="0 0 1" contype="0" conaffinity="{_FLOOR_AFFINITY}"
+    <geom name="{FLOOR}" type="plane" size="0 0 1" contype="0" conaffinity="{_FLOOR_AFFINITY}" friction="0 0 0"
           rgba="0.8 0.8 0.8 1"/>
     <body name="{BALL}" pos="0 0 {r!r}">
       <freejoint name="{BALL}"/>

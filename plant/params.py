@@ -63,6 +63,15 @@ class Body(_Record, frozen=True):
     chassis_bottom: float = 0.05
     """Height of that rim above the ball centre, m."""
 
+    def __post_init__(self) -> None:
+        # A rigid body's principal inertias obey the triangle inequality (each at most the sum of the others).
+        i = (self.inertia_pitch, self.inertia_roll, self.inertia_yaw)
+        if 2.0 * max(i) > sum(i):
+            raise ValueError(
+                f"inertia_pitch, inertia_roll, inertia_yaw = {i}: no rigid body has them (each must be at most "
+                "the sum of the other two)"
+            )
+
 
 class Drivetrain(_Record, frozen=True):
     wheel_radius: Positive = 0.0625
@@ -178,6 +187,24 @@ class RobotParams(_Record, frozen=True):
     imu: Imu = Imu()
     tes: Tes = Tes()
 
+    def __post_init__(self) -> None:
+        r, w = self.ball.radius, self.drivetrain.wheel_radius
+        alpha = math.radians(self.drivetrain.zenith_deg)
+        # Wheel centres sit r + r_W from the ball's centre at the zenith angle, 120° apart: neighbours are
+        # √3 (r + r_W) sin α apart, and two wheels of radius r_W closer than 2 r_W run into each other.
+        gap = math.sqrt(3.0) * (r + w) * math.sin(alpha)
+        if gap < 2.0 * w:
+            raise ValueError(
+                f"ball.radius {r:g} m is too small for drivetrain.wheel_radius {w:g} m at zenith_deg "
+                f"{self.drivetrain.zenith_deg:g}: the wheels' centres are {gap:.3f} m apart, under the "
+                f"{2.0 * w:.3f} m two wheels need"
+            )
+        if math.hypot(self.body.chassis_radius, self.body.chassis_bottom) <= r or self.body.chassis_bottom <= -r:
+            raise ValueError(
+                f"body.chassis_radius {self.body.chassis_radius:g} m and chassis_bottom "
+                f"{self.body.chassis_bottom:g} m put the chassis' rim inside the ball or under the floor"
+            )
+
 
 # --------------------------------------------------------------------------------------------- rider
 class RiderParams(_Record, frozen=True):
@@ -230,6 +257,8 @@ class MujocoParams(_Record, frozen=True):
     """MuJoCo steps per bus tick (the drives' and the rider's torques are held over a tick)."""
     contact_time_constant: Positive = 0.005
     """Time constant of the ball-floor contact, s (MuJoCo's solref; at least two steps)."""
+    integrator: Literal["implicitfast", "RK4", "Euler", "implicit"] = "implicitfast"
+    """MuJoCo's integrator (its option of that name)."""
     impratio: Annotated[float, msgspec.Meta(ge=1)] = 10.0
     """Ratio of frictional to normal constraint impedance: higher holds the rolling contact tighter."""
 
