@@ -73,6 +73,13 @@ def add_bench_options(parser: argparse.ArgumentParser, clock: bool = False) -> N
             help="lockstep: as fast as the loop goes, the controller answering each SYNC; realtime: 400 Hz "
             "of wall time (default: the scenario's, or the bench's)",
         )
+        group.add_argument(
+            "--plant",
+            choices=("3d", "planar"),
+            default=None,
+            help="the plant: 3d (MuJoCo rigid bodies) or planar (two planes and yaw, for regression; "
+            "default: the bench's sim settings, 3d)",
+        )
 
 
 def bench_from(args: argparse.Namespace):
@@ -88,6 +95,7 @@ def bench_from(args: argparse.Namespace):
         hub=args.hub,
         certs=args.certs,
         clock=getattr(args, "clock", None),
+        plant=getattr(args, "plant", None),
     )
 
 

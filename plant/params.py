@@ -253,7 +253,7 @@ class RiderParams(_Record, frozen=True):
 class MujocoParams(_Record, frozen=True):
     """How the 3-D plant's engine steps (docs/plant.md, Numerics)."""
 
-    steps_per_tick: Annotated[int, msgspec.Meta(ge=1, le=100)] = 4
+    steps_per_tick: Annotated[int, msgspec.Meta(ge=1, le=100)] = 2
     """MuJoCo steps per bus tick (the drives' and the rider's torques are held over a tick)."""
     contact_time_constant: Positive = 0.005
     """Time constant of the ball-floor contact, s (MuJoCo's solref; at least two steps)."""
@@ -266,7 +266,7 @@ class MujocoParams(_Record, frozen=True):
 class SimParams(_Record, frozen=True):
     tick_hz: Positive = 400.0
     """Bus tick: rate of sensor frames and SYNC."""
-    plant: Literal["3d", "planar"] = "planar"
+    plant: Literal["3d", "planar"] = "3d"
     """3d: rigid bodies in MuJoCo (plant/ballbot3d.py); planar: two vertical planes and yaw (plant/ballbot.py),
     kept for regression."""
     mujoco: MujocoParams = MujocoParams()

@@ -246,10 +246,19 @@ def _connect(
     return Wiring(bus_config, bus, access, link, agent_link, puts)
 
 
+def sim_params(bench: Bench, scenario: Scenario | None = None, seed: int | None = None) -> SimParams:
+    """The bench's simulation settings with its plant override, the scenario's tick rate and the seed."""
+    sim = load_toml(find(bench.sim, "sim"), SimParams)
+    changes: dict[str, object] = {} if bench.plant == "sim" else {"plant": bench.plant}
+    if scenario is not None:
+        changes["tick_hz"] = scenario.tick_hz
+    if seed is not None:
+        changes["seed"] = seed
+    return msgspec.structs.replace(sim, **changes)
+
+
 def _plant(bench: Bench, scenario: Scenario, seed: int) -> PlantCore:
-    sim = msgspec.structs.replace(
-        load_toml(find(bench.sim, "sim"), SimParams), tick_hz=scenario.tick_hz, seed=seed
-    )
+    sim = sim_params(bench, scenario, seed)
     intent = RiderIntent(list(scenario.intent.pitch), list(scenario.intent.roll), list(scenario.intent.twist))
     pitch_deg, roll_deg = scenario.initial_tilt_deg
     tilt = (math.radians(pitch_deg), math.radians(roll_deg))
