@@ -20,9 +20,9 @@ from plant.model3d import (
     CHASSIS,
     DRIVE_JOINT,
     FALL_GEOMS,
-    HOLDS,
     FLOOR,
     HIPS,
+    HOLDS,
     LEAN_JOINTS,
     MOTORS,
     P_SITE,
@@ -31,9 +31,73 @@ from plant.model3d import (
     build_model,
 )
 from plant.params import RiderParams, RobotParams, SimParams
+from plant.sensors import Record
 
 SLIP_SPEED = 0.01
 """m/s of the ball's contact point over the floor beyond which a tick counts as slipping."""
+
+Pair = tuple[float, float]
+Triple = tuple[float, float, float]
+
+
+class Motion(Record):
+    """What a tick's outputs read of MuJoCo's state, read once per tick (pairs are (pitch, roll) or
+    (forward, left) in the heading frame)."""
+
+    attitude: Triple
+    """ZYX (roll, pitch, yaw) of the chassis, yaw within ±π."""
+    tilt_rate: Pair
+    """Euler rates of pitch and roll, rad/s."""
+    yaw_rate: float
+    velocity: Pair
+    """Ball centre, heading frame, m/s."""
+    ball_rate: Pair
+    """The ball's rotation rate about the heading's y (pitch) and x (roll) axes, rad/s."""
+    position: Pair
+    """Ball centre in the world (x, y) from the start, m."""
+    gyro: Triple
+    accel: Triple
+    lean: Pair
+    lean_rate: Pair
+    slip: float
+    """Speed of the ball's contact point over the floor, m/s."""
+
+    def __init__(
+        self,
+        attitude: Triple,
+        tilt_rate: Pair,
+        yaw_rate: float,
+        velocity: Pair,
+        ball_rate: Pair,
+        position: Pair,
+        gyro: Triple,
+        accel: Triple,
+        lean: Pair,
+        lean_rate: Pair,
+        slip: float,
+    ) -> None:
+        self.attitude, self.tilt_rate, self.yaw_rate = attitude, tilt_rate, yaw_rate
+        self.velocity, self.ball_rate, self.position = velocity, ball_rate, position
+        self.gyro, self.accel, self.lean, self.lean_rate, self.slip = gyro, accel, lean, lean_rate, slip
+
+    @property
+    def tilt(self) -> Pair:
+        return self.attitude[1], self.attitude[0]
+
+    def _values(self) -> tuple[object, ...]:
+        return (
+            self.attitude,
+            self.tilt_rate,
+            self.yaw_rate,
+            self.velocity,
+            self.ball_rate,
+            self.position,
+            self.gyro,
+            self.accel,
+            self.lean,
+            self.lean_rate,
+            self.slip,
+        )
 
 
 def euler_zyx(q: tuple[float, float, float, float]) -> tuple[float, float, float]:
@@ -265,100 +329,90 @@ class Plant3D(PlantCore):
                     self._release()
         elif was_powered and not powered and not self.clamped and self.fallen is None:
             sim = self.sim
-            tilt = max(abs(self._state[1][0]), abs(self._state[1][1]))
+            tilt = max(abs(a) for a in self._state.tilt)
             if max(abs(v) for v in self.velocity) < sim.rest_speed and tilt < sim.rest_tilt:
                 self.resting = True
                 self._hold()
 
     # ------------------------------------------------------------------------------------------ the state
-    def _read_state(self) -> tuple:  # type: ignore[type-arg]
+    def _read_state(self) -> Motion:
         """Everything a tick's outputs read, from MuJoCo's data once per tick."""
-        m, d = self.model, self.data
+        d = self.data
         sens = d.sensordata.tolist()
-        gyro, accel, quat = sens[0:3], sens[3:6], (sens[6], sens[7], sens[8], sens[9])
-        roll, pitch, yaw = euler_zyx(quat)
+        gyro, accel = (sens[0], sens[1], sens[2]), (sens[3], sens[4], sens[5])
+        roll, pitch, yaw = euler_zyx((sens[6], sens[7], sens[8], sens[9]))
         self._yaw += (yaw - self._last_yaw + math.pi) % (2.0 * math.pi) - math.pi
         self._last_yaw = yaw
         droll, dpitch, dyaw = euler_rates(roll, pitch, gyro)
         qvel = d.qvel
         v = qvel[0:3].tolist()
         c, s = math.cos(self._yaw), math.sin(self._yaw)
-        forward, left = c * v[0] + s * v[1], -s * v[0] + c * v[1]
         # The ball's angular velocity in the world (its free joint's rates are in its own frame).
         rb = d.xmat[self._ball_body].tolist()
         wl = qvel[3:6].tolist()
-        w_ball = (
-            rb[0] * wl[0] + rb[1] * wl[1] + rb[2] * wl[2],
-            rb[3] * wl[0] + rb[4] * wl[1] + rb[5] * wl[2],
-            rb[6] * wl[0] + rb[7] * wl[1] + rb[8] * wl[2],
-        )
-        ball_pitch_rate = -s * w_ball[0] + c * w_ball[1]
-        ball_roll_rate = c * w_ball[0] + s * w_ball[1]
+        wx = rb[0] * wl[0] + rb[1] * wl[1] + rb[2] * wl[2]
+        wy = rb[3] * wl[0] + rb[4] * wl[1] + rb[5] * wl[2]
         # The contact point's velocity over the floor: v + ω × (−z ẑ) = (vx − z ωy, vy + z ωx). The soft
         # contact lets the ball sink by δ (under a millimetre); MuJoCo's contact point is halfway into it.
         z = 0.5 * (float(d.qpos[2]) + self.robot.ball.radius)
-        slip = math.hypot(v[0] - z * w_ball[1], v[1] + z * w_ball[0])
         rates = d.actuator_velocity.tolist()
         self._motor_rates = [rates[a] for a in self._motors]
-        lean = (0.0, 0.0)
-        lean_rate = (0.0, 0.0)
+        lean = lean_rate = (0.0, 0.0)
         if self._lean_q:
-            lean = (float(d.qpos[self._lean_q[0]]), float(d.qpos[self._lean_q[1]]))
+            qpos = d.qpos
+            lean = (float(qpos[self._lean_q[0]]), float(qpos[self._lean_q[1]]))
             lean_rate = (float(qvel[self._lean_v[0]]), float(qvel[self._lean_v[1]]))
         pos = d.qpos[0:2].tolist()
-        return (
-            (roll, pitch, yaw),
-            (pitch, roll),
-            (dpitch, droll),
-            (forward, left),
-            (ball_pitch_rate, ball_roll_rate),
-            (pos[0], pos[1]),
-            dyaw,
-            gyro,
-            accel,
-            lean,
-            lean_rate,
-            slip,
+        return Motion(
+            attitude=(roll, pitch, yaw),
+            tilt_rate=(dpitch, droll),
+            yaw_rate=dyaw,
+            velocity=(c * v[0] + s * v[1], -s * v[0] + c * v[1]),
+            ball_rate=(-s * wx + c * wy, c * wx + s * wy),
+            position=(pos[0], pos[1]),
+            gyro=gyro,
+            accel=accel,
+            lean=lean,
+            lean_rate=lean_rate,
+            slip=math.hypot(v[0] - z * wy, v[1] + z * wx),
         )
 
     @property
     def velocity(self) -> tuple[float, float]:
         """Ground speed in the heading frame (forward, left), m/s."""
-        return self._state[3]
+        return self._state.velocity
 
     @property
     def position(self) -> tuple[float, float]:
-        return self._state[5]
+        return self._state.position
 
     @property
     def yaw(self) -> float:
         return self._yaw
 
     def _check_fall(self) -> None:
-        state = self._state
-        slip = state[11]
-        if slip > SLIP_SPEED:
+        """Count slip, integrate the ball's rolling, and keep the first fall: a contact of anything but the
+        ball with the floor, a tilt beyond the bound, or the floor's edge."""
+        state, sim = self._state, self.sim
+        if state.slip > SLIP_SPEED:
             self.slip_ticks += 1
-        self.max_slip = max(self.max_slip, slip)
-        pitch, roll = state[1]
-        # Ball rolling: the ball's rotation in the heading frame, for the truth's planes.
-        self.ball_angle[0] += self.dt * state[4][0]
-        self.ball_angle[1] += self.dt * state[4][1]
+        self.max_slip = max(self.max_slip, state.slip)
+        self.ball_angle[0] += self.dt * state.ball_rate[0]
+        self.ball_angle[1] += self.dt * state.ball_rate[1]
         if self.fallen is not None:
             return
         d = self.data
         for i in range(d.ncon):
             g1, g2 = int(d.contact.geom1[i]), int(d.contact.geom2[i])
-            other = g2 if g1 == self._floor else g1
-            if other in self._fall_geoms:
-                self.fallen = f"{self._fall_geoms[other].replace('_', ' ')} touched the floor at t={self.t:.3f} s"
+            name = self._fall_geoms.get(g2 if g1 == self._floor else g1)
+            if name is not None:
+                self.fallen = f"{name.replace('_', ' ')} touched the floor at t={self.t:.3f} s"
                 return
-        tilt = math.acos(min(1.0, float(d.xmat[self._chassis_body][8])))
-        if tilt > self.sim.fall_tilt:
-            self.fallen = f"tilt beyond {self.sim.fall_tilt_deg:g} deg at t={self.t:.3f} s"
-        elif abs(state[5][0]) > self.sim.floor_half_x or abs(state[5][1]) > self.sim.floor_half_y:
+        tilt = math.acos(min(1.0, float(d.xmat[self._chassis_body][8])))  # from vertical, any direction
+        if tilt > sim.fall_tilt:
+            self.fallen = f"tilt beyond {sim.fall_tilt_deg:g} deg at t={self.t:.3f} s"
+        elif abs(state.position[0]) > sim.floor_half_x or abs(state.position[1]) > sim.floor_half_y:
             self.fallen = f"left the floor envelope at t={self.t:.3f} s"
-        _ = roll, pitch
 
     # ------------------------------------------------------------------------------------------- outputs
     def motor_angles_and_rates(self) -> tuple[list[float], list[float]]:
@@ -369,9 +423,8 @@ class Plant3D(PlantCore):
     ) -> tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]:
         """True (attitude, body rate, body specific force) at the IMU: MuJoCo's sensors at its site."""
         state = self._state
-        roll, pitch, _ = state[0]
-        g, a = state[7], state[8]
-        return (roll, pitch, self._yaw), (g[0], g[1], g[2]), (a[0], a[1], a[2])
+        roll, pitch, _ = state.attitude
+        return (roll, pitch, self._yaw), state.gyro, state.accel
 
     def hip_torques(self) -> tuple[float, float]:
         if not self._hips:
@@ -399,7 +452,7 @@ class Plant3D(PlantCore):
             mx -= tx + ay * gz - az * gy
             my -= ty + az * gx - ax * gz
             mz -= tz + ax * gy - ay * gx
-        r = self.data.xmat[self._chassis_body].tolist()  # body axes in the world: columns
+        r = d.xmat[self._chassis_body].tolist()  # body axes in the world: columns
         twist = self.twist.torque if self.twist else 0.0
         return (
             r[0] * fx + r[3] * fy + r[6] * fz,
@@ -414,15 +467,15 @@ class Plant3D(PlantCore):
         s = self._state
         return Truth(
             t=self.t,
-            tilt=s[1],
-            tilt_rate=s[2],
+            tilt=s.tilt,
+            tilt_rate=s.tilt_rate,
             ball_angle=(self.ball_angle[0], self.ball_angle[1]),
-            ball_rate=s[4],
-            lean=s[9],
-            velocity=s[3],
-            position=s[5],
+            ball_rate=s.ball_rate,
+            lean=s.lean,
+            velocity=s.velocity,
+            position=s.position,
             yaw=self._yaw,
-            yaw_rate=s[6],
+            yaw_rate=s.yaw_rate,
             motor_torque=self.drives.torques,
             hip_torque=self.hip_torques(),
             seat_wrench=self.seat_wrench(),
@@ -435,9 +488,6 @@ class Plant3D(PlantCore):
         """Kinetic + gravitational energy (J), MuJoCo's account at the current state."""
         e = self.data.energy
         return float(e[0] + e[1])
-
-    def lean_state(self) -> tuple[tuple[float, float], tuple[float, float]]:
-        return self._state[9], self._state[10]
 
     _pushed = False
     _limp = False

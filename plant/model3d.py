@@ -36,7 +36,7 @@ MOTORS = ("motor_1", "motor_2", "motor_3")
 HIPS = ("hip_pitch", "hip_roll")
 IMU_SITE, P_SITE = "imu", "P"
 HOLDS = ("hold_ball", "hold_chassis")
-"""Welds to the world, active while the robot is held (the clamped fixture's stand, the rider's feet at rest)."""
+"""Welds to the world, active while the robot is held (the clamped fixture's stand, the feet at rest)."""
 FALL_GEOMS = ("chassis_rim", "foot_left", "foot_right")
 """Geoms other than the ball that may touch the floor only in a fall (docs/physics.md §11.3)."""
 FOOT_RADIUS = 0.045
@@ -73,9 +73,9 @@ def _segment_body(name: str, s: Segment, geom: str) -> str:
 
 
 def build_model(robot: RobotParams, rider: RiderParams | None, engine: MujocoParams, dt: float) -> ModelInfo:
-    """The MJCF of PURE with `rider` (None: the robot alone), stepping `engine.steps_per_tick` times a tick."""
+    """The MJCF of PURE with `rider` (None: the robot alone), `engine.steps_per_tick` steps a tick."""
     body, ball = robot.body, robot.ball
-    r = ball.radius
+    r, top = ball.radius, body.top_height
     gear = -motor_jacobian(r, robot.drivetrain)
     gears = tuple((float(g[0]), float(g[1]), float(g[2])) for g in gear)
     h = dt / engine.steps_per_tick
@@ -93,11 +93,11 @@ def build_model(robot: RobotParams, rider: RiderParams | None, engine: MujocoPar
         f'<geom name="chassis_rim" type="cylinder" size="{_f(body.chassis_radius, 0.01)}" '
         f'pos="0 0 {body.chassis_bottom!r}" contype="{_FALL_TYPE}" conaffinity="0" {solref} '
         f'friction="{_f(ball.floor_friction, 0.0, 0.0)}" condim="3" rgba="0.3 0.3 0.35 1"/>'
-        f'<geom type="cylinder" size="{_f(body.chassis_radius, 0.5 * (body.top_height - body.chassis_bottom))}" '
-        f'pos="0 0 {0.5 * (body.top_height + body.chassis_bottom)!r}" rgba="0.3 0.3 0.35 0.4"/>'
+        f'<geom type="cylinder" size="{_f(body.chassis_radius, 0.5 * (top - body.chassis_bottom))}" '
+        f'pos="0 0 {0.5 * (top + body.chassis_bottom)!r}" rgba="0.3 0.3 0.35 0.4"/>'
     )
     sites = (
-        f'<site name="{IMU_SITE}" pos="0 0 {body.imu_height!r}"/><site name="{P_SITE}" pos="0 0 {body.top_height!r}"/>'
+        f'<site name="{IMU_SITE}" pos="0 0 {body.imu_height!r}"/><site name="{P_SITE}" pos="0 0 {top!r}"/>'
     )
     rider_bodies = ""
     hip_actuators = ""
@@ -111,23 +111,23 @@ def build_model(robot: RobotParams, rider: RiderParams | None, engine: MujocoPar
                 _segment_body(
                     f"thigh_{side}",
                     thigh,
-                    f'<geom type="capsule" fromto="{_f(seated.hip_x - thigh.x, 0, 0, leg.x - thigh.x, 0, 0)}" '
-                    f'size="0.07" rgba="0.2 0.3 0.6 1"/>',
+                    f'<geom type="capsule" size="0.07" rgba="0.2 0.3 0.6 1" '
+                    f'fromto="{_f(seated.hip_x - thigh.x, 0, 0, leg.x - thigh.x, 0, 0)}"/>',
                 )
             )
             # The shank hangs from the knee (at hip height: the thigh is horizontal) to the foot, which
             # points forward; positions relative to the shank's COM.
             knee_z = seated.hip_z - leg.z
             shank_length = knee_z / LEG_COM
-            foot_z_rel = knee_z - shank_length  # foot centre relative to the leg COM
+            foot_z = knee_z - shank_length
             limbs.append(
                 _segment_body(
                     f"shank_{side}",
                     leg,
-                    f'<geom type="capsule" fromto="{_f(0, 0, knee_z, 0, 0, foot_z_rel)}" size="0.05" '
+                    f'<geom type="capsule" fromto="{_f(0, 0, knee_z, 0, 0, foot_z)}" size="0.05" '
                     f'rgba="0.2 0.3 0.6 1"/>'
                     f'<geom name="foot_{side}" type="capsule" '
-                    f'fromto="{_f(-0.25 * FOOT_LENGTH, 0, foot_z_rel, 0.75 * FOOT_LENGTH, 0, foot_z_rel)}" '
+                    f'fromto="{_f(-0.25 * FOOT_LENGTH, 0, foot_z, 0.75 * FOOT_LENGTH, 0, foot_z)}" '
                     f'size="{FOOT_RADIUS!r}" contype="{_FALL_TYPE}" conaffinity="0" {solref} condim="3" '
                     f'rgba="0.15 0.15 0.15 1"/>',
                 )
@@ -155,17 +155,17 @@ def build_model(robot: RobotParams, rider: RiderParams | None, engine: MujocoPar
     )
     xml = f"""<mujoco model="{robot.name}">
   <compiler angle="radian" inertiafromgeom="false" autolimits="true"/>
-  <option timestep="{h!r}" gravity="0 0 {-G0!r}" integrator="{engine.integrator}" cone="elliptic" impratio="{engine.impratio!r}"
-          jacobian="dense">
+  <option timestep="{h!r}" gravity="0 0 {-G0!r}" integrator="{engine.integrator}" cone="elliptic"
+          impratio="{engine.impratio!r}" jacobian="dense">
     <flag energy="enable"/>
   </option>
   <default><geom contype="0" conaffinity="0"/></default>
   <worldbody>
-    <geom name="{FLOOR}" type="plane" size="0 0 1" contype="0" conaffinity="{_FLOOR_AFFINITY}" friction="0 0 0"
-          rgba="0.8 0.8 0.8 1"/>
+    <geom name="{FLOOR}" type="plane" size="0 0 1" contype="0" conaffinity="{_FLOOR_AFFINITY}"
+          friction="0 0 0" rgba="0.8 0.8 0.8 1"/>
     <body name="{BALL}" pos="0 0 {r!r}">
       <freejoint name="{BALL}"/>
-      <inertial pos="0 0 0" mass="{ball.mass!r}" diaginertia="{_f(ball_inertia, ball_inertia, ball_inertia)}"/>
+      <inertial pos="0 0 0" mass="{ball.mass!r}" diaginertia="{_f(*(ball_inertia,) * 3)}"/>
       <geom name="{BALL}" type="sphere" size="{r!r}" contype="{_BALL_TYPE}" conaffinity="0" condim="6"
             friction="{_f(ball.floor_friction, ball.spin_friction, ball.roll_friction)}" {solref}
             rgba="0.9 0.4 0.1 1"/>

@@ -68,8 +68,8 @@ class Body(_Record, frozen=True):
         i = (self.inertia_pitch, self.inertia_roll, self.inertia_yaw)
         if 2.0 * max(i) > sum(i):
             raise ValueError(
-                f"inertia_pitch, inertia_roll, inertia_yaw = {i}: no rigid body has them (each must be at most "
-                "the sum of the other two)"
+                f"inertia_pitch, inertia_roll, inertia_yaw = {i}: no rigid body has them (each must be at "
+                "most the sum of the other two)"
             )
 
 
@@ -199,7 +199,10 @@ class RobotParams(_Record, frozen=True):
                 f"{self.drivetrain.zenith_deg:g}: the wheels' centres are {gap:.3f} m apart, under the "
                 f"{2.0 * w:.3f} m two wheels need"
             )
-        if math.hypot(self.body.chassis_radius, self.body.chassis_bottom) <= r or self.body.chassis_bottom <= -r:
+        if (
+            math.hypot(self.body.chassis_radius, self.body.chassis_bottom) <= r
+            or self.body.chassis_bottom <= -r
+        ):
             raise ValueError(
                 f"body.chassis_radius {self.body.chassis_radius:g} m and chassis_bottom "
                 f"{self.body.chassis_bottom:g} m put the chassis' rim inside the ball or under the floor"
@@ -267,8 +270,8 @@ class SimParams(_Record, frozen=True):
     tick_hz: Positive = 400.0
     """Bus tick: rate of sensor frames and SYNC."""
     plant: Literal["3d", "planar"] = "3d"
-    """3d: rigid bodies in MuJoCo (plant/ballbot3d.py); planar: two vertical planes and yaw (plant/ballbot.py),
-    kept for regression."""
+    """3d: rigid bodies in MuJoCo (plant/ballbot3d.py); planar: two vertical planes and yaw
+    (plant/ballbot.py), kept for regression."""
     mujoco: MujocoParams = MujocoParams()
     substeps: Annotated[int, msgspec.Meta(ge=1, le=100)] = 1
     """Fixed RK4 steps per tick (internal rate = tick_hz × substeps). One step at 400 Hz already agrees

@@ -19,7 +19,7 @@ from plant.ballbot import Plant, RiderIntent
 from plant.ballbot3d import Plant3D
 from plant.model3d import drive_inertia
 from plant.omniwheel import motor_jacobian
-from plant.params import MujocoParams, RobotParams
+from plant.params import RobotParams
 from plant.plane import G0
 from plant.rider import Hold, Ramp, Sine
 from tests.helpers import NO_FRICTION, RIDER_75, deg, robot, sim
@@ -52,7 +52,8 @@ def planar_poles(rider):
     return continuous_poles(jac)
 
 
-def poles_3d(rider):
+def poles_3d(rider, hold=True):
+    """Poles of the 3-D plant's tick by central differences; hold: the yaw held by the drives."""
     base = plant3d(robot(friction=NO_FRICTION), rider)
     m, nv, q0 = base.model, base.model.nv, base.data.qpos.copy()
 
@@ -63,7 +64,8 @@ def poles_3d(rider):
         p.data.qpos[:], p.data.qvel[:] = q, dx[nv:]
         mujoco.mj_forward(m, p.data)
         p._state = p._read_state()
-        hold_yaw(p, p.yaw, p.truth().yaw_rate)
+        if hold:
+            hold_yaw(p, p.yaw, p.truth().yaw_rate)
         p.step()
         out = np.zeros(2 * nv)
         mujoco.mj_differentiatePos(m, out[:nv], 1.0, q0, p.data.qpos)
@@ -203,7 +205,7 @@ def steady_turn(rider, speed, yaw_rate, seconds=6.0):
     lateral = 0.0
     rows = []
     for i in range(int(seconds * 400)):
-        forward, left = plant.truth().velocity
+        _, left = plant.truth().velocity
         lateral += 2.0 * left * DT  # integral action: no side slip of the heading in the steady state
         ramp = min(1.0, i / 800)
         balancer.set_velocity(speed * ramp, -lateral)
@@ -230,7 +232,9 @@ def rigid_bodies(plant):
     inertia = np.diag(drives.chassis)
     for s in segs:
         d = np.array([s.x, s.y, s.z]) - com
-        inertia = inertia + np.diag([s.i_roll, s.i_pitch, s.i_yaw]) + s.mass * (d @ d * np.eye(3) - np.outer(d, d))
+        inertia = (
+            inertia + np.diag([s.i_roll, s.i_pitch, s.i_yaw]) + s.mass * (d @ d * np.eye(3) - np.outer(d, d))
+        )
     return mass, com, inertia
 
 
@@ -258,7 +262,10 @@ def roll_moment(plant, roll, pitch, speed, yaw_rate):
     w = np.array([0.0, 0.0, yaw_rate])
     moment += np.cross(w, rot @ inertia @ rot.T @ w)[0]
     # The ball: its centre circles at the turn radius; it rolls forward and precesses with the heading.
-    ball_mass, ball_inertia = plant.robot.ball.mass, plant.robot.ball.inertia + drive_inertia(plant.robot).ball
+    ball_mass, ball_inertia = (
+        plant.robot.ball.mass,
+        plant.robot.ball.inertia + drive_inertia(plant.robot).ball,
+    )
     ball_a = np.array([0.0, yaw_rate**2 * turn_radius, 0.0])
     moment += np.cross([0.0, 0.0, r], ball_mass * (ball_a + np.array([0.0, 0.0, G0])))[0]
     moment += np.cross(w, ball_inertia * np.array([0.0, speed / r, 0.0]))[0]
