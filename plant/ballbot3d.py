@@ -14,7 +14,7 @@ import math
 import mujoco
 import numpy as np
 
-from plant.ballbot import PITCH, ROLL, PlantCore, RiderIntent, Truth
+from plant.ballbot import PITCH, ROLL, PlantCore, Pose, RiderIntent, Truth
 from plant.model3d import (
     BALL,
     CHASSIS,
@@ -159,6 +159,7 @@ class Plant3D(PlantCore):
         self._p_site = obj(mujoco.mjtObj.mjOBJ_SITE, P_SITE)
         self._floor = obj(mujoco.mjtObj.mjOBJ_GEOM, FLOOR)
         self._fall_geoms = {obj(mujoco.mjtObj.mjOBJ_GEOM, n): n for n in FALL_GEOMS if n in info.xml}
+        self._body_names = [(b, mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b)) for b in range(1, m.nbody)]
         self._torso_body = -1
         self._lean_q: list[int] = []
         self._lean_v: list[int] = []
@@ -483,6 +484,12 @@ class Plant3D(PlantCore):
             resting=self.resting,
             powered=self.drives.powered,
         )
+
+    def poses(self) -> dict[str, Pose]:
+        """Every body of the model by name (ball, chassis, torso, thigh_left, ...), MuJoCo's frames."""
+        d, names = self.data, self._body_names
+        pos, quat = d.xpos.tolist(), d.xquat.tolist()
+        return {name: (tuple(pos[b]), tuple(quat[b])) for b, name in names}  # type: ignore[misc]
 
     def energy(self) -> float:
         """Kinetic + gravitational energy (J), MuJoCo's account at the current state."""

@@ -433,3 +433,14 @@ def test_an_impossible_robot_is_refused_naming_the_field(tmp_path, text, field):
     with pytest.raises(ConfigError) as err:
         load_toml(path, RobotParams)
     assert str(path) in str(err.value) and field in str(err.value)
+
+
+def test_both_plants_place_the_bodies_alike():
+    # The poses the recordings draw: the planar plant's from its angles, the 3-D plant's from its engine.
+    tilt = (deg(6.0), deg(-3.0))
+    spatial, planar = plant3d(tilt=tilt), Plant(robot(), RIDER_75, sim(), initial_tilt=tilt)
+    a, b = spatial.poses(), planar.poses()
+    for body in ("chassis", "torso"):
+        np.testing.assert_allclose(a[body][0], b[body][0], atol=1e-3)  # the soft contact's sink
+        np.testing.assert_allclose(a[body][1], b[body][1], atol=1e-9)
+    assert {"ball", "chassis", "torso", "thigh_left", "shank_right"} <= set(a)
