@@ -16,6 +16,9 @@ which, from where the compiled build's modules were imported.
 
 --devices odrive: the same scenario on each device profile's shipped bench too (configs/benches/PROFILE.toml),
 its tick loop and stages beside `pure`'s (the embedded bench), measured in the same run.
+
+Every figure is on the bench's plant (the 3-D one by default); `planar` is the same scenario's tick loop and
+stages on the planar plant (--plant planar), measured in the same run.
 """
 
 from __future__ import annotations
@@ -49,7 +52,7 @@ from plant.ballbot import Plant
 
 FRAMES_PER_TICK = 12  # 3 feedback, 3 IMU, SYNC, 3 commands, heartbeat, + (DRIVEn_TORQUE, estop) / 4
 STAGES = {
-    "plant.step": "plant step (RK4, rider)",
+    "plant.step": "plant step (MuJoCo or RK4, rider)",
     "_sample": "sample the sensors (drives, IMU, seat)",
     "_send_sensors": "7 frames out (drives, IMU)",
     "_publish_tes": "seat wrench -> zenoh",
@@ -181,7 +184,16 @@ def instrument(totals: dict[str, float]) -> None:
         "TimedRig", (rig,), {name: timed(totals, name, getattr(rig, name)) for name in RIG_STAGES}
     )
     build_module.Rig = timed_rig
-    build_module.Plant = type("TimedPlant", (Plant,), {"step": timed(totals, "plant.step", Plant.step)})
+
+    def timed_plant(robot, rider, sim, intent=None, initial_tilt=(0.0, 0.0)):
+        if sim.plant == "3d":
+            from plant.ballbot3d import Plant3D as cls
+        else:
+            cls = Plant
+        timed_cls = type(f"Timed{cls.__name__}", (cls,), {"step": timed(totals, "plant.step", cls.step)})
+        return timed_cls(robot, rider, sim, intent, initial_tilt)
+
+    build_module.make_plant = timed_plant
     embedded = controller.embedded.EmbeddedController
     embedded.poll = timed(totals, "controller", embedded.poll)
 
@@ -245,6 +257,17 @@ def main() -> None:
                 "stages_us_per_tick": {name: totals.get(name, 0.0) / n * 1e6 for name in STAGES},
             }
         totals.clear()
+        planar, _ = timed_run(scenario, load_bench().with_overrides(plant="planar"), out / "planar")
+        if planar.trace.failure is not None:
+            raise SystemExit(f"run on the planar plant failed: {planar.trace.failure}")
+        n = planar.trace.stats.ticks
+        on_planar = {
+            "us_per_tick": planar.trace.timing.wall_time / n * 1e6,
+            "speed_tick_loop": planar.trace.timing.speed,
+            "passed": planar.passed,
+            "stages_us_per_tick": {name: totals.get(name, 0.0) / n * 1e6 for name in STAGES},
+        }
+        totals.clear()
         totals.update(pure_stages)
     trace = result.trace
     if trace.failure is not None:
@@ -274,6 +297,8 @@ def main() -> None:
         "missing_commands": trace.stats.missing_commands,
         "passed": result.passed,
         "devices": profiles,
+        "plant": staged.bench["plant"],
+        "planar": on_planar,
     }
     if args.json:
         print(json.dumps(figures))
@@ -323,6 +348,17 @@ def main() -> None:
         print(f"    {'tick loop':<40} {figures['us_per_tick']:8.0f} {row}")
         for p, v in profiles.items():
             print(f"    {p}: {v['speed_tick_loop']:.2f}x real time, passed: {v['passed']}")
+    print(f"  the same scenario on the planar plant (staged, us/tick): {'3-D':>8} {'planar':>8}")
+    for name in ("plant.step", "_sample"):
+        print(
+            f"    {STAGES[name]:<40} {figures['stages_us_per_tick'][name]:8.0f} "
+            f"{on_planar['stages_us_per_tick'][name]:8.0f}"
+        )
+    print(
+        f"    tick loop {figures['us_per_tick']:.0f} us on {figures['plant']}, "
+        f"{on_planar['us_per_tick']:.0f} us on planar (planar passed: {on_planar['passed']}): 3-D / planar "
+        f"{figures['us_per_tick'] / on_planar['us_per_tick']:.2f}"
+    )
     print(
         f"  ratios: tick loop / rig only {figures['us_per_tick'] / only_us:.2f}, "
         f"tick loop / floor {figures['us_per_tick'] / figures['floor_us_per_tick']:.1f}, "

@@ -1,9 +1,11 @@
-"""Cost of one plant tick (both planes + yaw, drives, RK4), against a bare float RK4 measured in the same run.
+"""Cost of one plant tick, the 3-D plant (MuJoCo) and the planar one (two planes + yaw, RK4) side by side,
+against a bare float RK4 measured in the same run.
 
     python benchmarks/plant_step.py [--ticks N]
 
 Prints microseconds per tick (p50/p99 over batches) and the ratio to the baseline: one RK4 step of a
-4-state cart-pole on Python floats, the cheapest integrator step this machine can do in CPython.
+4-state cart-pole on Python floats, the cheapest integrator step this machine can do in CPython. A plant
+tick here is what the rig asks of it every tick: step, the truth, and the drives', IMU's and seat's samples.
 """
 
 from __future__ import annotations
@@ -16,9 +18,12 @@ import time
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
+import msgspec
+
 from hil.run.truth_balancer import TruthBalancer
-from plant.ballbot import Plant, RiderIntent
-from plant.params import RiderParams, RobotParams, SimParams
+from plant.ballbot import RiderIntent
+from plant.models import make_plant
+from plant.params import MujocoParams, RiderParams, RobotParams, SimParams
 from plant.rider import Ramp, Sine
 
 BATCH = 200
@@ -62,9 +67,10 @@ def cartpole_rk4_step():
     return step
 
 
-def closed_loop_step_us(rider, substeps, intent, ticks) -> tuple[float, float]:
-    """Plant.step() alone, timed per call, while the truth balancer keeps the robot up (not timed)."""
-    plant = Plant(RobotParams(), rider, SimParams(substeps=substeps), intent)
+def closed_loop_tick_us(rider, sim: SimParams, intent, ticks) -> tuple[float, float]:
+    """A plant's tick (step, truth, samples), timed per call, while the truth balancer keeps the robot up
+    (not timed)."""
+    plant = make_plant(RobotParams(), rider, sim, intent)
     bal = TruthBalancer(plant)
     costs = []
     batch = []
@@ -72,6 +78,10 @@ def closed_loop_step_us(rider, substeps, intent, ticks) -> tuple[float, float]:
         bal.drive()
         t0 = time.perf_counter_ns()
         plant.step()
+        plant.truth()
+        plant.sample_drives()
+        plant.sample_imu()
+        plant.sample_tes()
         batch.append(time.perf_counter_ns() - t0)
         if len(batch) == BATCH:
             costs.append(sum(batch) / BATCH / 1e3)
@@ -92,25 +102,27 @@ def main() -> None:
 
     base50, base99 = per_call_us(cartpole_rk4_step(), args.ticks)
     rows = [("baseline: cart-pole RK4 step on floats", base50, base99)]
-    for label, r, substeps in (
-        ("plant tick, robot alone", None, 1),
-        ("plant tick, robot + rider", rider, 1),
-        ("plant tick, robot + rider, 2 substeps", rider, 2),
+    planar, spatial = SimParams(plant="planar"), SimParams(plant="3d")
+    for label, r, sim in (
+        ("planar tick, robot alone", None, planar),
+        ("planar tick, robot + rider", rider, planar),
+        ("planar tick, robot + rider, 2 RK4 steps", rider, msgspec.structs.replace(planar, substeps=2)),
+        ("3-D tick, robot alone", None, spatial),
+        ("3-D tick, robot + rider (default: 2 steps)", rider, spatial),
+        ("3-D tick, robot + rider, 1 step", rider, _steps(spatial, 1)),
+        ("3-D tick, robot + rider, 4 steps", rider, _steps(spatial, 4)),
     ):
-        rows.append((label, *closed_loop_step_us(r, substeps, intent, args.ticks)))
-    plant = Plant(RobotParams(), rider, SimParams(), intent)
-    sensors = (
-        ("sample: 3 drive feedbacks", plant.sample_drives),
-        ("sample: IMU", plant.sample_imu),
-        ("sample: TES (6 cells, calibration, COP)", plant.sample_tes),
-    )
-    for label, fn in sensors:
-        rows.append((label, *per_call_us(fn, args.ticks)))
+        rows.append((label, *closed_loop_tick_us(r, sim, intent, args.ticks)))
 
-    print(f"plant step cost ({args.ticks} calls per row, batches of {BATCH}; p50 / p99 of batch means)")
-    print(f"{'what':<42} {'p50 us':>8} {'p99 us':>8} {'x baseline':>11} {'x real time @400 Hz':>20}")
+    print(f"plant tick cost ({args.ticks} calls per row, batches of {BATCH}; p50 / p99 of batch means)")
+    print(f"{'what':<44} {'p50 us':>8} {'p99 us':>8} {'x baseline':>11} {'x planar':>9}")
+    planar50 = rows[2][1]
     for label, p50, p99 in rows:
-        print(f"{label:<42} {p50:8.1f} {p99:8.1f} {p50 / base50:11.1f} {2500.0 / p50:20.1f}")
+        print(f"{label:<44} {p50:8.1f} {p99:8.1f} {p50 / base50:11.1f} {p50 / planar50:9.2f}")
+
+
+def _steps(sim: SimParams, n: int) -> SimParams:
+    return msgspec.structs.replace(sim, mujoco=MujocoParams(steps_per_tick=n))
 
 
 if __name__ == "__main__":

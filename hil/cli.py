@@ -45,7 +45,9 @@ def package_version() -> str:
 
 
 # ------------------------------------------------------------------------------------------ the bench
-def add_bench_options(parser: argparse.ArgumentParser, clock: bool = False) -> None:
+def add_bench_options(parser: argparse.ArgumentParser, clock: bool = False, plant: bool = False) -> None:
+    """The bench and the few options that override one part of it; `clock` and `plant` for the commands
+    that run scenarios (`clock` implies `plant`)."""
     group = parser.add_argument_group("the bench (configs/benches/*.toml; docs/bench.md)")
     group.add_argument(
         "--bench",
@@ -73,6 +75,14 @@ def add_bench_options(parser: argparse.ArgumentParser, clock: bool = False) -> N
             help="lockstep: as fast as the loop goes, the controller answering each SYNC; realtime: 400 Hz "
             "of wall time (default: the scenario's, or the bench's)",
         )
+    if clock or plant:
+        group.add_argument(
+            "--plant",
+            choices=("3d", "planar"),
+            default=None,
+            help="the plant: 3d (MuJoCo rigid bodies) or planar (two planes and yaw, for regression; "
+            "default: the bench's sim settings, 3d)",
+        )
 
 
 def bench_from(args: argparse.Namespace):
@@ -88,6 +98,7 @@ def bench_from(args: argparse.Namespace):
         hub=args.hub,
         certs=args.certs,
         clock=getattr(args, "clock", None),
+        plant=getattr(args, "plant", None),
     )
 
 
@@ -860,7 +871,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cmp_.add_argument("--json", action="store_true", help="print one JSON object (cells, orderings, runs)")
     cmp_.add_argument("--workers", type=COUNT, default=1, help="runs at a time, each in its own process")
-    add_bench_options(cmp_)
+    add_bench_options(cmp_, plant=True)
     cmp_.set_defaults(func=_compare)
 
     cal = sub.add_parser("calibrate", help="fit unknown parameters to a target table (bounded least squares)")
@@ -881,7 +892,7 @@ def build_parser() -> argparse.ArgumentParser:
     cal.add_argument(
         "--out", default=None, help="output folder (default: the bench's outputs.folder/NAME-TIMESTAMP)"
     )
-    add_bench_options(cal)
+    add_bench_options(cal, plant=True)
     cal.set_defaults(func=_calibrate)
 
     adv = sub.add_parser("adversary", help="search the worst rider for an STL requirement")
@@ -904,7 +915,7 @@ def build_parser() -> argparse.ArgumentParser:
     adv.add_argument(
         "--out", default=None, help="output folder (default: the bench's outputs.folder/NAME-TIMESTAMP)"
     )
-    add_bench_options(adv)
+    add_bench_options(adv, plant=True)
     adv.set_defaults(func=_adversary)
 
     cam = sub.add_parser("campaign", help="scenarios x riders x faults x seeds in parallel; report + JUnit")
@@ -922,7 +933,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="TEXT",
         help="only the cases whose id contains TEXT (and their twins); repeat for more",
     )
-    add_bench_options(cam)
+    add_bench_options(cam, plant=True)
     cam.set_defaults(func=_campaign)
 
     rep = sub.add_parser("replay", help="replay a run's CAN log and zenoh inputs into a fresh controller")

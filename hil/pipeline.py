@@ -18,7 +18,16 @@ from drivers.config import load_toml
 from drivers.resources import find
 from hil.bench.bench import Bench, load_bench
 from hil.report.folder import write_outputs
-from hil.run.build import RunOptions, build, clock_of, law_of, run_logs, start_up, supervisor_config
+from hil.run.build import (
+    RunOptions,
+    build,
+    clock_of,
+    law_of,
+    run_logs,
+    sim_params,
+    start_up,
+    supervisor_config,
+)
 from hil.run.judge import RunResult, judge
 from hil.run.loop import tick_loop
 from hil.run.scenario import Scenario
@@ -90,7 +99,15 @@ def describe(bench: Bench) -> dict:
         "zenoh": bench.zenoh.mode,
         "devices": msgspec.to_builtins(bench.devices),
         "rider_on_board": bench.rider_on_board,
+        "plant": _plant_kind(bench),
     }
+
+
+def _plant_kind(bench: Bench) -> str:
+    try:
+        return sim_params(bench).plant
+    except CONFIG_ERRORS:
+        return "unknown"  # the trace already says why the run failed
 
 
 def load_scenario(name: str | Path) -> Scenario:

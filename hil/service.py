@@ -41,7 +41,7 @@ from hil.live import LiveStream
 from hil.pipeline import describe, load_scenario, run
 from hil.run.build import RunOptions, RunStatus, clock_of, law_of
 from hil.run.scenario import Intent, Scenario
-from plant.ballbot import Plant, RiderIntent
+from plant.ballbot import PlantCore, RiderIntent
 
 if TYPE_CHECKING:  # imported where used: rerun loads only for a service with a live view
     from hil.outputs.recording import LiveView
@@ -290,7 +290,7 @@ class RigService:
         query.reply(query.key_expr, data, attachment=json.dumps({"ok": True, "size": size, "offset": offset}))
 
     # ----------------------------------------------------------------------------------------- runs
-    def _on_tick(self, plant: Plant) -> None:
+    def _on_tick(self, plant: PlantCore) -> None:
         self.sim_time = plant.t
         if self._live.due():
             self._live.put(plant)

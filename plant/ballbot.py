@@ -83,6 +83,23 @@ class RiderIntent:
     twist: list[Segment] = field(default_factory=list)
 
 
+Pose = tuple[tuple[float, float, float], tuple[float, float, float, float]]
+"""A body's frame in the world: position (m) and orientation as a unit quaternion (w, x, y, z)."""
+
+
+def quaternion_zyx(yaw: float, pitch: float, roll: float) -> tuple[float, float, float, float]:
+    """Rz(yaw) Ry(pitch) Rx(roll) as a unit quaternion (w, x, y, z)."""
+    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
+    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
+    return (
+        cy * cp * cr + sy * sp * sr,
+        cy * cp * sr - sy * sp * cr,
+        cy * sp * cr + sy * cp * sr,
+        sy * cp * cr - cy * sp * sr,
+    )
+
+
 class Truth(Record):
     """The plant's true state after a tick, for metrics, recording and the supervisor's referee."""
 
@@ -157,9 +174,11 @@ class Truth(Record):
         )
 
 
-@mypyc_attr(allow_interpreted_subclasses=True)  # benchmarks/lockstep.py times its step in a subclass
-class Plant:
-    """PURE ballbot + rider. Per tick: `drives.set_commands(...)`, `step()`, then sample or read `truth()`."""
+@mypyc_attr(allow_interpreted_subclasses=True)  # the 3-D plant (plant/ballbot3d.py) is one
+class PlantCore:
+    """What both plants share: the drives, the sensors' models, the rider's intent and torso control, the
+    supervisor's alert, pushes and the outputs' per-tick caches. A plant adds its mechanics: `step()`,
+    `truth()`, `imu_truth()`, `motor_angles_and_rates()`, `_compute_seat_wrench()`, `energy()`."""
 
     def __init__(
         self,
@@ -167,19 +186,12 @@ class Plant:
         rider: RiderParams | None,
         sim: SimParams,
         intent: RiderIntent | None = None,
-        initial_tilt: tuple[float, float] = (0.0, 0.0),
     ):
         self.robot, self.rider, self.sim = robot, rider, sim
         self.dt = sim.dt
-        self.h = sim.dt / sim.substeps
-        self.planes = tuple(PlaneDynamics(plane_params(robot, rider, name)) for name in PLANES)
         self.clamped = sim.fixture == "clamped"
-
         G = motor_jacobian(robot.ball.radius, robot.drivetrain)
         self._g = tuple(tuple(float(v) for v in row) for row in G)
-        _, theta_w_yaw = wheel_inertia_equivalents(robot.ball.radius, robot.drivetrain)
-        rho = robot.ball.radius / robot.drivetrain.wheel_radius
-        segments = [robot_body_segment(robot)]
         intent = intent or RiderIntent()
         self.seated: SeatedRider | None = None
         self.torso: tuple[TorsoController, TorsoController] | None = None
@@ -187,7 +199,6 @@ class Plant:
         self.twist: TwistController | None = None
         if rider is not None:
             self.seated = seat_rider(robot, rider)
-            segments += [*self.seated.lower_limbs, self.seated.hat_segment()]
             hat = self.seated.hat
             self.style = LeanStyle(rider.lean_amplitude_deg, rider.lean_rate_deg)
             self.torso = (
@@ -195,7 +206,6 @@ class Plant:
                 TorsoController(rider, hat.mass, hat.com_distance, Profile(intent.roll, style=self.style)),
             )
             self.twist = TwistController(rider, Profile(intent.twist))
-        self.yaw_inertia = yaw_inertia(segments) + theta_w_yaw * rho * rho
 
         self.drives = DriveArray(robot.drive)
         seeds = np.random.SeedSequence(sim.seed).spawn(3)
@@ -203,11 +213,6 @@ class Plant:
         self.imu_model = ImuModel(robot.imu, np.random.default_rng(seeds[1]))
         self.tes_model = TesModel(robot.tes, robot.body.seat_height, np.random.default_rng(seeds[2]))
 
-        # State: per plane [φ, θ, γ, φ̇, θ̇, γ̇]; yaw [ψ, ψ̇]. The torso starts upright relative to the chassis
-        # and φ = θ, so the ball-body angle (what the encoders count from power-up) starts at zero.
-        tp, tr = initial_tilt
-        self.x = [tp, tp, tp, 0.0, 0.0, 0.0, tr, tr, tr, 0.0, 0.0, 0.0, 0.0, 0.0]
-        self.position = [0.0, 0.0]
         self.t = 0.0
         self.tick = 0
         self.external: list[Wrench | None] = [None, None]
@@ -225,7 +230,6 @@ class Plant:
         hold the robot where it is, as `clamped` does, until a drive is powered again."""
         self._outputs_tick = self._wrench_tick = -1
         self._wrench: tuple[float, float, float, float, float, float] = (0.0,) * 6
-        self._accel_cache: tuple[tuple[float, ...], tuple[float, float]] = ((0.0,) * 6, (0.0, 0.0))
 
     def alert(self, level: int) -> None:
         """The supervisor's alert reaches the rider (0 none, 1 slow down, 2 stop). A rider who heeds it
@@ -244,6 +248,96 @@ class Plant:
             )
         if self.twist is not None:
             self.twist.profile = Profile(intent.twist, start=self.t, value=self.twist.torque)
+
+    def _rider_decides(self) -> None:
+        """The rider's tick: act on a noticed alert, move the lean commands, update the twist."""
+        if self._alerted is not None and self.t >= self._alerted:
+            self._alerted = math.inf  # acted on: once
+            self.set_intent(RiderIntent(pitch=[Step(to=0.0)], roll=[Step(to=0.0)], twist=[Step(to=0.0)]))
+        if self.torso is not None:
+            velocity = self.velocity
+            for k in (PITCH, ROLL):
+                self.torso[k].update(self.t, self.dt, velocity[k])
+            if self.twist is not None:
+                self.twist.update(self.t)
+
+    @property
+    def velocity(self) -> tuple[float, float]:
+        """Ground speed in the heading frame (forward, left), m/s."""
+        raise NotImplementedError
+
+    def step(self) -> None:
+        raise NotImplementedError
+
+    def truth(self) -> Truth:
+        raise NotImplementedError
+
+    def energy(self) -> float:
+        raise NotImplementedError
+
+    def poses(self) -> dict[str, Pose]:
+        """Where the bodies are: ball, chassis, torso (with a rider), world frame (z up from the floor)."""
+        raise NotImplementedError
+
+    def motor_angles_and_rates(self) -> tuple[list[float], list[float]]:
+        raise NotImplementedError
+
+    def imu_truth(
+        self,
+    ) -> tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]:
+        raise NotImplementedError
+
+    def _compute_seat_wrench(self) -> tuple[float, float, float, float, float, float]:
+        raise NotImplementedError
+
+    def sample_drives(self) -> tuple[DriveFeedback, DriveFeedback, DriveFeedback]:
+        angles, rates = self.motor_angles_and_rates()
+        return self.feedback_model.sample(angles, rates, self.drives.torques)
+
+    def sample_imu(self) -> ImuSample:
+        attitude, rate, accel = self.imu_truth()
+        return self.imu_model.sample(attitude, rate, accel)
+
+    def seat_wrench(self) -> tuple[float, float, float, float, float, float]:
+        """True wrench of the rider on the seat at P, body axes (once per tick, shared by TES and truth)."""
+        if self._wrench_tick != self.tick:
+            self._wrench = self._compute_seat_wrench()
+            self._wrench_tick = self.tick
+        return self._wrench
+
+    def sample_tes(self) -> TesSample:
+        return self.tes_model.sample(self.seat_wrench())
+
+
+@mypyc_attr(allow_interpreted_subclasses=True)  # benchmarks/lockstep.py times its step in a subclass
+class Plant(PlantCore):
+    """PURE ballbot + rider in two vertical planes and yaw. Per tick: `drives.set_commands(...)`, `step()`,
+    then sample or read `truth()`."""
+
+    def __init__(
+        self,
+        robot: RobotParams,
+        rider: RiderParams | None,
+        sim: SimParams,
+        intent: RiderIntent | None = None,
+        initial_tilt: tuple[float, float] = (0.0, 0.0),
+    ):
+        super().__init__(robot, rider, sim, intent)
+        self.h = sim.dt / sim.substeps
+        self.planes = tuple(PlaneDynamics(plane_params(robot, rider, name)) for name in PLANES)
+        _, theta_w_yaw = wheel_inertia_equivalents(robot.ball.radius, robot.drivetrain)
+        rho = robot.ball.radius / robot.drivetrain.wheel_radius
+        segments = [robot_body_segment(robot)]
+        if self.seated is not None:
+            segments += [*self.seated.lower_limbs, self.seated.hat_segment()]
+        self.yaw_inertia = yaw_inertia(segments) + theta_w_yaw * rho * rho
+
+        # State: per plane [φ, θ, γ, φ̇, θ̇, γ̇]; yaw [ψ, ψ̇]. The torso starts upright relative to the chassis
+        # and φ = θ, so the ball-body angle (what the encoders count from power-up) starts at zero.
+        tp, tr = initial_tilt
+        self.x = [tp, tp, tp, 0.0, 0.0, 0.0, tr, tr, tr, 0.0, 0.0, 0.0, 0.0, 0.0]
+        self.position = [0.0, 0.0]
+        self._accel_cache: tuple[tuple[float, ...], tuple[float, float]] = ((0.0,) * 6, (0.0, 0.0))
 
     # ------------------------------------------------------------------------------------------ dynamics
     def _yaw_acceleration(self, rate: float, tau_z: float) -> float:
@@ -275,14 +369,7 @@ class Plant:
     # ------------------------------------------------------------------------------------------ one tick
     def step(self) -> None:
         """Advance one tick: the rider decides, drives act (ZOH + current lag), RK4 substeps, fall check."""
-        if self._alerted is not None and self.t >= self._alerted:
-            self._alerted = math.inf  # acted on: once
-            self.set_intent(RiderIntent(pitch=[Step(to=0.0)], roll=[Step(to=0.0)], twist=[Step(to=0.0)]))
-        if self.torso is not None:
-            for k in (PITCH, ROLL):
-                self.torso[k].update(self.t, self.dt, self.velocity[k])
-            if self.twist is not None:
-                self.twist.update(self.t)
+        self._rider_decides()
         hip_pitch, hip_roll = self._hip_policies()
         self._update_rest()
         held = self.clamped or self.resting
@@ -375,10 +462,6 @@ class Plant:
             [g[i][0] * rate[0] + g[i][1] * rate[1] + g[i][2] * rate[2] for i in range(3)],
         )
 
-    def sample_drives(self) -> tuple[DriveFeedback, DriveFeedback, DriveFeedback]:
-        angles, rates = self.motor_angles_and_rates()
-        return self.feedback_model.sample(angles, rates, self.drives.torques)
-
     def imu_truth(
         self,
     ) -> tuple[tuple[float, float, float], tuple[float, float, float], tuple[float, float, float]]:
@@ -398,17 +481,6 @@ class Plant:
         wx, wy, wz = cp * fx - sp * fz, fy, sp * fx + cp * fz
         body = (wx, cr * wy + sr * wz, -sr * wy + cr * wz)
         return (roll, pitch, x[12]), (x[10], x[4], x[13]), body
-
-    def sample_imu(self) -> ImuSample:
-        attitude, rate, accel = self.imu_truth()
-        return self.imu_model.sample(attitude, rate, accel)
-
-    def seat_wrench(self) -> tuple[float, float, float, float, float, float]:
-        """True wrench of the rider on the seat at P, body axes (once per tick, shared by TES and truth)."""
-        if self._wrench_tick != self.tick:
-            self._wrench = self._compute_seat_wrench()
-            self._wrench_tick = self.tick
-        return self._wrench
 
     def _compute_seat_wrench(self) -> tuple[float, float, float, float, float, float]:
         """Torso load of both planes + the thighs' weight."""
@@ -437,9 +509,6 @@ class Plant:
         mz = self.twist.torque if self.twist else 0.0
         return fx, fy, fz, mx, my, mz
 
-    def sample_tes(self) -> TesSample:
-        return self.tes_model.sample(self.seat_wrench())
-
     def truth(self) -> Truth:
         x = self.x
         return Truth(
@@ -461,6 +530,21 @@ class Plant:
             powered=self.drives.powered,
         )
 
+    def poses(self) -> dict[str, Pose]:
+        """The planar state drawn in 3-D: the chassis at the ball's centre turned by yaw, pitch and roll, the
+        torso at the hip leaning by its two angles relative to it, the ball turned by its two rolling
+        angles (the planar plant has no ball spin)."""
+        x, r = self.x, self.robot.ball.radius
+        centre = (self.position[0], self.position[1], r)
+        chassis = quaternion_zyx(x[12], x[1], x[7])
+        poses = {"ball": (centre, quaternion_zyx(0.0, x[0], x[6])), "chassis": (centre, chassis)}
+        if self.seated is not None:
+            yaw, pitch, roll = x[12], x[1], x[7]
+            hip = _rotate_zyx(yaw, pitch, roll, (self.seated.hip_x, 0.0, self.seated.hip_z))
+            torso = quaternion_zyx(yaw, x[2], x[8])
+            poses["torso"] = ((centre[0] + hip[0], centre[1] + hip[1], centre[2] + hip[2]), torso)
+        return poses
+
     def energy(self) -> float:
         """Mechanical energy of both planes and yaw (J); conserved without torques and friction."""
         x = self.x
@@ -469,3 +553,16 @@ class Plant:
             q, dq = x[6 * k : 6 * k + 3], x[6 * k + 3 : 6 * k + 6]
             e += self.planes[k].energy((q[0], q[1], q[2]), (dq[0], dq[1], dq[2]))
         return e + 0.5 * self.yaw_inertia * x[13] ** 2
+
+
+def _rotate_zyx(
+    yaw: float, pitch: float, roll: float, v: tuple[float, float, float]
+) -> tuple[float, float, float]:
+    """Rz(yaw) Ry(pitch) Rx(roll) v."""
+    x, y, z = v
+    cr, sr = math.cos(roll), math.sin(roll)
+    y, z = cr * y - sr * z, sr * y + cr * z
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    x, z = cp * x + sp * z, -sp * x + cp * z
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    return cy * x - sy * y, sy * x + cy * y, z

@@ -29,6 +29,14 @@ class Ball(_Record, frozen=True):
     """m_K, kg."""
     inertia: Positive = 0.047
     """Θ_K about the ball centre, kg m²."""
+    floor_friction: Positive = 0.8
+    """μ: ball-floor sliding friction coefficient (3-D plant: the ball slips past μ N)."""
+    spin_friction: NonNegative = 0.01
+    """Ball-floor torsional friction, m: the contact holds a spin torque up to this times the normal force
+    (3-D plant; about (2/3) μ a for a contact patch of radius a)."""
+    roll_friction: NonNegative = 0.0
+    """Ball-floor dry rolling friction, m (3-D plant; the viscous `friction.rolling_viscous` is the
+    rolling resistance both plants share)."""
 
 
 class Body(_Record, frozen=True):
@@ -50,6 +58,19 @@ class Body(_Record, frozen=True):
     """Seat surface above P, m."""
     imu_height: NonNegative = 0.20
     """Body IMU above the ball centre on the body axis, m."""
+    chassis_radius: Positive = 0.20
+    """Radius of the chassis' lowest rim, m (3-D plant: touching the floor with it is a fall)."""
+    chassis_bottom: float = 0.05
+    """Height of that rim above the ball centre, m."""
+
+    def __post_init__(self) -> None:
+        # A rigid body's principal inertias obey the triangle inequality (each at most the sum of the others).
+        i = (self.inertia_pitch, self.inertia_roll, self.inertia_yaw)
+        if 2.0 * max(i) > sum(i):
+            raise ValueError(
+                f"inertia_pitch, inertia_roll, inertia_yaw = {i}: no rigid body has them (each must be at "
+                "most the sum of the other two)"
+            )
 
 
 class Drivetrain(_Record, frozen=True):
@@ -166,6 +187,27 @@ class RobotParams(_Record, frozen=True):
     imu: Imu = Imu()
     tes: Tes = Tes()
 
+    def __post_init__(self) -> None:
+        r, w = self.ball.radius, self.drivetrain.wheel_radius
+        alpha = math.radians(self.drivetrain.zenith_deg)
+        # Wheel centres sit r + r_W from the ball's centre at the zenith angle, 120° apart: neighbours are
+        # √3 (r + r_W) sin α apart, and two wheels of radius r_W closer than 2 r_W run into each other.
+        gap = math.sqrt(3.0) * (r + w) * math.sin(alpha)
+        if gap < 2.0 * w:
+            raise ValueError(
+                f"ball.radius {r:g} m is too small for drivetrain.wheel_radius {w:g} m at zenith_deg "
+                f"{self.drivetrain.zenith_deg:g}: the wheels' centres are {gap:.3f} m apart, under the "
+                f"{2.0 * w:.3f} m two wheels need"
+            )
+        if (
+            math.hypot(self.body.chassis_radius, self.body.chassis_bottom) <= r
+            or self.body.chassis_bottom <= -r
+        ):
+            raise ValueError(
+                f"body.chassis_radius {self.body.chassis_radius:g} m and chassis_bottom "
+                f"{self.body.chassis_bottom:g} m put the chassis' rim inside the ball or under the floor"
+            )
+
 
 # --------------------------------------------------------------------------------------------- rider
 class RiderParams(_Record, frozen=True):
@@ -211,9 +253,26 @@ class RiderParams(_Record, frozen=True):
 
 
 # ----------------------------------------------------------------------------------------------- sim
+class MujocoParams(_Record, frozen=True):
+    """How the 3-D plant's engine steps (docs/plant.md, Numerics)."""
+
+    steps_per_tick: Annotated[int, msgspec.Meta(ge=1, le=100)] = 2
+    """MuJoCo steps per bus tick (the drives' and the rider's torques are held over a tick)."""
+    contact_time_constant: Positive = 0.005
+    """Time constant of the ball-floor contact, s (MuJoCo's solref; at least two steps)."""
+    integrator: Literal["implicitfast", "RK4", "Euler", "implicit"] = "implicitfast"
+    """MuJoCo's integrator (its option of that name)."""
+    impratio: Annotated[float, msgspec.Meta(ge=1)] = 10.0
+    """Ratio of frictional to normal constraint impedance: higher holds the rolling contact tighter."""
+
+
 class SimParams(_Record, frozen=True):
     tick_hz: Positive = 400.0
     """Bus tick: rate of sensor frames and SYNC."""
+    plant: Literal["3d", "planar"] = "3d"
+    """3d: rigid bodies in MuJoCo (plant/ballbot3d.py); planar: two vertical planes and yaw
+    (plant/ballbot.py), kept for regression."""
+    mujoco: MujocoParams = MujocoParams()
     substeps: Annotated[int, msgspec.Meta(ge=1, le=100)] = 1
     """Fixed RK4 steps per tick (internal rate = tick_hz × substeps). One step at 400 Hz already agrees
     with eight to ~1e-5 on task metrics (tests/test_plant_dynamics.py::test_rk4_converges)."""

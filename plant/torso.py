@@ -61,6 +61,16 @@ class TorsoController:
         )
         return min(max(u, -self.max_torque), self.max_torque)
 
+    def hip_feedforward(self, torso_angle: float) -> float:
+        """hip_torque without its terms in the lean's state (the 3-D plant's engine adds −kp lean − kd lean
+        rate and saturates; hip_torque keeps its own order of operations, which the planar runs' files
+        depend on bit for bit)."""
+        return (
+            -self.gravity * math.sin(torso_angle)
+            + self.kp * (self.lean_cmd + self._shifted)
+            + self.kd * self.lean_rate_cmd
+        )
+
 
 class TwistController:
     """The rider's twisting moment on the seat, from a profile, bounded by capability."""

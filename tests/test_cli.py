@@ -19,7 +19,7 @@ def test_simulate_runs_and_reports(capsys):
 def test_simulate_exits_1_when_the_robot_falls(capsys):
     # A 40 deg initial tilt is beyond what the balancer can catch: the run fails, it does not crash.
     assert main(["simulate", "--duration", "3", "--tilt", "40"]) == 1
-    assert "FELL: tilt beyond" in capsys.readouterr().out
+    assert "FELL: " in capsys.readouterr().out  # a tilt beyond the bound or, in 3-D, a foot on the floor
 
 
 def test_bad_config_exits_2_naming_file_and_field(tmp_path, capsys):

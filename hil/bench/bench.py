@@ -101,6 +101,8 @@ class Bench(_Part, frozen=True):
     outputs: OutputsPart = OutputsPart()
     sim: str = "sim/default.toml"
     """The plant's simulation settings (tick rate and seed come from the scenario)."""
+    plant: Literal["sim", "3d", "planar"] = "sim"
+    """The plant: as the sim file says (`sim`), or the 3-D (MuJoCo) or the planar one whatever it says."""
     clock: Literal["scenario", "lockstep", "realtime"] = "scenario"
     realtime: RealtimePart = RealtimePart()
     rider_on_board: bool = False
@@ -138,6 +140,7 @@ class Bench(_Part, frozen=True):
         hub: str | None = None,
         certs: str | None = None,
         clock: str | None = None,
+        plant: str | None = None,
     ) -> Bench:
         """This bench with a command's overrides applied (None: keep the file's). Checked like the file."""
         parts = msgspec.to_builtins(self)
@@ -154,6 +157,8 @@ class Bench(_Part, frozen=True):
                 parts[section][key] = value
         if clock is not None:
             parts["clock"] = clock
+        if plant is not None:
+            parts["plant"] = plant
         try:
             return msgspec.convert(parts, Bench)
         except msgspec.ValidationError as exc:

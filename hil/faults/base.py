@@ -21,7 +21,7 @@ if TYPE_CHECKING:
     from drivers.can_bus import CanNode
     from drivers.dut import DutHandle
     from drivers.keys import Keys
-    from plant.ballbot import Plant
+    from plant.ballbot import PlantCore
     from safety.node import SupervisorNode
 
 
@@ -29,7 +29,7 @@ class FaultTarget(Protocol):
     """What a fault acts on: the rig, as much of it as faults touch (hil/run/rig.py's Rig is one).
     Declared here so the faults depend on nothing above them."""
 
-    plant: Plant
+    plant: PlantCore
     can: CanNode
     """The rig's own node on the bus: its catalog, its transmit and its receive hooks."""
     keys: Keys

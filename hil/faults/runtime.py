@@ -27,7 +27,7 @@ from hil.faults.topics import TopicFault
 from plant.sensors import DriveFeedback, ImuSample, TesSample
 
 if TYPE_CHECKING:
-    from plant.ballbot import Plant
+    from plant.ballbot import PlantCore
 
 log = logging.getLogger(__name__)
 
@@ -202,7 +202,7 @@ class FaultSet:
 
     # ------------------------------------------------------------------------------------ sensors
     def sensors(
-        self, plant: Plant, feedback: Sequence[DriveFeedback], imu: ImuSample, tes: TesSample
+        self, plant: PlantCore, feedback: Sequence[DriveFeedback], imu: ImuSample, tes: TesSample
     ) -> tuple[tuple[DriveFeedback, ...], ImuSample, TesSample, set[str]]:
         """The tick's samples as the faulty sensors report them, and the frames that stay silent."""
         readings = Readings.of(plant, feedback, imu, tes)

@@ -28,7 +28,7 @@ from plant.params import Encoder
 from plant.sensors import DriveFeedback, ImuSample, TesSample, counts_from_angle
 
 if TYPE_CHECKING:
-    from plant.ballbot import Plant
+    from plant.ballbot import PlantCore
 
 _IMU = {
     "imu.roll": (MessageName.IMU_ATTITUDE, "rad"),
@@ -66,7 +66,7 @@ class Readings:
     silent: set[str]
 
     @classmethod
-    def of(cls, plant: Plant, fb: Sequence[DriveFeedback], imu: ImuSample, tes: TesSample) -> Readings:
+    def of(cls, plant: PlantCore, fb: Sequence[DriveFeedback], imu: ImuSample, tes: TesSample) -> Readings:
         per_rad = plant.robot.encoder.counts_per_rev / (2.0 * math.pi)
         values = [
             *(f.counts / per_rad for f in fb),
@@ -87,7 +87,7 @@ class Readings:
         v = self.values
         return ImuSample((v[9], v[10], v[11]), (v[12], v[13], v[14]), (v[15], v[16], v[17]))
 
-    def tes(self, plant: Plant, original: TesSample) -> TesSample:
+    def tes(self, plant: PlantCore, original: TesSample) -> TesSample:
         """The seat's output from the (possibly faulty) cells, through the seat's own calibration."""
         cells = self.values[18:24]
         return original if tuple(cells) == original.cells else plant.tes_model.from_cells(cells)

@@ -42,7 +42,8 @@ from hil.outputs.run_logs import McapSpec, RunLogs, open_logs
 from hil.run.rig import AgentLinks, OperatorStep, Rig, ScStep
 from hil.run.scenario import Scenario
 from hil.run.trace import ControllerUnavailable
-from plant.ballbot import Plant, RiderIntent
+from plant.ballbot import PlantCore, RiderIntent
+from plant.models import make_plant
 from plant.params import RiderParams, RobotParams, SimParams
 from safety.config import SupervisorConfig
 from safety.node import SupervisorNode
@@ -72,7 +73,7 @@ class RunOptions:
 
     progress: Callable[[RunStatus], None] | None = None
     """Called with the run's status about every 0.5 s of wall time."""
-    on_tick: Callable[[Plant], None] | None = None
+    on_tick: Callable[[PlantCore], None] | None = None
     """Called after every tick with the plant (the service applies live rider intent there)."""
     stop: threading.Event | None = None
     """Set it to end the run early (the service's stop)."""
@@ -89,7 +90,7 @@ class RunOptions:
 @dataclass(slots=True)
 class Built:
     rig: Rig
-    plant: Plant
+    plant: PlantCore
     bus: BusConfig
     law: str
     clock: str
@@ -245,21 +246,30 @@ def _connect(
     return Wiring(bus_config, bus, access, link, agent_link, puts)
 
 
-def _plant(bench: Bench, scenario: Scenario, seed: int) -> Plant:
-    sim = msgspec.structs.replace(
-        load_toml(find(bench.sim, "sim"), SimParams), tick_hz=scenario.tick_hz, seed=seed
-    )
+def sim_params(bench: Bench, scenario: Scenario | None = None, seed: int | None = None) -> SimParams:
+    """The bench's simulation settings with its plant override, the scenario's tick rate and the seed."""
+    sim = load_toml(find(bench.sim, "sim"), SimParams)
+    changes: dict[str, object] = {} if bench.plant == "sim" else {"plant": bench.plant}
+    if scenario is not None:
+        changes["tick_hz"] = scenario.tick_hz
+    if seed is not None:
+        changes["seed"] = seed
+    return msgspec.structs.replace(sim, **changes)
+
+
+def _plant(bench: Bench, scenario: Scenario, seed: int) -> PlantCore:
+    sim = sim_params(bench, scenario, seed)
     intent = RiderIntent(list(scenario.intent.pitch), list(scenario.intent.roll), list(scenario.intent.twist))
     pitch_deg, roll_deg = scenario.initial_tilt_deg
     tilt = (math.radians(pitch_deg), math.radians(roll_deg))
     robot = load_toml(find(scenario.robot, "robot"), RobotParams)
-    plant = Plant(robot, load_toml(find(scenario.rider, "riders"), RiderParams), sim, intent, tilt)
+    plant = make_plant(robot, load_toml(find(scenario.rider, "riders"), RiderParams), sim, intent, tilt)
     plant.heeds_alert = scenario.intent.heeds_alert
     return plant
 
 
 def _start_parts(
-    bench: Bench, scenario: Scenario, plant: Plant, wire: Wiring, lockstep: bool, stack: ExitStack
+    bench: Bench, scenario: Scenario, plant: PlantCore, wire: Wiring, lockstep: bool, stack: ExitStack
 ) -> Parts:
     """The supervisor and the controller as the bench places them (drivers/plugs.py): a plug in this
     process (embedded), the same plug in a child process from its spec (spawned), or nobody (external)."""

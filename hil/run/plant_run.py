@@ -10,7 +10,8 @@ import math
 from dataclasses import dataclass
 
 from hil.run.truth_balancer import TruthBalancer
-from plant.ballbot import Plant, RiderIntent
+from plant.ballbot import RiderIntent
+from plant.models import make_plant
 from plant.params import RiderParams, RobotParams, SimParams
 from plant.rider import Hold, Ramp
 
@@ -53,7 +54,7 @@ def run_plant(
     duration: float,
     initial_tilt_deg: float = 0.0,
 ) -> PlantRunSummary:
-    plant = Plant(robot, rider, sim, intent, initial_tilt=(math.radians(initial_tilt_deg), 0.0))
+    plant = make_plant(robot, rider, sim, intent, initial_tilt=(math.radians(initial_tilt_deg), 0.0))
     balancer = TruthBalancer(plant)
     max_speed = max_tilt = max_lean = max_moment = 0.0
     n_tes = n_imu = n_enc = 0

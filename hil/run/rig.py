@@ -49,7 +49,7 @@ from drivers.schemas import (
 from drivers.zenoh_link import Subscription, ZenohLink
 from hil.faults import FaultSet
 from hil.outputs.inputs_log import InputsLog
-from plant.ballbot import Plant
+from plant.ballbot import PlantCore
 from plant.drives import DriveState, MotorDrive
 from plant.sensors import DriveFeedback, ImuSample, TesSample
 from safety.node import SupervisorNode
@@ -123,7 +123,7 @@ class AgentLinks:
 class Rig:
     def __init__(
         self,
-        plant: Plant,
+        plant: PlantCore,
         can: CanNode,
         link: ZenohLink,
         sc_schedule: list[ScStep] | tuple[ScStep, ...] = (ScStep(0, "free"),),

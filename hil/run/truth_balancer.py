@@ -12,7 +12,7 @@ from dataclasses import replace
 import control
 import numpy as np
 
-from plant.ballbot import PITCH, ROLL, Plant, plane_params
+from plant.ballbot import PITCH, ROLL, PlantCore, plane_params
 from plant.plane import PlaneDynamics, PlaneParams
 
 DEFAULT_Q = (100.0, 1.0, 10.0)
@@ -50,7 +50,7 @@ class TruthBalancer:
 
     def __init__(
         self,
-        plant: Plant,
+        plant: PlantCore,
         q: tuple[float, float, float] = DEFAULT_Q,
         r: float = DEFAULT_R,
         yaw_gains: tuple[float, float] = (20.0, 0.0),
@@ -75,16 +75,15 @@ class TruthBalancer:
 
     def command(self) -> tuple[float, float, float]:
         """Motor torques for the plant's current true state."""
-        x = self.plant.x
+        truth = self.plant.truth()
         tau_plane = []
         for k in (PITCH, ROLL):
-            o = 6 * k
-            th, dth, dphi = x[o + 1], x[o + 4], x[o + 3]
+            th, dth, dphi = truth.tilt[k], truth.tilt_rate[k], truth.ball_rate[k]
             kth, kdth, kdphi = self.gains[k]
             tau_plane.append(-(kth * th + kdth * dth + kdphi * (dphi - self.ball_rate_command[k])))
         kp, _ = self.yaw_gains
         # The body yaws under −τ_z, so a positive τ_z slows a positive yaw rate.
-        tau_z = kp * (x[13] - self.yaw_rate_command)
+        tau_z = kp * (truth.yaw_rate - self.yaw_rate_command)
         tau = np.array([tau_plane[ROLL], tau_plane[PITCH], tau_z])
         motor = self.torque_to_motor @ tau
         return float(motor[0]), float(motor[1]), float(motor[2])
