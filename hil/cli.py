@@ -465,10 +465,13 @@ def _stop_on_signals() -> threading.Event:
 
 
 def _until_interrupted(message: str) -> None:
-    """Print `message`, then block until SIGINT or SIGTERM."""
+    """Print `message`, then block until SIGINT or SIGTERM; from then on a second one ends the process at
+    once (what the first started, e.g. writing a run's folder, is left unfinished)."""
     stop = _stop_on_signals()
     print(message, flush=True)
     stop.wait()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_DFL)
 
 
 def _serve(args: argparse.Namespace) -> int:
@@ -491,6 +494,10 @@ def _serve(args: argparse.Namespace) -> int:
         f"pure-hil serve: bench {bench.name}, hub {service.endpoint}, queryables {service.keys.rig('*')}; "
         "Ctrl-C to stop"
     )
+    if service.state == "running":
+        print(
+            "pure-hil serve: stopping the run and writing its folder (a second Ctrl-C: at once)", flush=True
+        )
     service.close()
     session.close()
     print("pure-hil serve: stopped")
@@ -713,7 +720,8 @@ def _ask_service(args: argparse.Namespace, name: str, payload: str, who: str) ->
         return 1
     body = replies[0].ok.payload.to_string()
     print(body)
-    return 0 if json.loads(body).get("ok") else 1
+    reply = json.loads(body)
+    return 0 if reply.get("ok") else 2 if reply.get("refused") else 1
 
 
 def _console(args: argparse.Namespace) -> int:
