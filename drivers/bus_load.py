@@ -18,11 +18,18 @@ class BusLoadError(ValueError):
     """The configured traffic does not fit the bus with the required margin."""
 
 
-def frame_bits(data_bytes: int, extended: bool = False) -> int:
+def frame_bits(data_bytes: int, extended: bool = False, stuffing: bool = True) -> int:
+    """Bits a frame takes on the bus: the worst case (every stuff bit), or without stuffing the fewest."""
     if not 0 <= data_bytes <= 8:
         raise ValueError(f"classic CAN carries 0..8 data bytes, got {data_bytes}")
     stuffed = (54 if extended else 34) + 8 * data_bytes
-    return 8 * data_bytes + (67 if extended else 47) + (stuffed - 1) // 4
+    return 8 * data_bytes + (67 if extended else 47) + ((stuffed - 1) // 4 if stuffing else 0)
+
+
+def frames_per_tick(bitrate: int, tick_hz: float, data_bytes: int) -> int:
+    """The most standard frames of `data_bytes` a bus carries in one tick: its bit time over the shortest
+    such frame (no stuff bit)."""
+    return int(bitrate / tick_hz // frame_bits(data_bytes, stuffing=False))
 
 
 @dataclass(frozen=True, slots=True)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import socket
 import stat
 import threading
@@ -142,6 +143,27 @@ def check_config(config: zenoh.Config, origin: Path | str = "<config>", allow_ne
             f"{origin}: endpoints {outside} are not on loopback "
             "(allow_network=True is for a bench network with a router only)"
         )
+
+
+ENDPOINT = re.compile(r"(tcp|tls|udp|quic)/(\[[0-9A-Fa-f:.]+\]|[^/:\[\]\s]+):(\d{1,5})|unixsock-stream/\S+")
+"""An endpoint a bench's process may name: PROTOCOL/HOST:PORT, or a Unix socket's path."""
+
+
+def check_endpoint(endpoint: str, origin: str, allow_network: bool = False) -> str:
+    """`endpoint` if it is one (PROTOCOL/HOST:PORT, on this machine unless `allow_network`); else a
+    ZenohConfigError naming `origin`, the option or the variable it came from."""
+    form = ENDPOINT.fullmatch(endpoint)
+    if form is None or (form.group(3) is not None and not 0 < int(form.group(3)) < 65536):
+        raise ZenohConfigError(
+            f"{origin} {endpoint!r}: not a zenoh endpoint: expected PROTOCOL/HOST:PORT (port 1-65535), e.g. "
+            "tcp/127.0.0.1:7447"
+        )
+    if not allow_network and not is_loopback(endpoint):
+        raise ZenohConfigError(
+            f"{origin} {endpoint}: not on this machine (tcp/127.0.0.1:PORT); a bench across hosts joins its "
+            "router (docs/security.md)"
+        )
+    return endpoint
 
 
 def free_loopback_endpoint() -> str:

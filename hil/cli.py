@@ -21,7 +21,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NoReturn
 
 import msgspec
 
@@ -87,6 +87,7 @@ def add_bench_options(parser: argparse.ArgumentParser, clock: bool = False, plan
 
 def bench_from(args: argparse.Namespace):
     from drivers.bus_config import parse_can_spec
+    from drivers.zenoh_link import check_endpoint
     from hil.bench.bench import EMBEDDED, load_bench
 
     bench = load_bench(args.bench or EMBEDDED)
@@ -95,7 +96,7 @@ def bench_from(args: argparse.Namespace):
         controller=args.controller,
         law=args.law,
         supervisor=args.supervisor,
-        hub=args.hub,
+        hub=None if args.hub is None else check_endpoint(args.hub, "--hub", bench.zenoh.network),
         certs=args.certs,
         clock=getattr(args, "clock", None),
         plant=getattr(args, "plant", None),
@@ -476,10 +477,13 @@ def _stop_on_signals() -> threading.Event:
 
 
 def _until_interrupted(message: str) -> None:
-    """Print `message`, then block until SIGINT or SIGTERM."""
+    """Print `message`, then block until SIGINT or SIGTERM; from then on a second one ends the process at
+    once (what the first started, e.g. writing a run's folder, is left unfinished)."""
     stop = _stop_on_signals()
     print(message, flush=True)
     stop.wait()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_DFL)
 
 
 def _serve(args: argparse.Namespace) -> int:
@@ -502,6 +506,10 @@ def _serve(args: argparse.Namespace) -> int:
         f"pure-hil serve: bench {bench.name}, hub {service.endpoint}, queryables {service.keys.rig('*')}; "
         "Ctrl-C to stop"
     )
+    if service.state == "running":
+        print(
+            "pure-hil serve: stopping the run and writing its folder (a second Ctrl-C: at once)", flush=True
+        )
     service.close()
     session.close()
     print("pure-hil serve: stopped")
@@ -647,10 +655,13 @@ def _join_rig(args: argparse.Namespace):
     """An operator client's bench, zenoh session and the card of the rig it reached: the hub from --hub,
     $PURE_HIL_HUB, the one live rig of the bench on this machine, or the bench file; a rig of another
     bench is refused unless the hub was named (hil/bench/rigs.py; docs/rig.md "Which rig")."""
+    from drivers.zenoh_link import check_endpoint
     from hil.bench.rigs import HUB_VARIABLE, choose_hub, greet
 
     bench = bench_from(args)
     named = args.hub or os.environ.get(HUB_VARIABLE)
+    if named and not args.hub:
+        named = check_endpoint(named, HUB_VARIABLE, bench.zenoh.network)
     if bench.zenoh.mode != "loopback":
         return bench, bench.zenoh.open(args.identity), None
     bench = bench.with_overrides(hub=choose_hub(bench.name, named, bench.zenoh.endpoint))
@@ -724,7 +735,8 @@ def _ask_service(args: argparse.Namespace, name: str, payload: str, who: str) ->
         return 1
     body = replies[0].ok.payload.to_string()
     print(body)
-    return 0 if json.loads(body).get("ok") else 1
+    reply = json.loads(body)
+    return 0 if reply.get("ok") else 2 if reply.get("refused") else 1
 
 
 def _console(args: argparse.Namespace) -> int:
@@ -790,19 +802,35 @@ def _fault(args: argparse.Namespace) -> int:
             if not sep:
                 print(f"pure-hil fault inject: --param {item!r}: expected NAME=VALUE", file=sys.stderr)
                 return 2
-            try:
-                fault[name] = json.loads(value)
-            except json.JSONDecodeError:
-                fault[name] = value  # a bare word: a channel, a message name
+            fault[name] = _parameter(value)
         try:
             parse_fault(fault, "pure-hil fault inject")  # the same check the service makes, before sending
         except ValueError as exc:
-            print(f"pure-hil fault: {exc}", file=sys.stderr)
+            print(exc, file=sys.stderr)
             return 2
         key, payload = "fault/inject", json.dumps(fault)
     else:
+        if args.kind is not None and not args.kind.isdigit():
+            print(
+                f"pure-hil fault clear: {args.kind!r}: expected a fault's number (pure-hil rig status)",
+                file=sys.stderr,
+            )
+            return 2
         key, payload = "fault/clear", "" if args.kind is None else args.kind
     return _ask_service(args, key, payload, f"pure-hil fault {args.action}")
+
+
+def _parameter(value: str) -> object:
+    """A --param value: JSON (a number, true, a list), a number however Python spells it (nan, inf: refused
+    by name later, not taken for words), else the word itself (a channel, a message)."""
+    try:
+        return json.loads(value)
+    except json.JSONDecodeError:
+        pass
+    try:
+        return float(value)
+    except ValueError:
+        return value
 
 
 def _certs(args: argparse.Namespace) -> int:
@@ -835,10 +863,15 @@ def _router(args: argparse.Namespace) -> int:
 
 
 # ------------------------------------------------------------------------------------------- the parser
+class _Parser(argparse.ArgumentParser):
+    """argparse's, its errors in one line (the usage is a --help away); its sub-commands' parsers too."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="pure-hil", description="Hardware-in-the-loop rig for the PURE ballbot"
-    )
+    parser = _Parser(prog="pure-hil", description="Hardware-in-the-loop rig for the PURE ballbot")
     parser.add_argument("--version", action="version", version=f"%(prog)s {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
     sim = sub.add_parser("simulate", help="plant-only run: PURE + rider on the ideal balancer")

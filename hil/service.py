@@ -12,8 +12,11 @@
                          `offset` (at most CHUNK of them; the attachment says the size), or an error reply
     pure/rig/live     -> about 20 samples a second of wall time while a run goes (hil/live.py)
 
-Every reply is JSON with "ok" and either the result or an "error" that says what was wrong (a file's bytes
-are the one exception: raw, with the JSON in the attachment; its errors are error replies). Queryable
+Every reply is JSON with "ok" and either the result or an "error" that says what was wrong, with
+"refused": true when the request itself is wrong (a bad file, parameter or fault number: a client exits 2;
+a file's bytes are the one exception: raw, with the JSON in the attachment; its errors are error replies).
+`stop` ends a run at its next tick, also under any fault (no wait for a frame outlasts hil/run/rig.py
+STOP_POLL); `close()` waits until its folder is written. Queryable
 callbacks only validate and hand over; runs happen on a worker thread, so zenoh's threads never block.
 Every run is written to the output folder's history (hil/history.py) as it begins and ends.
 """
@@ -111,6 +114,10 @@ class RigService:
     def _reply(self, query: zenoh.Query, body: dict) -> None:
         query.reply(query.key_expr, json.dumps(body))
 
+    def _refuse(self, query: zenoh.Query, error: str) -> None:
+        """The request itself is wrong (what was sent, not the rig's state): the client exits 2."""
+        self._reply(query, {"ok": False, "error": error, "refused": True})
+
     def _status(self, query: zenoh.Query) -> None:
         self._reply(query, {"ok": True, **self.status()})
 
@@ -144,7 +151,7 @@ class RigService:
         try:
             scenario = self._scenario(text)
         except ConfigError as exc:
-            self._reply(query, {"ok": False, "error": str(exc)})
+            self._refuse(query, str(exc))
             return
         if scenario.faults and self.bench.rider_on_board:
             self._reply(query, {"ok": False, "error": NO_FAULTS.format(bench=self.bench.name)})
@@ -208,7 +215,7 @@ class RigService:
         try:
             intent = msgspec.json.decode(text, type=Intent)
         except (msgspec.ValidationError, msgspec.DecodeError) as exc:
-            self._reply(query, {"ok": False, "error": f"pure/rig/intent payload: {exc}"})
+            self._refuse(query, f"pure/rig/intent payload: {exc}")
             return
         self._pending_intent = RiderIntent(list(intent.pitch), list(intent.roll), list(intent.twist))
         running = self._running()
@@ -220,7 +227,7 @@ class RigService:
             obj = json.loads(text)
             spec = parse_fault(obj, "pure/rig/fault/inject payload")
         except (ValueError, json.JSONDecodeError) as exc:
-            self._reply(query, {"ok": False, "error": str(exc)})
+            self._refuse(query, str(exc))
             return
         if self.bench.rider_on_board:
             self._reply(query, {"ok": False, "error": NO_FAULTS.format(bench=self.bench.name)})
@@ -231,8 +238,8 @@ class RigService:
             return
         try:
             faults.inject(spec)
-        except ValueError as exc:
-            self._reply(query, {"ok": False, "error": str(exc)})
+        except ValueError as exc:  # a bound of this rig's, a message it lacks, a run full of faults
+            self._refuse(query, str(exc))
             return
         self._reply(query, {"ok": True, "fault": spec.describe(), "scenario": running.name})
 
@@ -245,9 +252,13 @@ class RigService:
         try:
             number = int(text) if text else None
         except ValueError:
-            self._reply(query, {"ok": False, "error": f"expected a fault number or nothing, got {text!r}"})
+            self._refuse(query, f"expected a fault number or nothing, got {text!r}")
             return
-        faults.clear(number)
+        try:
+            faults.clear(number)
+        except ValueError as exc:  # a number this run never gave
+            self._refuse(query, str(exc))
+            return
         self._reply(query, {"ok": True, "cleared": "all" if number is None else number})
 
     def _history(self, query: zenoh.Query) -> None:
@@ -369,8 +380,9 @@ class RigService:
         return self.state == "idle"
 
     def close(self) -> None:
+        """End the run in progress (at its next tick) and wait until its folder is written, then leave."""
         self._stop.set()
-        self.wait_idle(10.0)
+        self.wait_idle()
         for q in self._queryables:
             q.undeclare()
         self._announced.close()

@@ -36,14 +36,16 @@ else:
 
 
 def parse_fault(obj: dict[str, Any], where: str = "fault") -> FaultSpec:
-    """A fault from a plain mapping (TOML table, JSON object); ValueError names what was wrong."""
+    """A fault from a plain mapping (TOML table, JSON object); ValueError names what was wrong: `where`, the
+    kind, the parameter and its bound."""
     kind = obj.get("kind") if isinstance(obj, dict) else None
     if kind not in CATALOG:
         raise ValueError(f"{where}: unknown kind {kind!r}: expected one of {', '.join(sorted(CATALOG))}")
     try:
         return msgspec.convert(obj, CATALOG[kind])
     except msgspec.ValidationError as exc:
-        raise ValueError(f"{where} ({kind}): {exc}") from None
+        said = str(exc)  # a bound's message names the kind already; msgspec's own do not
+        raise ValueError(f"{where}: {said if said.startswith(kind) else f'{kind}: {said}'}") from None
 
 
 def describe_catalog() -> str:

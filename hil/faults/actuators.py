@@ -3,14 +3,33 @@
 from __future__ import annotations
 
 import math
+import typing
 from typing import Annotated, ClassVar
 
-import msgspec
-
-from hil.faults.base import FaultSpec, FaultState, FaultTarget, NonNegative
+from hil.faults.base import Bound, FaultSpec, FaultState, FaultTarget, Motor
+from plant.params import RiderParams
 from plant.plane import Wrench
 
-Motor = Annotated[int, msgspec.Meta(ge=1, le=3)]
+HEAVIEST_RIDER = typing.get_type_hints(RiderParams, include_extras=True)["mass"].__metadata__[0].lt
+"""kg: the heaviest rider a rider file may describe (plant/params.py)."""
+PUSH = round(HEAVIEST_RIDER * 9.81)
+"""N: the largest push, the heaviest rider's weight."""
+REACH = 0.4
+"""m: a hand's distance from the vertical axis through P, at a rider's shoulder."""
+
+
+Newtons = Annotated[
+    float,
+    Bound(
+        magnitude=True,
+        high=PUSH,
+        why=f"N, each component; the weight of the heaviest rider a rider file may describe "
+        f"({HEAVIEST_RIDER:g} kg): a larger force is a collision, not a push to ride through",
+    ),
+]
+Lean = Annotated[
+    float, Bound(magnitude=True, high=90.0, why="deg; past horizontal a torso is no seated rider's")
+]
 
 
 class PlantFault(FaultSpec, frozen=True, kw_only=True):
@@ -28,7 +47,15 @@ class DriveTorque(DriveFault, frozen=True, tag="plant.drive_torque"):
     """Drive `motor` produces `scale` times the torque it is commanded (0: torque lost, the drive still
     reports itself enabled)."""
 
-    scale: NonNegative = 0.0
+    scale: Annotated[
+        float,
+        Bound(
+            0.0,
+            10.0,
+            why="a drive producing more than 10x its command is no drive's torque constant; its torque "
+            "limit clamps what it produces anyway",
+        ),
+    ] = 0.0
 
     def start(self, rig: FaultTarget, state: FaultState) -> None:
         rig.plant.drives.motors[self.motor - 1].gain = self.scale
@@ -55,9 +82,24 @@ class Push(PlantFault, frozen=True, tag="plant.push"):
     above the chassis top P (0: on the chassis; about 0.4: the rider's chest), and a `twist` about the
     vertical (Nm). The rider is taken as rigid with the chassis for the push: its wrench acts at P."""
 
-    force: tuple[float, float] = (0.0, 0.0)
-    height: float = 0.0
-    twist: float = 0.0
+    force: tuple[Newtons, Newtons] = (0.0, 0.0)
+    height: Annotated[
+        float,
+        Bound(
+            -1.0,
+            1.5,
+            why="m; a point of the robot or its seated rider: PURE's P is about 0.5 m above the floor, the "
+            "tallest rider's head about 1.2 m above P",
+        ),
+    ] = 0.0
+    twist: Annotated[
+        float,
+        Bound(
+            magnitude=True,
+            high=PUSH * REACH,
+            why=f"Nm; the largest push at a rider's shoulder, {REACH:g} m from the vertical axis",
+        ),
+    ] = 0.0
     disturbance: ClassVar[bool] = True
 
     def start(self, rig: FaultTarget, state: FaultState) -> None:
@@ -79,8 +121,8 @@ class MassShift(PlantFault, frozen=True, tag="plant.mass_shift"):
     whatever the rider does (a slip on the seat, a reach for something; in 30 ms, as fast as a body's mass
     moves); lasts the fault's duration."""
 
-    pitch_deg: float = 0.0
-    roll_deg: float = 0.0
+    pitch_deg: Lean = 0.0
+    roll_deg: Lean = 0.0
     disturbance: ClassVar[bool] = True
 
     def validate(self, rig: FaultTarget) -> None:

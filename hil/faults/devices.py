@@ -9,12 +9,8 @@ from __future__ import annotations
 
 from typing import Annotated, ClassVar, Protocol, cast
 
-import msgspec
-
 from drivers.devices import IMU_PROFILES, ProfileNode
-from hil.faults.base import FaultError, FaultSpec, FaultState, FaultTarget
-
-Motor = Annotated[int, msgspec.Meta(ge=1, le=3)]
+from hil.faults.base import Bound, FaultError, FaultSpec, FaultState, FaultTarget, Motor
 
 
 class OdriveAxes(Protocol):
@@ -78,7 +74,9 @@ class OdriveAxisError(OdriveFault, frozen=True, tag="odrive.axis_error"):
     """Drive `motor`'s ODrive axis raises `error` (default DRV_FAULT, 0x20: its gate driver failed) and
     disarms; the error stays active, whatever Clear_Errors says, until the fault ends."""
 
-    error: Annotated[int, msgspec.Meta(gt=0, lt=1 << 32)] = 0x20
+    error: Annotated[int, Bound(1, (1 << 32) - 1, why="ODrive's 32-bit axis error field (0: no error)")] = (
+        0x20
+    )
 
     def start(self, rig: FaultTarget, state: FaultState) -> None:
         self.axes(rig).axis_error(self.motor - 1, self.error)
@@ -119,7 +117,9 @@ class Cia402DriveFault(Cia402Fault, frozen=True, tag="cia402.fault"):
     drive-internal fault; 0x3220 is a DC-link under-voltage) and holds it while the fault lasts: a fault
     reset does not clear it until the fault ends."""
 
-    code: Annotated[int, msgspec.Meta(gt=0, le=0xFFFF)] = 0xFF02
+    code: Annotated[int, Bound(1, 0xFFFF, why="a 16-bit EMCY error code, object 0x603F (0: no error)")] = (
+        0xFF02
+    )
 
     def start(self, rig: FaultTarget, state: FaultState) -> None:
         self.drives(rig).fault(self.motor - 1, self.code)
@@ -151,7 +151,7 @@ class Cia402SdoAbort(Cia402Fault, frozen=True, tag="cia402.sdo_abort"):
     """Drive `motor` answers every SDO request with abort `code` (default 0x08000022: not in the present
     device state) while the fault lasts; its PDOs go on."""
 
-    code: Annotated[int, msgspec.Meta(gt=0, lt=1 << 32)] = 0x08000022
+    code: Annotated[int, Bound(1, (1 << 32) - 1, why="a 32-bit SDO abort code (CiA 301)")] = 0x08000022
 
     def start(self, rig: FaultTarget, state: FaultState) -> None:
         self.drives(rig).sdo_abort(self.motor - 1, self.code)

@@ -13,15 +13,57 @@ from __future__ import annotations
 from typing import Annotated, ClassVar, Literal
 
 import can
-import msgspec
 
-from drivers.bus_load import frame_bits
+from drivers.bus_load import frame_bits, frames_per_tick
 from drivers.can_codec import DRIVE_COMMAND, MessageName
+from drivers.config import MAX_DURATION
 from drivers.devices import ProfileNode, Translator
 from drivers.e2e import counter_of, is_protected, with_counter
-from hil.faults.base import FaultSpec, FaultState, FaultTarget, Positive, Probability
+from hil.faults.base import Bound, FaultSpec, FaultState, FaultTarget, Hold, Probability, number
 
-Count = Annotated[int, msgspec.Meta(gt=0)]
+
+def _run_frames(spec: FaultSpec, rig: FaultTarget | None) -> tuple[float, str] | None:
+    if rig is None:
+        return None
+    tick_hz = rig.plant.sim.tick_hz
+    return MAX_DURATION * tick_hz, f"one frame a tick at {tick_hz:g} Hz for the longest run"
+
+
+def _copies(spec: Repeat, rig: FaultTarget | None) -> tuple[float, str] | None:
+    """A frame and its repeats share the tick's bus time."""
+    if rig is None:
+        return None
+    tick_hz, length = rig.plant.sim.tick_hz, rig.can.catalog[spec.message].length
+    fit = frames_per_tick(rig.bitrate, tick_hz, length)
+    return (
+        fit - 1,
+        f"{fit} frames of {length} bytes fill a tick at {number(rig.bitrate)} bit/s and {tick_hz:g} Hz",
+    )
+
+
+def _flood(spec: Babble, rig: FaultTarget | None) -> tuple[float, str] | None:
+    if rig is None:
+        return None
+    tick_hz = rig.plant.sim.tick_hz
+    return spec.capacity(rig), (
+        f"frames of {spec.length} bytes one tick carries at {number(rig.bitrate)} bit/s and {tick_hz:g} Hz"
+    )
+
+
+Count = Annotated[
+    int,
+    Bound(
+        1,
+        limit=_run_frames,
+        limit_text="the frames of the longest run",
+        why="a burst of at most every frame the longest run sends of the message",
+    ),
+]
+FRAME_BYTES = Bound(0, 8, why="a classic CAN frame carries 0..8 data bytes")
+Message = Annotated[
+    str,
+    Bound(limit_text="a message of the bench's DBC", why="checked against the rig's when it is scheduled"),
+]
 RX_MESSAGES = frozenset([*DRIVE_COMMAND, MessageName.SUPERVISOR_ESTOP, MessageName.CONTROLLER_HEARTBEAT])
 """Messages the rig receives (as the drives); the rest of the catalog the rig sends (or nobody does)."""
 
@@ -38,7 +80,7 @@ def _copy(
 
 
 class CanFault(FaultSpec, frozen=True, kw_only=True):
-    message: str
+    message: Message
     count: Count | None = None
 
     family: ClassVar[str] = "frames"
@@ -79,7 +121,7 @@ class Drop(CanFault, frozen=True, tag="can.drop"):
 class Delay(CanFault, frozen=True, tag="can.delay"):
     """Every frame arrives `delay` seconds late (a gateway or a queue in the way)."""
 
-    delay: Positive
+    delay: Hold
     both_ways: ClassVar[bool] = False
 
     def tx(self, msg: can.Message, rig: FaultTarget, state: FaultState) -> list[can.Message]:
@@ -98,7 +140,15 @@ class Delay(CanFault, frozen=True, tag="can.delay"):
 class Repeat(CanFault, frozen=True, tag="can.repeat"):
     """Every frame is sent `times` more times (a retransmission bug: the receiver sees REPEATED)."""
 
-    times: Count = 1
+    times: Annotated[
+        int,
+        Bound(
+            1,
+            limit=_copies,
+            limit_text="the frames one tick's bus time carries, less one",
+            why="a frame and its copies go out within its tick",
+        ),
+    ] = 1
     both_ways: ClassVar[bool] = False
 
     def tx(self, msg: can.Message, rig: FaultTarget, state: FaultState) -> list[can.Message]:
@@ -127,7 +177,7 @@ class Corrupt(CanFault, frozen=True, tag="can.corrupt"):
     """One payload bit flips on the wire (`bit`, counted from the payload's least significant bit; none: a
     random bit per frame), so the CRC no longer matches."""
 
-    bit: Annotated[int, msgspec.Meta(ge=0, le=63)] | None = None
+    bit: Annotated[int, Bound(0, 63, why="a payload bit of a classic frame (at most 8 bytes)")] | None = None
 
     def rx(self, msg: can.Message, rig: FaultTarget, state: FaultState) -> can.Message | None:
         nbits = 8 * len(msg.data)
@@ -162,7 +212,7 @@ class WrongCounter(CanFault, frozen=True, tag="can.wrong_counter"):
 class WrongDlc(CanFault, frozen=True, tag="can.wrong_dlc"):
     """Frames carry `length` bytes instead of the DBC's (truncated, or padded with zeros)."""
 
-    length: Annotated[int, msgspec.Meta(ge=0, le=8)]
+    length: Annotated[int, FRAME_BYTES]
 
     def rx(self, msg: can.Message, rig: FaultTarget, state: FaultState) -> can.Message | None:
         data = bytes(msg.data[: self.length]).ljust(self.length, b"\0")
@@ -174,7 +224,7 @@ class Masquerade(CanFault, frozen=True, tag="can.masquerade"):
     another): the E2E data id in the CRC makes receivers of `as_message` see CRC errors. On a device
     profile the copy goes out under the profile's id of the same frame of `as_message`'s device (no E2E)."""
 
-    as_message: str
+    as_message: Message
     both_ways: ClassVar[bool] = False
 
     def validate(self, rig: FaultTarget) -> None:
@@ -216,7 +266,10 @@ class Replay(CanFault, frozen=True, tag="can.replay"):
     fresh ones, each frame as it was (counter and CRC intact). At 16 frames the 4-bit alive counter comes
     round exactly: E2E sees a healthy stream of stale data (a replay attack, or a stuck buffer)."""
 
-    frames: Annotated[int, msgspec.Meta(ge=2, le=1024)] = 16
+    frames: Annotated[
+        int,
+        Bound(2, 1024, why="the recording the fault keeps; 16 is the 4-bit alive counter's period"),
+    ] = 16
     both_ways: ClassVar[bool] = False
 
     def tx(self, msg: can.Message, rig: FaultTarget, state: FaultState) -> list[can.Message]:
@@ -229,23 +282,42 @@ class Replay(CanFault, frozen=True, tag="can.replay"):
 
 
 class Babble(FaultSpec, frozen=True, kw_only=True, tag="can.babble"):
-    """A babbling node floods `per_tick` frames of id `can_id` (high priority: low id) every tick. When the
-    flood fills the tick's bus time (at the bus bitrate), frames with higher ids lose every arbitration:
-    the rig's own frames and those it receives above `can_id` are lost, as on a saturated real bus."""
+    """A babbling node floods `per_tick` frames of id `can_id` (high priority: low id) every tick (none: as
+    many as the bus carries). When the flood fills the tick's bus time (at the bus bitrate), frames with
+    higher ids lose every arbitration: the rig's own frames and those it receives above `can_id` are lost,
+    as on a saturated real bus."""
 
-    can_id: Annotated[int, msgspec.Meta(ge=0, le=0x7FF)] = 0x001
-    per_tick: Count = 30
-    length: Annotated[int, msgspec.Meta(ge=0, le=8)] = 8
+    can_id: Annotated[int, Bound(0, 0x7FF, why="an 11-bit standard id")] = 0x001
+    per_tick: (
+        Annotated[
+            int,
+            Bound(
+                1,
+                limit=_flood,
+                limit_text="the frames one tick's bus time carries",
+                why="a bus carries no more frames in a tick than its bitrate allows",
+            ),
+        ]
+        | None
+    ) = None
+    length: Annotated[int, FRAME_BYTES] = 8
 
     family: ClassVar[str] = "frames"
 
+    def capacity(self, rig: FaultTarget) -> int:
+        """The most frames of this length the bus carries in one tick."""
+        return frames_per_tick(rig.bitrate, rig.plant.sim.tick_hz, self.length)
+
+    def frames(self, rig: FaultTarget) -> int:
+        """Frames it sends each tick."""
+        return self.capacity(rig) if self.per_tick is None else self.per_tick
+
     def saturates(self, rig: FaultTarget) -> bool:
-        bitrate = rig.bitrate
-        return self.per_tick * frame_bits(self.length) >= bitrate * rig.plant.dt
+        return self.frames(rig) * frame_bits(self.length) >= rig.bitrate * rig.plant.dt
 
     def babble(self, rig: FaultTarget) -> None:
         msg = can.Message(arbitration_id=self.can_id, is_extended_id=False, data=b"\xaa" * self.length)
-        for _ in range(self.per_tick):
+        for _ in range(self.frames(rig)):
             rig.can.transmit("BABBLE", msg)
 
 

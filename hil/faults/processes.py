@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from typing import ClassVar, Literal, Protocol, cast
 
-from hil.faults.base import FaultSpec, FaultState, FaultTarget, Positive
+from hil.faults.base import FaultSpec, FaultState, FaultTarget, Hold
 
 
 class Pausable(Protocol):
@@ -70,7 +70,7 @@ class Hang(ProcessFault, frozen=True, tag="process.hang"):
 class LoopDelay(ProcessFault, frozen=True, tag="process.loop_delay"):
     """The control loop runs `delay` seconds late: every command reaches the drives that much later."""
 
-    delay: Positive
+    delay: Hold
 
     def delay_ticks(self, rig: FaultTarget, state: FaultState) -> int:
         return math.ceil(self.delay / rig.plant.dt - 1e-9)
@@ -80,7 +80,7 @@ class Jitter(ProcessFault, frozen=True, tag="process.jitter"):
     """The control loop's latency varies uniformly in [0, `jitter`] seconds per tick (a command never
     overtakes an earlier one: the drives keep the newest that has arrived)."""
 
-    jitter: Positive
+    jitter: Hold
 
     def delay_ticks(self, rig: FaultTarget, state: FaultState) -> int:
         return math.floor(state.rng.uniform(0.0, self.jitter) / rig.plant.dt + 0.5)

@@ -31,6 +31,10 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
+MAX_FAULTS = 256
+"""Faults one run holds, its scenario's and live ones: each keeps a random stream and its log lines, so a
+session injecting without end must not grow a run's memory without end."""
+
 
 class _Clear(NamedTuple):
     """A live request to end fault number `fault` (None: all of them)."""
@@ -79,9 +83,10 @@ class FaultSet:
         self.tick_hz = rig.plant.sim.tick_hz
         for n, spec in enumerate(self.specs):
             try:
-                spec.validate(rig)
+                spec.check(rig)
             except ValueError as exc:
-                raise FaultError(f"fault {n} ({spec.describe()}): {exc}") from None
+                said = str(exc).removeprefix(f"{spec.kind}: ")  # describe() names the kind
+                raise FaultError(f"fault {n} ({spec.describe()}): {said}") from None
             self._schedule(n)
 
     def _add(self, spec: FaultSpec) -> int:
@@ -96,18 +101,33 @@ class FaultSet:
         state.first_tick, state.end_tick = self.specs[n].ticks(self.tick_hz, now)
 
     # ----------------------------------------------------------------------------------- live use
-    def inject(self, spec: FaultSpec) -> None:
-        """From any thread: add `spec`, its `at` counted from the tick that takes it in. Raises ValueError
-        if it cannot act on this rig."""
+    def inject(self, spec: FaultSpec) -> int:
+        """From any thread: add `spec`, its `at` counted from the tick that takes it in; its number in the
+        run. Raises ValueError if it cannot act on this rig (a bound of the rig's, an unknown message) or
+        the run holds MAX_FAULTS already."""
         if self.rig is not None:
-            spec.validate(self.rig)
+            spec.check(self.rig)
         with self._lock:
+            number = self._numbered()
+            if number >= MAX_FAULTS:
+                raise ValueError(f"this run holds {MAX_FAULTS} faults already, the most one run may hold")
             self._requests.append(spec)
+        return number
 
     def clear(self, fault: int | None = None) -> None:
-        """From any thread: end fault number `fault` (None: every fault active or still to come)."""
+        """From any thread: end fault number `fault` (None: every fault active or still to come). Raises
+        ValueError for a number the run has not given."""
         with self._lock:
+            known = self._numbered()
+            if fault is not None and not 0 <= fault < known:
+                faults = "none" if not known else f"0..{known - 1}"
+                raise ValueError(f"no fault {fault} in this run (its faults: {faults}; pure-hil rig status)")
             self._requests.append(_Clear(fault))
+
+    def _numbered(self) -> int:
+        """Numbers given so far: the run's faults and the injections queued for the next tick (they are
+        numbered in the order they came). Called under the lock."""
+        return len(self.specs) + sum(isinstance(r, FaultSpec) for r in self._requests)
 
     def _take_requests(self, k: int, t: float) -> None:
         with self._lock:
@@ -116,11 +136,11 @@ class FaultSet:
         for request in requests:
             if isinstance(request, FaultSpec):
                 # Recorded with its absolute start; scheduled from tick 0, so `at` counts once from this tick.
-                spec = msgspec.structs.replace(request, at=t + request.at)
                 try:
-                    spec.validate(rig)
-                except ValueError as exc:  # queued before the rig was there to check it
-                    log.error("live fault %s refused: %s", spec.describe(), exc)
+                    spec = msgspec.structs.replace(request, at=t + request.at)
+                    spec.check(rig)
+                except ValueError as exc:  # queued before the rig was there to check it, or past a day
+                    log.error("live fault %s refused: %s", request.describe(), exc)
                     continue
                 n = self._add(spec)
                 self._schedule(n)

@@ -7,12 +7,38 @@ see them through the real zenoh session.
 
 from __future__ import annotations
 
+import typing
 from typing import Annotated, ClassVar, Literal
 
 import msgspec
 
-from drivers.schemas import ScRequest, TesWrench, encode
-from hil.faults.base import FaultSpec, FaultState, FaultTarget, NonNegative, Positive
+from drivers.schemas import ScRequest, Source, Speed, TesWrench, encode
+from hil.faults.base import Bound, FaultSpec, FaultState, FaultTarget, Period
+
+ETHERNET_BITRATE = 100e6
+"""bit/s of the link an agent reaches the bench over (100BASE-TX: the Ethernet of a bench's computers)."""
+SEGMENT_OVERHEAD = 78
+"""Bytes on the wire around each put sent as a TCP segment of its own: Ethernet framing with preamble and
+inter-frame gap (38), IPv4 (20), TCP (20)."""
+SEGMENT_PAYLOAD = 1460
+"""Bytes of payload one TCP segment carries on Ethernet (1500 MTU less the IPv4 and TCP headers)."""
+_SPEED: msgspec.Meta = typing.get_args(Speed)[1]
+Cap = Annotated[
+    float, Bound(_SPEED.ge, _SPEED.le, why="m/s; what ScRequest.speed_cap carries (drivers/schemas.py)")
+]
+
+
+def _requests_per_tick(spec: ScFlood, rig: FaultTarget | None) -> tuple[float, str] | None:
+    """The requests a tick's share of the agent's link carries, each its own segment."""
+    if rig is None:
+        return None
+    tick_hz = rig.plant.sim.tick_hz
+    longest = ScRequest(seq=2**32 - 1, stamp=0.0, mode=spec.mode, speed_cap=spec.cap, source=spec.source)
+    wire = SEGMENT_OVERHEAD + len(encode(longest))
+    return ETHERNET_BITRATE / 8 / wire / tick_hz // 1, (
+        f"requests of {wire} bytes on the wire a {ETHERNET_BITRATE / 1e6:g} Mbit/s link carries in a tick "
+        f"at {tick_hz:g} Hz"
+    )
 
 
 class TopicFault(FaultSpec, frozen=True, kw_only=True):
@@ -54,7 +80,14 @@ class Malformed(TopicFault, frozen=True, tag="zenoh.malformed"):
     """Undecodable bytes on `key` (`payload`, hex) every tick; on the seat wrench they replace the sample."""
 
     key: Literal["tes/wrench", "sc/request", "safety/estop", "controller/command"] = "tes/wrench"
-    payload: str = "c1ffee"
+    payload: Annotated[
+        str,
+        msgspec.Meta(
+            min_length=2,
+            max_length=2 * SEGMENT_PAYLOAD,
+            description="hex digits: at most one TCP segment's payload on Ethernet (1460 bytes)",
+        ),
+    ] = "c1ffee"
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -75,10 +108,18 @@ class Malformed(TopicFault, frozen=True, tag="zenoh.malformed"):
 class ScFlood(TopicFault, frozen=True, tag="zenoh.sc_flood"):
     """An SC agent floods `per_tick` requests per tick (valid ones: `mode`, `cap`)."""
 
-    per_tick: Annotated[int, msgspec.Meta(gt=0)] = 20
+    per_tick: Annotated[
+        int,
+        Bound(
+            1,
+            limit=_requests_per_tick,
+            limit_text="the requests the agent's link carries in a tick",
+            why="an agent's 100 Mbit/s Ethernet, each request a TCP segment of its own",
+        ),
+    ] = 20
     mode: Literal["free", "idle", "limit"] = "free"
-    cap: NonNegative = 0.0
-    source: str = "flood"
+    cap: Cap = 0.0
+    source: Source = "flood"
 
     def extra(self, rig: FaultTarget, state: FaultState) -> list[tuple[str, bytes]]:
         puts = []
@@ -96,9 +137,9 @@ class ScConflict(TopicFault, frozen=True, tag="zenoh.sc_conflict"):
     interleaved with the scenario's own requests."""
 
     mode: Literal["free", "idle", "limit"] = "free"
-    cap: NonNegative = 0.0
-    period: Positive = 0.05
-    source: str = "rogue-agent"
+    cap: Cap = 0.0
+    period: Period = 0.05
+    source: Source = "rogue-agent"
 
     def extra(self, rig: FaultTarget, state: FaultState) -> list[tuple[str, bytes]]:
         t = rig.plant.t

@@ -171,6 +171,7 @@ def build(
         recorder=recorder,
         inputs=_inputs(out, logs, stack),
     )
+    rig.stop = options.stop
     faults.attach(rig)
     trace = None if out is None else out / "trace.npy"
     law = law_of(bench, scenario)
@@ -406,6 +407,8 @@ def start_up(built: Built, bench: Bench) -> None:
     where = bench.controller.where
     timeout = bench.controller.boot_timeout or BOOT_TIMEOUT[where]
     missing = rig.await_boot(timeout)
+    if rig.stopping:
+        return  # asked to end before the first tick: the tick loop runs none
     if missing:
         bus = f"{built.bus.interface}:{built.bus.channel}"
         hint = {

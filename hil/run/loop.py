@@ -44,10 +44,11 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
     n = 0
     began = time.monotonic()
     next_report = began + 0.5
-    failure, stopped = None, False
+    failure = None
+    stopped = options.stop is not None and options.stop.is_set()  # already in the start-up: no tick
     clock.start()
     try:  # the clock's real-time settings (gc off) end with the loop, whatever ends it
-        while n < ticks:
+        while n < ticks and not stopped:
             try:
                 rig.tick(clock.command_deadline(), lockstep)
             except Exception as exc:  # a bug or a broken bus mid-run: keep what ran, say where it stopped

@@ -23,6 +23,7 @@ One tick k:
 from __future__ import annotations
 
 import math
+import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable, Mapping, Sequence
@@ -60,6 +61,8 @@ TORQUE_EVERY = 4  # DRIVEn_TORQUE at 100 Hz on a 400 Hz tick (the DBC's GenMsgCy
 TELEMETRY_CAPACITY = 1 << 12
 """Controller telemetry samples buffered between the loop's takes (hil/run/loop.py TELEMETRY_EVERY)."""
 SC_REPEAT_EVERY = 40  # ticks between repeats of an unchanged SC request (keeps it fresh for the supervisor)
+STOP_POLL = 0.05
+"""s: the longest a wait for a frame goes without looking whether the run was asked to stop."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -168,6 +171,9 @@ class Rig:
         answers from this thread."""
         self.faults = faults if faults is not None else FaultSet()
         self.bitrate = bitrate
+        self.stop: threading.Event | None = None
+        """Set when the run is to end (Ctrl-C, SIGTERM, `rig stop`): no wait for a frame, in the start-up or
+        a tick, lasts beyond STOP_POLL after it (a guard of 1 s, a boot timeout of minutes)."""
         self.recovery_in_commands = recovery_in_commands
         self._held: deque[tuple[int, int, float, bool]] = deque()
         """Commands a loop-delay fault holds back: (due tick, drive, torque, enable)."""
@@ -241,15 +247,24 @@ class Rig:
                 if not seen
             ]
             remaining = deadline - time.monotonic()
-            if not missing or remaining <= 0:
+            if not missing or remaining <= 0 or self.stopping:
                 return " and ".join(missing)
-            rx = self.can.recv(timeout=min(remaining, 0.1))
+            rx = self.can.recv(timeout=min(remaining, STOP_POLL))
             if rx is None:
                 continue
             self._other_frame(rx)
             if rx.name == MessageName.CONTROLLER_HEARTBEAT and not controller:
                 controller, self.controller_contract = True, int(rx.signals["Contract"])
             supervisor = supervisor or (rx.name == MessageName.SUPERVISOR_ESTOP and rx.ok)
+
+    @property
+    def stopping(self) -> bool:
+        """The run was asked to end."""
+        return self.stop is not None and self.stop.is_set()
+
+    def _recv_until(self, deadline: float) -> Received | None:
+        """The next frame, waiting until `deadline` at most, and not past a stop request."""
+        return self.can.recv(timeout=min(max(deadline - time.monotonic(), 0.0), STOP_POLL))
 
     def tick(self, deadline: float | None = None, lockstep: bool = True) -> None:
         """One tick; wait for the controller's answer until `deadline` (time.monotonic()).
@@ -428,10 +443,12 @@ class Rig:
         """Take in frames until `done()`; a supervisor silent until `deadline` is not waited for again
         until it is heard from (a commands frame that turns up is late: its tick is over, never applied)."""
         while not done() and not self._supervisor_silent:
-            rx = self.can.recv(timeout=max(deadline - time.monotonic(), 0.0))
+            rx = self._recv_until(deadline)
             if rx is None:
                 if time.monotonic() >= deadline:
                     self._supervisor_silent = True
+                elif self.stopping:
+                    return  # the run's last tick: nothing is waited for
                 continue
             if rx.name in COMMANDS:
                 self.stats.late_commands += 1
@@ -518,11 +535,13 @@ class Rig:
         drives = self.plant.drives.motors
         waiting = not self._silent
         while pending or lockstep:
-            rx = self.can.recv(timeout=max(deadline - time.monotonic(), 0.0))
+            rx = self._recv_until(deadline)
             if rx is None:
                 if time.monotonic() >= deadline:
                     self.stats.guards_expired += lockstep and waiting
                     break
+                if self.stopping:
+                    return  # the run's last tick: what did not come is not counted missing
                 continue
             if rx.name not in COMMANDS:
                 self._other_frame(rx)

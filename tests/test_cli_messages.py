@@ -1,0 +1,82 @@
+"""What a user types wrong ends in one line that names it (the flag, the variable, the parameter and its
+bound, nan as nan) with exit 2, and no prefix said twice."""
+
+from __future__ import annotations
+
+import pytest
+
+from hil.cli import main
+
+
+def said(argv: list[str], capsys) -> tuple[int, str]:
+    try:
+        code = main(argv)
+    except SystemExit as exc:  # argparse's own
+        code = exc.code
+    return code, capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("argv", "says"),
+    [
+        (["rig", "stop", "--hubb", "x"], "pure-hil: unrecognized arguments: --hubb x (see pure-hil --help)"),
+        (["fault", "boom"], "pure-hil fault: argument action: invalid choice: 'boom'"),
+        (["run"], "pure-hil run: the following arguments are required: scenario"),
+        (["fault", "inject", "sensor.off", "--at", "nan"], "pure-hil fault: argument --at: expected >= 0"),
+    ],
+)
+def test_an_argparse_error_is_one_line(argv, says, capsys):
+    code, err = said(argv, capsys)
+    assert code == 2 and err.startswith(says) and err.count("\n") == 1, err
+
+
+@pytest.mark.parametrize(
+    ("argv", "says"),
+    [
+        (["rig", "status", "--hub", "garbage"], "pure-hil rig: --hub 'garbage': not a zenoh endpoint"),
+        (["fault", "clear", "--hub", "garbage"], "pure-hil fault: --hub 'garbage': not a zenoh endpoint"),
+        (["serve", "--hub", "tcp/127.0.0.1"], "pure-hil serve: --hub 'tcp/127.0.0.1': not a zenoh endpoint"),
+        (
+            ["estop", "--hub", "tcp/10.0.0.1:7447"],
+            "pure-hil estop: --hub tcp/10.0.0.1:7447: not on this machine",
+        ),
+    ],
+)
+def test_a_bad_hub_is_named_as_the_option_not_the_zenoh_config(argv, says, capsys):
+    code, err = said(argv, capsys)
+    assert code == 2 and err.startswith(says) and err.count("\n") == 1, err
+    assert "json5" not in err.lower(), "the zenoh config file is not what was wrong"
+
+
+def test_a_bad_hub_in_the_environment_is_named_as_the_variable(capsys, monkeypatch):
+    monkeypatch.setenv("PURE_HIL_HUB", "garbage")
+    code, err = said(["rig", "status"], capsys)
+    assert code == 2 and err.startswith("pure-hil rig: PURE_HIL_HUB 'garbage': not a zenoh endpoint"), err
+
+
+@pytest.mark.parametrize(
+    ("param", "says"),
+    [
+        (
+            "sigma=nan",
+            "pure-hil fault inject: sensor.noise: sigma = nan is not a number (expected 0 < sigma <=",
+        ),
+        ("sigma=NaN", "pure-hil fault inject: sensor.noise: sigma = nan is not a number"),
+        ("sigma=-inf", "pure-hil fault inject: sensor.noise: sigma = -inf is not a finite number"),
+        (
+            "sigma=1e308",
+            "pure-hil fault inject: sensor.noise: sigma = 1e+308 is out of its bound 0 < sigma <= 6.5535",
+        ),
+    ],
+)
+def test_a_bad_fault_parameter_says_what_it_was_once(param, says, capsys):
+    code, err = said(
+        ["fault", "inject", "sensor.noise", "--param", "channel=imu.pitch", "--param", param], capsys
+    )
+    assert code == 2 and err.startswith(says) and err.count("\n") == 1, err
+    assert err.count("pure-hil") == 1 and err.count("sensor.noise") == 1, "no prefix said twice"
+
+
+def test_clearing_something_that_is_no_fault_number_exits_2(capsys):
+    code, err = said(["fault", "clear", "seven"], capsys)
+    assert code == 2 and "pure-hil fault clear: 'seven': expected a fault's number" in err

@@ -1,0 +1,144 @@
+"""`rig stop`, SIGINT and SIGTERM end any run, a babbling bus included, and its folder is written: no wait
+of the rig's outlasts a stop request, a flood is bounded by what the bus carries, a refused request says so
+and exits 2. No test here times anything: a run ends, or it does not (benchmarks/stop.py measures how soon).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from drivers.zenoh_link import LOOPBACK, open_session
+from hil.cli import main
+from hil.service import RigService
+from tests.fault_bench import Bench
+from tests.test_service import ask
+from tests.zenoh_helpers import hub_endpoint, private_bench
+
+ENDS = 60.0
+"""s a test waits for something that ends at once when it works (and never ends, or only after minutes,
+when it does not): a bound on the test, not a figure."""
+
+LONG = """
+name = "flooded"
+rider = "ref_60kg_180"
+duration = 600.0
+[[criteria]]
+metric = "fallen"
+equals = false
+"""
+
+
+@pytest.fixture
+def session():
+    s = open_session(LOOPBACK, "hub", hub_endpoint())
+    yield s
+    s.close()
+
+
+def ended(work, *args) -> bool:
+    """`work(*args)` on a thread of its own returned (a wait that ignores a stop runs for minutes)."""
+    thread = threading.Thread(target=work, args=args, daemon=True)
+    thread.start()
+    thread.join(ENDS)
+    return not thread.is_alive()
+
+
+def test_a_stop_ends_a_ticks_wait_for_a_silent_controller_and_the_start_ups(session):
+    bench = Bench(session)
+    try:
+        rig = bench.rig
+        # Positive control: unasked, a lockstep tick waits its guard out for a controller that never answers.
+        rig.tick(deadline=time.monotonic() + 0.2, lockstep=True)
+        assert rig.stats.guards_expired == 1
+        rig.stop = threading.Event()
+        rig.stop.set()
+        assert ended(rig.tick, time.monotonic() + 600.0, True), "a ten-minute guard outlasted the stop"
+        assert rig.stats.ticks == 2 and rig.stats.guards_expired == 1, "left at the stop, not at the guard"
+        missing: list[str] = []
+        assert ended(lambda: missing.append(rig.await_boot(600.0))), "the start-up's wait outlasted the stop"
+        assert "CONTROLLER_HEARTBEAT" in missing[0], "it ended because of the stop: nobody booted"
+    finally:
+        bench.close()
+
+
+def test_a_flood_the_bus_cannot_carry_is_refused_and_one_it_can_ends_on_rig_stop(tmp_path, capsys):
+    endpoint = hub_endpoint()
+    hub = open_session(role="hub", hub_endpoint=endpoint)
+    svc = RigService(hub, private_bench(hub=endpoint), out_root=tmp_path)
+    client = open_session(role="member", hub_endpoint=endpoint)
+    hub_arg = ["--hub", endpoint]
+    try:
+        assert main(["rig", "start", str(tmp_path / "no_such.toml"), *hub_arg]) == 2
+        assert "no_such.toml: cannot read" in json.loads(capsys.readouterr().out)["error"]
+        assert ask(client, "start", LONG)["ok"]
+        deadline = time.monotonic() + ENDS
+        while ask(client, "status")["sim_time"] < 0.5 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        flood = ["fault", "inject", "can.babble", *hub_arg]
+        assert main([*flood, "--param", "per_tick=100000000"]) == 2
+        refused = json.loads(capsys.readouterr().out)
+        assert (
+            refused["refused"]
+            and "per_tick = 100000000 is out of its bound 1 <= per_tick <= 22" in refused["error"]
+        )
+        assert main(flood) == 0, "as many frames as the bus carries"
+        capsys.readouterr()
+        while not any(f["active"] for f in ask(client, "status")["faults"]) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert main(["fault", "clear", "7", *hub_arg]) == 2
+        assert "no fault 7 in this run (its faults: 0..0" in json.loads(capsys.readouterr().out)["error"]
+        assert ask(client, "stop")["stopping"] is True
+        assert svc.wait_idle(ENDS), "the flooded run did not end on rig stop"
+        last = ask(client, "status")["last"]
+    finally:
+        svc.close()
+        client.close()
+        hub.close()
+    assert (last["verdict"], last["stopped_early"]) == ("STOPPED", True)
+    assert [e["action"] for e in last["fault_events"]] == ["inject", "start", "end"]
+    summary = json.loads((Path(last["out"]) / "summary.json").read_text())
+    babbled = [line for line in (Path(last["out"]) / "can.log").read_text().splitlines() if " 001#" in line]
+    assert summary["verdict"] == "STOPPED" and len(babbled) % 22 == 0 and babbled, "22 frames a tick"
+    assert summary["simulated"] < 600.0, "stopped, not run to its end"
+
+
+def test_sigterm_ends_a_served_flooded_run_and_its_folder_is_written(tmp_path):
+    pure_hil = str(Path(sys.executable).with_name("pure-hil"))
+    endpoint = hub_endpoint()
+    env = {**os.environ, "PURE_HIL_RIGS": str(tmp_path / "rigs"), "PURE_HIL_HUB": endpoint}
+    runs = tmp_path / "runs"
+    serve = subprocess.Popen(
+        [pure_hil, "serve", "--hub", endpoint, "--out", str(runs)], stdout=subprocess.PIPE, text=True, env=env
+    )
+    try:
+        assert f"hub {endpoint}" in serve.stdout.readline()
+        client = open_session(role="member", hub_endpoint=endpoint)
+        try:
+            assert ask(client, "start", LONG)["ok"]
+            assert ask(client, "fault/inject", json.dumps({"kind": "can.babble"}))["ok"]
+            deadline = time.monotonic() + ENDS
+            while (
+                not any(f["active"] for f in ask(client, "status")["faults"]) and time.monotonic() < deadline
+            ):
+                time.sleep(0.05)
+        finally:
+            client.close()
+        serve.send_signal(signal.SIGTERM)
+        out, _ = serve.communicate(timeout=ENDS)
+    finally:
+        if serve.poll() is None:
+            serve.kill()
+            serve.communicate()
+    assert serve.returncode == 0 and "pure-hil serve: stopped" in out
+    (folder,) = runs.glob("flooded-*")
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["verdict"] == "STOPPED" and (folder / "plots.png").exists(), "the whole folder"
