@@ -444,7 +444,7 @@ def test_reset_node_brings_back_the_eds_and_the_history_and_parameters_go(tmp_pa
     _write(drive, 0x1800, 1, 0xC0000182)  # TPDO1 not valid
     drive.fault(0x5400)
     assert drive.value(0x1003, 0) == 1 and not drive.tpdos[0].enabled
-    drive._power_on()  # what NMT reset node does (reset communication: only 0x1000-0x1FFF)
+    drive.power_on()  # what NMT reset node does (reset communication: only 0x1000-0x1FFF)
     assert drive.params[0x6072] == 3750 and drive.tpdos[0].enabled and drive.value(0x1003, 0) == 0
     assert drive.state is State.SWITCH_ON_DISABLED and drive.value(0x1017) == 10
 

@@ -217,10 +217,10 @@ class Drive:
         """Objects whose value is the drive's state, answered live (SDO and TPDOs)."""
         self.node.add_read_callback(self._read)
         self.node.add_write_callback(self._write)
-        self._power_on()
+        self.power_on()
 
     # -------------------------------------------------------------------------------- power-on values
-    def _power_on(self) -> None:
+    def power_on(self) -> None:
         """The drive as it powers up (and as reset node leaves it): nothing a master wrote survives (nothing
         is ever stored, 0x1010), the application at its EDS defaults."""
         self.node.data_store.clear()
@@ -690,7 +690,7 @@ class Cia402Drives(Translator):
                 if d.nmt == "INITIALISING" and before != "INITIALISING":
                     d.booted = False  # reset node / communication: boots again at the next tick
                     if msg.data[0] == RESET_NODE:
-                        d._power_on()
+                        d.power_on()
                     else:
                         d.reset_communication()
             self._flush(0)
