@@ -436,19 +436,24 @@ def test_a_device_profile_runs_with_controller_and_supervisor_as_processes(tmp_p
 LAB_CLIENTS = {
     "cia402": "examples/cia402_controller.py",  # python-canopen's Network and BaseNode402, the project's EDS
     "odrive": "examples/odrive_controller.py",  # odrive-can's ODriveCAN, one per axis
+    "xsens": "examples/xsens_controller.py",  # its own reader of the MTi, from Xsens' published CAN layout
 }
-"""A lab's controller on the field's own client library for each drive profile: it imports nothing from
-pure-hil (docs/devices.md)."""
+"""A lab's controller for each device profile, on the field's own client library where there is one: it
+imports nothing from pure-hil (docs/devices.md)."""
 
 
-@pytest.mark.parametrize("profile", PROFILES)
+@pytest.mark.parametrize("profile", LAB_CLIENTS)
 def test_a_lab_controller_on_the_fields_own_client_balances_the_robot_through_the_profile(tmp_path, profile):
-    """The drives as a lab drives them: the example controller (its own process, its own client library's
-    threads) against the rig's emulated drives and the supervisor (each a process) on vcan0."""
+    """The devices as a lab drives them: the example controller (its own process, its own client library's
+    threads) against the rig's emulated devices and the supervisor (each a process) on vcan0."""
     table, devices = _shipped_devices(profile)
-    nodes = devices.cia402.node_ids if profile == "cia402" else devices.odrive.node_ids
     client = [sys.executable, str(ROOT / LAB_CLIENTS[profile]), "--can", "socketcan:vcan0"]
-    client += ["--nodes", *map(str, nodes)]
+    if profile == "xsens":
+        client += ["--xsens-base", hex(devices.xsens.base_id)]
+        nodes: tuple[int, ...] = ()
+    else:
+        nodes = devices.cia402.node_ids if profile == "cia402" else devices.odrive.node_ids
+        client += ["--nodes", *map(str, nodes)]
     run = run_bench(tmp_path, _scenario(tmp_path, 1.0), controller=client, tables=table + NO_EXTRA_OUTPUTS)
     assert run.rig_exit == 0, run.logs["rig"] + run.logs.get("controller", "")
     s = run.summary
@@ -456,6 +461,11 @@ def test_a_lab_controller_on_the_fields_own_client_balances_the_robot_through_th
     assert s["fallen"] is False and s["safety"]["final_state"] == "NORMAL", (s["safety"], s["rig"])
     assert "Traceback" not in run.logs["controller"], run.logs["controller"]
     wire = per_id(frames(run.capture))
+    if profile == "xsens":
+        euler = wire.get(devices.xsens.base_id + 0x022, [])
+        assert len(euler) >= s["rig"]["ticks"] // 2, "the MTi's EulerAngles every output period"
+        commands = wire.get(Catalog()["DRIVE1_COMMAND"].frame_id, [])
+        assert len(commands) >= s["rig"]["ticks"] // 2, "the client's DRIVE1_COMMAND every tick"
     for node in nodes:
         if profile == "cia402":
             commands = wire.get(0x200 + node, [])  # RPDO1: controlword, target torque
