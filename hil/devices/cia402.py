@@ -160,16 +160,16 @@ class Pdo:
     objects: tuple[int, ...]
     """Mapped indices (each at sub-index 0), in order."""
     codec: struct.Struct
+    getters: tuple[Callable[[], int], ...] = ()
+    """TPDO: each mapped object's present value, in order."""
+    torque_only: bool = False
+    """TPDO: it carries only objects the plant samples with DRIVEn_TORQUE: it passes for that message."""
     inhibit_ticks: int = 0
     event_ticks: int = 0
     last: bytes | None = None
     """TPDO: the data last sent (types 0, 254, 255 send on change)."""
     sent_at: int = -(1 << 30)
     """TPDO: the tick of the last transmission."""
-
-    @property
-    def torque_only(self) -> bool:
-        return bool(self.objects) and set(self.objects) <= TORQUE_OBJECTS
 
 
 class Drive:
@@ -442,6 +442,8 @@ class Drive:
     def compile_pdos(self) -> None:
         """The PDOs as their parameters now say (the EDS's, or what a master wrote)."""
         self.tpdos = [self._compile(True, n) for n in range(1, 5)]
+        self.active = [p for p in self.tpdos if p.enabled and p.objects]
+        """The TPDOs that exist and carry something."""
         self.rpdos = {p.cob_id: p for n in range(1, 5) if (p := self._compile(False, n)).enabled}
 
     def _compile(self, transmit: bool, number: int) -> Pdo:
@@ -454,16 +456,21 @@ class Drive:
         if transmit:
             pdo.inhibit_ticks = math.ceil(self.value(comm, 3) * 1e-4 / self.tick_s - 1e-9)
             pdo.event_ticks = math.ceil(self.value(comm, 5) * 1e-3 / self.tick_s - 1e-9)
+            pdo.getters = tuple(self._getter(i) for i in objects)
+            pdo.torque_only = bool(objects) and set(objects) <= TORQUE_OBJECTS
         return pdo
 
-    def _pack(self, pdo: Pdo) -> bytes:
-        return pdo.codec.pack(*(self._current(i) for i in pdo.objects))
+    def _getter(self, index: int) -> Callable[[], int]:
+        """An object's present value: live, a parameter, or what is stored (read again each time)."""
+        if index in self._live:
+            return self._live[index]
+        if index in self.params:
+            return lambda: self.params[index]
+        return lambda: self.value(index)
 
-    def _current(self, index: int) -> int:
-        getter = self._live.get(index)
-        if getter is not None:
-            return getter()
-        return self.params[index] if index in self.params else self.value(index)
+    @staticmethod
+    def _pack(pdo: Pdo) -> bytes:
+        return pdo.codec.pack(*[get() for get in pdo.getters])
 
     def tpdos_at_sync(self) -> list[tuple[Pdo, can.Message]]:
         """This SYNC's TPDOs (only in OPERATIONAL): the synchronous ones due (types 1-240 every n-th SYNC, 0
@@ -472,10 +479,10 @@ class Drive:
         if self.nmt != OPERATIONAL:
             return []
         out = []
-        for pdo in self.tpdos:
-            if not pdo.enabled or not pdo.objects:
-                continue
-            if (DRIVE_TORQUE if pdo.torque_only else DRIVE_FEEDBACK)[self.index] not in self.fed:
+        fed = self.fed
+        feedback, torque = DRIVE_FEEDBACK[self.index] in fed, DRIVE_TORQUE[self.index] in fed
+        for pdo in self.active:
+            if not (torque if pdo.torque_only else feedback):
                 continue  # the rig did not sample what it carries this tick
             kind = pdo.trans_type
             if 0 < kind <= 240 and (self.sync_lost or self.ticks % kind):
@@ -493,8 +500,8 @@ class Drive:
         if self.nmt != OPERATIONAL:
             return []
         out = []
-        for pdo in self.tpdos:
-            if pdo.enabled and pdo.objects and pdo.trans_type >= 254:
+        for pdo in self.active:
+            if pdo.trans_type >= 254:
                 data = self._pack(pdo)
                 if data != pdo.last and self.ticks - pdo.sent_at >= pdo.inhibit_ticks:
                     out.append((pdo, self._send(pdo, data)))
