@@ -99,7 +99,9 @@ def test_canfestivals_objdictgen_imports_and_validates_it(caplog):
     with caplog.at_level(logging.WARNING):
         node = eds_utils.generate_node(str(eds_path()), 2)
         node.Validate()
-    assert not [r for r in caplog.records if r.levelno >= logging.WARNING], caplog.text
+    # Its own loggers only: a suite's other tests may leave threads that log while this one runs.
+    warned = [r for r in caplog.records if r.levelno >= logging.WARNING and r.name.startswith("objdictgen")]
+    assert warned == [], caplog.text
     assert node.ProfileName == "DS-402" and len(node.GetIndexes()) == len(_objects(_eds()))
 
 
