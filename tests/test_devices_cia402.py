@@ -13,8 +13,10 @@ import json
 import struct
 import threading
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
+import can
 import pytest
 
 from drivers.bus_config import BusConfig
@@ -28,6 +30,7 @@ from tests.device_bench import TICK, WATCHDOG, DevicesOnABench
 from tests.zenoh_helpers import private_bench
 
 canopen = pytest.importorskip("canopen", reason="the cia402 profile needs python-canopen (a dependency)")
+from canopen.sdo.exceptions import SdoAbortedError  # noqa: E402
 
 NODES = (1, 2, 3)
 BENCH = str(Path(__file__).resolve().parents[1] / "configs" / "benches" / "cia402.toml")
@@ -148,10 +151,21 @@ def test_the_watchdog_faults_the_drive_with_emcy_until_fault_reset(master):
     _until(lambda: emcys)
     assert emcys[0].code == ErrorCode.COMMUNICATION and emcys[0].register & 0x10
     assert node.sdo[0x603F].raw == ErrorCode.COMMUNICATION
+    # The error history (0x1003): the EMCY's code, newest first; no data past the last; only 0 written.
+    assert node.sdo[0x1003][0].raw == 1 and node.sdo[0x1003][1].raw == ErrorCode.COMMUNICATION
+    with pytest.raises(SdoAbortedError) as past:
+        node.sdo[0x1003][2].raw  # noqa: B018  # an upload
+    assert past.value.code == 0x08000024
     node.state = "SWITCHED ON"  # BaseNode402 resets the fault (controlword bit 7 rising) on its way
     assert node.state == "SWITCHED ON"
     _until(lambda: any(e.code == 0 for e in emcys))  # EMCY error reset
     assert node.sdo[0x603F].raw == 0
+    assert node.sdo[0x1003][0].raw == 1, "the history outlives the fault"
+    with pytest.raises(SdoAbortedError) as refused:
+        node.sdo[0x1003][0].raw = 1
+    assert refused.value.code == 0x06090030
+    node.sdo[0x1003][0].raw = 0  # a master clears it
+    assert node.sdo[0x1003][0].raw == 0
 
 
 def test_a_drive_kept_fed_never_faults_nmt_stop_silences_its_pdos_and_reset_boots_it(master):
@@ -202,6 +216,237 @@ def test_state_of_reads_statuswords_as_basenode402_does():
             State402.SW_MASK[state.name.replace("_", " ")][1]
             == word & State402.SW_MASK[state.name.replace("_", " ")][0]
         )
+
+
+# ------------------------------------------------------------------------------- the object dictionary
+OBJECTS_A_MASTER_READS = [
+    *((i, 0) for i in (0x1000, 0x1001, 0x1005, 0x1006, 0x1008, 0x1009, 0x100A, 0x1014, 0x1017, 0x1019)),
+    (0x1003, 0), (0x1010, 1), (0x1011, 1), (0x1016, 1), (0x1029, 1), (0x1200, 1), (0x1200, 2),
+    *((0x1018, s) for s in range(5)),
+    *((i, 0) for i in (0x605A, 0x605B, 0x605C, 0x605D, 0x605E, 0x6072, 0x6073, 0x6074, 0x6075, 0x6076)),
+    *((i, 0) for i in (0x6077, 0x6078, 0x6087, 0x60FD, 0x6502)),
+]  # fmt: skip
+"""What a CANopen master or a configuration tool reads of a CiA 402 torque drive (issue 39: each was refused
+with 0x06020000)."""
+
+
+def test_a_master_reads_every_object_of_a_cia301_torque_drive_and_the_device_name_in_segments(master):
+    _bench, network, nodes = master
+    node = nodes[2]
+    responses: list[bytes] = []
+
+    class Responses(can.Listener):
+        def on_message_received(self, msg: can.Message) -> None:
+            if msg.arbitration_id == 0x582:
+                responses.append(bytes(msg.data))
+
+    network.notifier.add_listener(Responses())
+    node.nmt.wait_for_heartbeat(timeout=2.0)
+    for index, subindex in OBJECTS_A_MASTER_READS:
+        node.sdo.upload(index, subindex)  # an abort raises SdoAbortedError
+    assert node.sdo[0x1008].raw == "pure-hil CiA 402 drive (emulated)"
+    # Longer than 4 bytes: an initiate response with the size, then segments (command specifier 0).
+    assert any(r[0] & 0xE0 == 0x00 for r in responses), "no upload segment on the wire"
+    assert node.sdo[0x1005].raw == 0x80 and node.sdo[0x1006].raw == 2500, "SYNC 0x080 every 2.5 ms"
+    assert node.sdo[0x1014].raw == 0x82 and node.sdo[0x1200][2].raw == 0x582
+    identity = [node.sdo[0x1018][s].raw for s in (1, 2, 3, 4)]
+    assert identity == [0xAFFF0000, 402, 0x00020000, 2], "a vendor id, the serial number its node id"
+    assert node.sdo[0x605A].raw == -1 and node.sdo[0x6502].raw == 0x200
+    with pytest.raises(SdoAbortedError) as unknown:
+        node.sdo.upload(0x2000, 0)
+    assert unknown.value.code == 0x06020000, "the positive control: an object it does not have"
+
+
+@contextmanager
+def fed(node, torque: list[int]):
+    """The master's cyclic RPDO1 every 5 ms (faster than the drives' watchdog): the controlword
+    BaseNode402 last set and the target torque `torque[0]` (per mille of 0x6076)."""
+    stop = threading.Event()
+
+    def feed() -> None:
+        while not stop.is_set():
+            node.rpdo[1][0x6071].raw = torque[0]
+            node.rpdo[1].transmit()
+            time.sleep(0.005)
+
+    feeder = threading.Thread(target=feed, daemon=True)
+    feeder.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        feeder.join()
+
+
+def test_the_torque_objects_follow_the_plant_and_max_torque_limits_it(master):
+    bench, network, nodes = master
+    node, motor = nodes[1], bench.drives.motors[0]
+    _up(network, node)
+    torque = [800]
+    with fed(node, torque):
+        node.state = "OPERATION ENABLED"
+        _until(lambda: motor.command == pytest.approx(0.8))
+        _until(lambda: node.tpdo[3][0x6077].raw > 700)  # the plant's torque, after its current loop
+        assert node.sdo[0x6074].raw == 800, "torque demand: the target"
+        actual = node.sdo[0x6077].raw
+        assert abs(node.sdo[0x6078].raw - actual) <= 10, "current actual: the same per mille as torque"
+        assert not node.statusword & 0x0800
+        node.sdo[0x6072].raw = 500  # max torque, per mille of the rated torque
+        _until(lambda: motor.command == pytest.approx(0.5))
+        assert node.sdo[0x6074].raw == 500 and node.statusword & 0x0800, "internal limit active"
+        node.sdo[0x6073].raw = 300  # max current, per mille of the rated current: the lower limit wins
+        _until(lambda: motor.command == pytest.approx(0.3))
+        node.sdo[0x6072].raw = node.sdo[0x6073].raw = 3750
+        _until(lambda: motor.command == pytest.approx(0.8))  # the positive control: the target again
+        node.state = "SWITCH ON DISABLED"
+
+
+def test_python_canopens_pdo_save_remaps_and_the_drive_sends_and_takes_the_new_layout(master):
+    """The CiA 301 procedure as python-canopen's PdoMap.save() does it (invalidate, sub-index 0 = 0, the
+    entries, the count, valid again): TPDO4 made with torque demand, current actual and statusword; TPDO3
+    removed; RPDO1 given max torque. The drive sends and reads what was saved; reset communication brings
+    the EDS's mapping back. Before the mapping was applied (main before issue 39) TPDO4 never came."""
+    bench, _network, nodes = master
+    node, motor = nodes[3], bench.drives.motors[2]
+    node.nmt.wait_for_heartbeat(timeout=2.0)
+    node.tpdo.read()
+    node.rpdo.read()
+    tpdo4 = node.tpdo[4]
+    tpdo4.clear()
+    for index in (0x6074, 0x6078, 0x6041):
+        tpdo4.add_variable(index)
+    tpdo4.cob_id, tpdo4.trans_type, tpdo4.enabled = 0x483, 1, True
+    tpdo4.save()
+    node.tpdo[3].enabled = False
+    node.tpdo[3].save()
+    rpdo1 = node.rpdo[1]
+    rpdo1.clear()
+    for index in (0x6040, 0x6071, 0x6072):
+        rpdo1.add_variable(index)
+    rpdo1.save()
+    assert node.sdo[0x1A03][0].raw == 3 and node.sdo[0x1803][1].raw == 0x40000483
+    node.setup_402_state_machine()  # reads the configuration back over SDO, as saved
+    node.nmt.state = "OPERATIONAL"
+    _until(lambda: tpdo4.is_received)
+    assert [v.index for v in tpdo4] == [0x6074, 0x6078, 0x6041]
+    rpdo1[0x6072].raw = 250
+    with fed(node, [800]):
+        node.state = "OPERATION ENABLED"
+        _until(lambda: motor.command == pytest.approx(0.25))  # max torque, from RPDO1 itself
+        _until(lambda: tpdo4[0x6074].raw == 250 and tpdo4[0x6041].raw & 0x0800)
+        _until(lambda: tpdo4[0x6078].raw > 200)
+        node.state = "SWITCH ON DISABLED"
+    assert not node.tpdo[3].is_received, "TPDO3 was removed"
+    assert node.sdo[0x6072].raw == 250, "an RPDO's value reads back over SDO"
+    node.nmt.state = "RESET COMMUNICATION"
+    node.nmt.wait_for_bootup(timeout=2.0)
+    node.tpdo.read()
+    node.rpdo.read()
+    assert not node.tpdo[4].enabled and node.tpdo[3].enabled, "the EDS's TPDOs again"
+    assert [v.index for v in node.rpdo[1]] == [0x6040, 0x6071]
+
+
+# -------------------------------------------------------------- the object dictionary, unit by unit
+def _drive(options: dict | None = None):
+    """An emulated drive (node 2), no bus: its LocalNode's SDO server side (`set_data`, `get_data`) as
+    python-canopen's SdoServer calls it."""
+    from drivers.devices import Cia402Options
+
+    devices = Devices(drives="cia402", cia402=Cia402Options(**(options or {})))
+    return Cia402Drives(devices, 8192, 1 / TICK).drives[1]
+
+
+def _write(drive, index: int, subindex: int, value: int) -> None:
+    od = drive.node.object_dictionary[index]
+    od = od if isinstance(od, canopen.objectdictionary.ODVariable) else od[subindex]
+    drive.node.set_data(index, subindex, od.encode_raw(value), check_writable=True)
+    drive.apply_written()
+
+
+def _refused(drive, index: int, subindex: int, value: int) -> int:
+    with pytest.raises(SdoAbortedError) as aborted:
+        _write(drive, index, subindex, value)
+    return aborted.value.code
+
+
+def test_writes_a_cia301_device_refuses_name_the_reason_and_change_nothing():
+    drive = _drive()
+    before = (drive.value(0x1A00, 1), drive.value(0x1800, 1), drive.params[0x605A], drive.mode)
+    # A mapped PDO's entries: not while the PDO exists, nor while its mapping is enabled.
+    assert _refused(drive, 0x1A00, 1, 0x60770010) == 0x06010000
+    assert _refused(drive, 0x1A00, 0, 0) == 0x06010000
+    _write(drive, 0x1803, 1, 0xC0000482)  # TPDO4 (not valid): its own COB-ID, no RTR
+    assert _refused(drive, 0x1A03, 1, 0x10080008) == 0x06040041, "the device name is not mappable"
+    assert _refused(drive, 0x1603, 1, 0x60410010) == 0x06040041, "an RPDO cannot write the statusword"
+    assert _refused(drive, 0x1A03, 1, 0x60410008) == 0x06040041, "a length other than the object's"
+    assert _refused(drive, 0x1A03, 1, 0x20000010) == 0x06020000, "no such object"
+    for sub, entry in ((1, 0x60640020), (2, 0x606C0020), (3, 0x60FD0020)):
+        _write(drive, 0x1A03, sub, entry)
+    assert _refused(drive, 0x1A03, 0, 3) == 0x06040042, "96 bits in an 8-byte PDO"
+    assert _refused(drive, 0x1A03, 0, 5) == 0x06040042, "more entries than it has"
+    _write(drive, 0x1A03, 0, 2)  # 64 bits: the positive control
+    assert _refused(drive, 0x1803, 1, 0x40000483) == 0x06090030, "another node's COB-ID"
+    assert _refused(drive, 0x1803, 1, 0x00000482) == 0x06090030, "RTR: not emulated"
+    assert _refused(drive, 0x1803, 1, 0x60000482) == 0x06090030, "a 29-bit id"
+    assert _refused(drive, 0x1803, 2, 252) == 0x06090030, "on RTR only: not emulated"
+    assert _refused(drive, 0x1400, 2, 1) == 0x06090030, "a synchronous RPDO: not emulated"
+    assert _refused(drive, 0x1800, 3, 10) == 0x06090030, "inhibit time while the PDO exists"
+    # CiA 402 and CiA 301 values the emulation does not have.
+    assert _refused(drive, 0x605A, 0, 6) == 0x06090031, "a quick stop ramp"
+    assert _refused(drive, 0x605A, 0, -2) == 0x06090032
+    assert _refused(drive, 0x605E, 0, 2) == 0x06090031, "a fault reaction ramp"
+    assert _refused(drive, 0x6060, 0, 1) == 0x06090030, "profile position: not in 0x6502"
+    assert _refused(drive, 0x6076, 0, 0) == 0x06090032, "no rated torque"
+    assert _refused(drive, 0x1005, 0, 0x81) == 0x06090030, "SYNC is the rig's 0x080"
+    assert _refused(drive, 0x1005, 0, 0x40000080) == 0x06090030, "a SYNC producer"
+    assert _refused(drive, 0x1014, 0, 0x83) == 0x06090030, "another EMCY id"
+    assert _refused(drive, 0x1016, 1, 0x0001000A) == 0x06090030, "consumer heartbeat: not emulated"
+    assert _refused(drive, 0x1010, 1, 0x65766173) == 0x08000020, "'save': nothing is stored"
+    assert _refused(drive, 0x1019, 0, 2) == 0x06090031, "a SYNC counter: the rig's SYNC carries the tick"
+    assert _refused(drive, 0x1003, 0, 3) == 0x06090030
+    assert (drive.value(0x1A00, 1), drive.value(0x1800, 1), drive.params[0x605A], drive.mode) == before
+    _write(drive, 0x1011, 1, 0x64616F6C)  # 'load': every reset restores the defaults anyway
+    _write(drive, 0x1014, 0, 0x80000082)  # EMCY not valid: allowed
+
+
+def test_the_option_codes_and_halt_act_as_the_drive_says():
+    drive = _drive()
+    walk = (0x06, 0x07, 0x0F)
+    for cw in walk:
+        drive.apply_controlword(cw)
+    assert drive.state is State.OPERATION_ENABLED and drive.makes_torque
+    drive.apply_controlword(0x010F)  # halt (bit 8), 0x605D -1: no torque, still OPERATION ENABLED
+    assert drive.state is State.OPERATION_ENABLED and not drive.makes_torque
+    drive.apply_controlword(0x0F)
+    drive.apply_controlword(0x02)  # quick stop, 0x605A -1: torque off, stays in QUICK STOP ACTIVE
+    assert drive.state is State.QUICK_STOP_ACTIVE and not drive.makes_torque
+    drive.apply_controlword(0x0F)  # enable operation from QUICK STOP ACTIVE (transition 16)
+    assert drive.state is State.OPERATION_ENABLED
+    _write(drive, 0x605A, 0, 0)  # disable drive function: on to SWITCH ON DISABLED at once
+    drive.apply_controlword(0x02)
+    assert drive.state is State.SWITCH_ON_DISABLED
+
+
+def test_a_bench_gives_the_drives_the_identity_its_master_expects_and_a_bad_one_is_refused(tmp_path):
+    from hil.bench.bench import load_bench
+
+    drive = _drive({"vendor_id": 0xFB, "product_code": 0x61500000})
+    assert [drive.value(0x1018, s) for s in (1, 2, 3, 4)] == [0xFB, 0x61500000, 0x00020000, 2]
+    path = tmp_path / "bench.toml"
+    path.write_text('name = "x"\n[devices]\ndrives = "cia402"\n[devices.cia402]\nvendor_id = 0x1FFFFFFFF\n')
+    with pytest.raises(ConfigError, match=r"vendor_id: 0\.\.0xFFFFFFFF"):
+        load_bench(path)
+
+
+def test_reset_node_brings_back_the_eds_and_the_history_and_parameters_go(tmp_path):
+    drive = _drive()
+    _write(drive, 0x6072, 0, 1000)
+    _write(drive, 0x1800, 1, 0xC0000182)  # TPDO1 not valid
+    drive.fault(0x5400)
+    assert drive.value(0x1003, 0) == 1 and not drive.tpdos[0].enabled
+    drive.power_on()  # what NMT reset node does (reset communication: only 0x1000-0x1FFF)
+    assert drive.params[0x6072] == 3750 and drive.tpdos[0].enabled and drive.value(0x1003, 0) == 0
+    assert drive.state is State.SWITCH_ON_DISABLED and drive.value(0x1017) == 10
 
 
 # ------------------------------------------------------------------------------------------- the rig

@@ -76,12 +76,23 @@ class Cia402Options(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fi
     CONTROLLER_HEARTBEAT 0x720)."""
     heartbeat_ms: float = 10.0
     """Producer heartbeat time (0x1017) at power-up; rounded to whole ticks (0: none)."""
+    vendor_id: int | None = None
+    """0x1018 sub 1, the identity a lab's master checks at boot-up (its real drives'); None: the EDS's
+    0xAFFF0000, in the range CiA reserves, which no real device carries. The serial number is the node id."""
+    product_code: int | None = None
+    """0x1018 sub 2; None: the EDS's (402)."""
+    revision_number: int | None = None
+    """0x1018 sub 3; None: the EDS's (0x00020000)."""
 
     def __post_init__(self) -> None:
         if len(set(self.node_ids)) != 3 or not all(1 <= n <= 127 for n in self.node_ids):
             raise ValueError("node_ids: three different node ids in 1..127")
         if not 0 <= self.heartbeat_ms <= 65535:
             raise ValueError("heartbeat_ms: 0..65535 (0: no heartbeat)")
+        for name in ("vendor_id", "product_code", "revision_number"):
+            value = getattr(self, name)
+            if value is not None and not 0 <= value <= 0xFFFFFFFF:
+                raise ValueError(f"{name}: 0..0xFFFFFFFF (a U32 of 0x1018)")
 
 
 class XsensOptions(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
