@@ -17,6 +17,7 @@ import msgspec
 from drivers.config import ConfigError, load_toml
 from drivers.resources import find
 from hil.bench.bench import Bench, load_bench
+from hil.outputs.run_logs import RunLogs
 from hil.report.folder import events, write_outputs
 from hil.run.build import RunOptions, build, clock_of, law_of, run_logs, start_up, supervisor_config
 from hil.run.judge import RunResult, judge
@@ -74,14 +75,22 @@ def execute(bench: Bench, scenario: Scenario, seed: int, options: RunOptions, ou
             start_up(built, bench)
             trace = tick_loop(built, options)
             if logs is not None:
-                for topic, t, message in events(trace, scenario):
-                    logs.event(topic, t, message)
+                _hand_events(logs, trace, scenario)
     except Exception as exc:  # nothing ran: keep the reason
         stage = "start-up" if isinstance(exc, ControllerUnavailable) else stage
         trace = Trace.empty(Failure(stage, reason(exc), isinstance(exc, CONFIG_ERRORS)))
     if logs is not None:
         trace.outputs_failed.update(logs.failed)
     return trace
+
+
+def _hand_events(logs: RunLogs, trace: Trace, scenario: Scenario) -> None:
+    """The run's events into run.mcap, before its logs stop; a failure loses them, never the run."""
+    try:
+        for topic, t, message in events(trace, scenario):
+            logs.event(topic, t, message)
+    except Exception as exc:
+        trace.outputs_failed.setdefault("run.mcap", f"its events: {type(exc).__name__}: {exc}")
 
 
 def check_start(scenario: Scenario, bench: Bench, origin: str) -> None:

@@ -283,6 +283,21 @@ def test_a_writer_error_keeps_the_file_up_to_it_and_is_named_in_the_summary(tmp_
         assert sum(1 for _ in reader.iter_messages()) == 2999  # every message before the error
 
 
+def test_events_that_fail_lose_themselves_never_the_run(tmp_path, monkeypatch):
+    import hil.pipeline
+
+    def broken(trace, scenario):
+        raise KeyError("a record the events cannot read")
+
+    monkeypatch.setattr(hil.pipeline, "events", broken)
+    short = msgspec.structs.replace(SCENARIO, duration=0.25, faults=[], operator=[])
+    result = run(short, bench(recording=False), out=tmp_path)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert result.trace.failure is None and result.trace.stats.ticks == 100
+    assert "its events: KeyError" in summary["outputs_failed"]["run.mcap"]
+    assert len(messages(tmp_path / "run.mcap", "/trace")) == 100, "the rest of the file is there"
+
+
 def test_without_a_can_log_or_without_mcap(tmp_path):
     short = msgspec.structs.replace(SCENARIO, duration=0.25, faults=[], operator=[])
     run(short, bench(can_log=False, recording=False), out=tmp_path / "no-log")
