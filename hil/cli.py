@@ -182,12 +182,13 @@ DURATION = _number(float, 0.0, MAX_DURATION, low_open=True)
 
 def _run(args: argparse.Namespace) -> int:
     from hil.bench.parts import check
-    from hil.pipeline import load_scenario, run
+    from hil.pipeline import check_start, load_scenario, run
     from hil.report.folder import format_table
     from hil.run.build import RunOptions
 
     scenario = load_scenario(args.scenario)
     bench = bench_from(args)
+    check_start(scenario, bench, str(find(args.scenario, "scenarios")))
     check(bench)
     out = _out_folder(args, bench, scenario.name)
     show_progress = sys.stderr.isatty() and not args.quiet
@@ -803,6 +804,11 @@ def _fault(args: argparse.Namespace) -> int:
                 print(f"pure-hil fault inject: --param {item!r}: expected NAME=VALUE", file=sys.stderr)
                 return 2
             fault[name] = _parameter(value)
+        if args.within is not None and (args.expect or "none").lower() == "none":
+            print("pure-hil fault inject: --within times the reaction --expect names", file=sys.stderr)
+            return 2
+        if args.expect is not None:
+            fault["expect"] = _expectation(args.expect, args.within)
         try:
             parse_fault(fault, "pure-hil fault inject")  # the same check the service makes, before sending
         except ValueError as exc:
@@ -831,6 +837,21 @@ def _parameter(value: str) -> object:
         return float(value)
     except ValueError:
         return value
+
+
+def _expectation(text: str, within: float | None) -> dict:
+    """`--expect` as a fault's `expect` (docs/faults.md): none, STATE, CAUSE or STATE/CAUSE; the fault's
+    own check names what is wrong with it."""
+    from safety.machine import State
+
+    if text.lower() == "none":
+        return {"reaction": "none"}
+    state, _, cause = text.upper().rpartition("/")
+    if not state and cause in State.__members__:
+        state, cause = cause, ""
+    expect: dict = {"state": state} if state else {}
+    expect |= {"cause": cause} if cause else {}
+    return expect if within is None else {**expect, "within": within}
 
 
 def _certs(args: argparse.Namespace) -> int:
@@ -1061,6 +1082,16 @@ def build_parser() -> argparse.ArgumentParser:
         "--at", type=_number(float, 0.0, MAX_DURATION), default=0.0, help="seconds from now (simulated)"
     )
     flt.add_argument("--duration", type=DURATION, default=None, help="seconds (default: until cleared)")
+    flt.add_argument(
+        "--expect",
+        default=None,
+        metavar="CAUSE",
+        help="the supervisor's reaction the run's verdict expects: a cause (WRENCH_SILENT), a state "
+        "(RECOVERY), STATE/CAUSE, or none (ridden through); without it a stop the fault causes fails the run",
+    )
+    flt.add_argument(
+        "--within", type=DURATION, default=None, help="seconds from the fault's start for --expect (0.1)"
+    )
     flt.add_argument("--identity", default="fault-injector", help="its certificate's role (secured bench)")
     add_bench_options(flt)
     flt.set_defaults(func=_fault)

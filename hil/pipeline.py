@@ -14,10 +14,11 @@ from pathlib import Path
 
 import msgspec
 
-from drivers.config import load_toml
+from drivers.config import ConfigError, load_toml
 from drivers.resources import find
 from hil.bench.bench import Bench, load_bench
-from hil.report.folder import write_outputs
+from hil.outputs.run_logs import RunLogs
+from hil.report.folder import events, write_outputs
 from hil.run.build import (
     RunOptions,
     build,
@@ -32,7 +33,7 @@ from hil.run.judge import RunResult, judge
 from hil.run.loop import tick_loop
 from hil.run.scenario import Scenario
 from hil.run.trace import CONFIG_ERRORS, ControllerUnavailable, Failure, Trace, reason
-from plant.params import RobotParams
+from plant.params import RobotParams, SimParams
 from safety.config import SupervisorConfig
 
 
@@ -77,16 +78,38 @@ def execute(bench: Bench, scenario: Scenario, seed: int, options: RunOptions, ou
             logs = run_logs(bench, scenario, seed, options, out)
             if logs is not None:
                 stack.callback(logs.stop)  # last: the recorder hands it the bus's last frames first
+            check_start(scenario, bench, f"scenario {scenario.name}")
             built = build(bench, scenario, seed, options, out, logs, stack)
             stage = "start-up"
             start_up(built, bench)
             trace = tick_loop(built, options)
+            if logs is not None:
+                _hand_events(logs, trace, scenario)
     except Exception as exc:  # nothing ran: keep the reason
         stage = "start-up" if isinstance(exc, ControllerUnavailable) else stage
         trace = Trace.empty(Failure(stage, reason(exc), isinstance(exc, CONFIG_ERRORS)))
     if logs is not None:
         trace.outputs_failed.update(logs.failed)
     return trace
+
+
+def _hand_events(logs: RunLogs, trace: Trace, scenario: Scenario) -> None:
+    """The run's events into run.mcap, before its logs stop; a failure loses them, never the run."""
+    try:
+        for topic, t, message in events(trace, scenario):
+            logs.event(topic, t, message)
+    except Exception as exc:
+        trace.outputs_failed.setdefault("run.mcap", f"its events: {type(exc).__name__}: {exc}")
+
+
+def check_start(scenario: Scenario, bench: Bench, origin: str) -> None:
+    """Raise ConfigError, naming `origin`, the field and the bound, for a start state the robot cannot be
+    released in on this bench (beyond its sim file's fall bound)."""
+    sim_file = find(bench.sim, "sim")
+    try:
+        scenario.check_start(load_toml(sim_file, SimParams).fall_tilt_deg, str(sim_file))
+    except ValueError as exc:
+        raise ConfigError(origin, str(exc)) from None
 
 
 def describe(bench: Bench) -> dict:

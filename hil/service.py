@@ -41,7 +41,7 @@ from hil.bench.rigs import announce
 from hil.faults import FaultSet, parse_fault
 from hil.history import History, NotServed
 from hil.live import LiveStream
-from hil.pipeline import describe, load_scenario, run
+from hil.pipeline import check_start, describe, load_scenario, run
 from hil.run.build import RunOptions, RunStatus, clock_of, law_of
 from hil.run.scenario import Intent, Scenario
 from plant.ballbot import PlantCore, RiderIntent
@@ -201,9 +201,13 @@ class RigService:
         text = text.strip()
         if not text:
             raise ConfigError("pure/rig/start", "expected a scenario file path or its TOML text")
+        origin = "pure/rig/start payload"
         if "\n" not in text and "=" not in text:
-            return load_scenario(text)  # a path or a shipped scenario's short name
-        return decode_toml(text, Scenario, "pure/rig/start payload")
+            scenario, origin = load_scenario(text), text  # a path or a shipped scenario's short name
+        else:
+            scenario = decode_toml(text, Scenario, origin)
+        check_start(scenario, self.bench, origin)  # a robot that starts fallen tests nothing
+        return scenario
 
     def _stop_run(self, query: zenoh.Query) -> None:
         running = self.state == "running"
@@ -345,6 +349,7 @@ class RigService:
                 if result.trace.failure is None
                 else msgspec.to_builtins(result.trace.failure),
                 "fault_events": [msgspec.to_builtins(e) for e in result.trace.fault_events],
+                "operator_actions": result.operator_actions(),
             }
             transitions = [e for e in result.trace.safety_events if e.kind == "transition"]
             failure = result.trace.failure

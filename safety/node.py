@@ -19,6 +19,7 @@ import math
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import cast
 
 from drivers.can_bus import CanNode, Received
@@ -42,6 +43,23 @@ from safety.monitors import Monitors
 from safety.recovery import RecoveryLaw
 
 log = logging.getLogger(__name__)
+
+OPERATOR_ACTIONS_KEPT = 1000
+"""Operator actions a run's record keeps (a flood of e-stops is counted beyond it, not kept)."""
+BUTTON = "button"
+"""The source of a wired e-stop button's press (the OPERATOR_ESTOP frame carries no source)."""
+
+
+@dataclass(frozen=True, slots=True)
+class OperatorRecord:
+    """An operator's command as the supervisor took it in: when (s), what (`estop`, `cut_power`, `reset`; a
+    wired button's press is an `estop` from `button`), whose (the command's `source`), and the state the
+    supervisor was in when it came (before it acted on it)."""
+
+    t: float
+    action: str
+    source: str
+    supervisor_state: str
 
 
 class SupervisorNode:
@@ -89,6 +107,11 @@ class SupervisorNode:
         self._frame_sent = self._sc_sent = self._state_sent = -math.inf
         self._forwarded: Forward | None = None
         self._estop_by = ""
+        self.operator_actions: list[OperatorRecord] = []
+        """Every operator command taken in, whatever the state (the first OPERATOR_ACTIONS_KEPT of them)."""
+        self.operator_actions_dropped = 0
+        """Operator commands beyond OPERATOR_ACTIONS_KEPT: counted, not kept."""
+        self._button = False
 
     @property
     def events(self) -> list[Event]:
@@ -115,7 +138,21 @@ class SupervisorNode:
             self.monitors.sc_request(r, t)
         for cmd in self.operator.drain(fence):
             log.warning("operator %s from %s", cmd.action, cmd.source)
+            self._operator_action(t, cmd.action, cmd.source)
             self.monitors.operator_command(cmd)
+
+    def _take_button(self, t: float) -> None:
+        """A wired e-stop button's press is an operator action too (its release resets nothing)."""
+        if self.monitors.button != self._button:
+            self._button = self.monitors.button
+            if self._button:
+                self._operator_action(t, "estop", BUTTON)
+
+    def _operator_action(self, t: float, action: str, source: str) -> None:
+        if len(self.operator_actions) >= OPERATOR_ACTIONS_KEPT:
+            self.operator_actions_dropped += 1
+            return
+        self.operator_actions.append(OperatorRecord(t, action, source, self.machine.state.name))
 
     # --------------------------------------------------------------------------------------- decide
     def update(self, t: float, fence: int | None = None, take_can: bool = True) -> Decision:
@@ -124,6 +161,7 @@ class SupervisorNode:
         if take_can:
             self._drain_can(t)
         self._drain_zenoh(t, fence)
+        self._take_button(t)
         self.observation = self.monitors.observe(t)
         decision = self.machine.update(self.observation)
         changed, refused = False, ""

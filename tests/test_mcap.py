@@ -43,7 +43,7 @@ SCENARIO = Scenario(
     seed=3,
     intent=Intent(pitch=[Ramp(to=10.0, duration=0.5)]),
     sc=[ScEntry(mode="limit", cap=0.5)],
-    operator=[OperatorEntry(at=0.5, action="enable")],
+    operator=[OperatorEntry(at=0.5, action="enable"), OperatorEntry(at=0.9, action="estop")],
     # Five ticks of garbage in place of the seat's wrench: /zenoh/rejected.
     faults=[parse_fault({"kind": "zenoh.malformed", "at": 0.75, "duration": 0.0125})],
 )
@@ -83,7 +83,7 @@ def topics(path: Path) -> dict[str, tuple]:
 def mcap_frames(path: Path) -> list[tuple[int, bytes, float, int]]:
     """/can/frames as (id, data, can.log's stamp, log time), frame by frame."""
     return [
-        (f["id"], base64.b64decode(f["data"]), f["stamp"], t)
+        (f["id"], base64.b64decode(f["data"]), f["wall"], t)
         for t, batch in messages(path, "/can/frames")
         for f in batch["frames"]
     ]
@@ -106,6 +106,14 @@ def test_its_frames_are_can_logs_frame_for_frame_in_simulated_time(folder):
     assert len(log) > 400 * 12 and mismatch(frames, log) is None
     times = [t for *_, t in frames]
     assert times == sorted(times) and times[0] == 0  # the start-up's frames at t = 0
+    # Each frame's own stamp is that simulated time too, as every other topic's (can.log's wall-clock
+    # stamp beside it).
+    stamps = [
+        round(f["stamp"] * 1e9)
+        for _, batch in messages(folder / "run.mcap", "/can/frames")
+        for f in batch["frames"]
+    ]
+    assert stamps == times
     assert {t % DT_NS for t in times} == {0} and times[-1] == 400 * DT_NS  # one time per tick
     # Each SYNC at the simulated time of the tick it names.
     sync = Catalog()[MessageName.SYNC]
@@ -211,6 +219,34 @@ def test_one_trace_message_per_tick_equal_to_trace_npy(folder):
     assert [t for t, _ in got] == [round(t * 1e9) for t in rows[:, 0]]
 
 
+def test_the_events_are_the_summarys_each_at_its_time(folder):
+    """Fault windows, the fault log, the supervisor's transitions with their causes and the operator's
+    actions: on their own topics, each a JSON Schema, the same records as summary.json's."""
+    summary = json.loads((folder / "summary.json").read_text())
+    path = folder / "run.mcap"
+    windows = [
+        (round(f["acted"][0] * 1e9), f["number"], f["acted"][1])
+        for f in summary["faults"]
+        if f["acted"] is not None
+    ]
+    got = messages(path, "/events/fault_windows")
+    assert windows and [(t, m["fault"], m["end"]) for t, m in got] == windows
+    assert got[0][1]["kind"] == "zenoh.malformed" and got[0][1]["start"] == 0.75 and not got[0][1]["live"]
+    log = [(round(e["t"] * 1e9), e["fault"], e["action"]) for e in summary["fault_events"]]
+    assert [(t, m["fault"], m["action"]) for t, m in messages(path, "/events/faults")] == log
+    transitions = [(round(e["t"] * 1e9), e["to_state"], e["cause"]) for e in summary["safety"]["events"]]
+    assert ("STOPPING", "OPERATOR_ESTOP") in [(s, c) for _, s, c in transitions]
+    supervisor = messages(path, "/events/supervisor")
+    assert [(t, m["to_state"], m["cause"]) for t, m in supervisor] == transitions
+    operator = [(round(a["t"] * 1e9), a["source"], a["scheduled"]) for a in summary["operator_actions"]]
+    assert operator == [(round(0.9 * 1e9), "scenario", True)]
+    assert [(t, m["source"], m["scheduled"]) for t, m in messages(path, "/events/operator")] == operator
+    channels = topics(path)
+    for topic in ("/events/fault_windows", "/events/faults", "/events/supervisor", "/events/operator"):
+        schema = json.loads(channels[topic][1].data)
+        assert schema["type"] == "object" and schema["properties"], topic
+
+
 def test_the_summary_crc_is_the_specs(folder):
     """Foxglove's reader refuses a file whose summary CRC is wrong; the `mcap` package's does not check it:
     crc32 of the summary section through the footer's summary_offset_start (mcap.dev/spec, Footer)."""
@@ -245,6 +281,21 @@ def test_a_writer_error_keeps_the_file_up_to_it_and_is_named_in_the_summary(tmp_
         reader = make_reader(f, validate_crcs=True)
         assert [m.name for m in reader.iter_metadata()] == ["pure-hil", "failed"]
         assert sum(1 for _ in reader.iter_messages()) == 2999  # every message before the error
+
+
+def test_events_that_fail_lose_themselves_never_the_run(tmp_path, monkeypatch):
+    import hil.pipeline
+
+    def broken(trace, scenario):
+        raise KeyError("a record the events cannot read")
+
+    monkeypatch.setattr(hil.pipeline, "events", broken)
+    short = msgspec.structs.replace(SCENARIO, duration=0.25, faults=[], operator=[])
+    result = run(short, bench(recording=False), out=tmp_path)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert result.trace.failure is None and result.trace.stats.ticks == 100
+    assert "its events: KeyError" in summary["outputs_failed"]["run.mcap"]
+    assert len(messages(tmp_path / "run.mcap", "/trace")) == 100, "the rest of the file is there"
 
 
 def test_without_a_can_log_or_without_mcap(tmp_path):

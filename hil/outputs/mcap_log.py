@@ -6,12 +6,16 @@ publish time alike):
 
     /can/frames      every frame of can.log, handed over by the same recorder poll that writes can.log
                      (drivers/can_bus.py BusRecorder): one message per tick with the frames the recorder
-                     took in it (the start-up's at 0), in can.log's order, each with can.log's stamp
+                     took in it (the start-up's at 0), in can.log's order, each stamped with that
+                     simulated time and with can.log's own (wall-clock) stamp beside it
     /can/<MESSAGE>   a DBC message's signals, decoded by drivers/can_codec.py: one message per frame
     /zenoh/<key>     what the controller was told over zenoh (zenoh_inputs.msgpack), decoded; a payload
                      that does not decode (a fault's garbage) goes to /zenoh/rejected with its bytes
     /trace           one message per tick: trace.npy's row as the tick ends (the plant's truth, the
                      supervisor's state and speed estimate; hil/outputs/trace_log.py COLUMNS)
+    /events/...      what happened, at its time: each fault's window, the fault log, the supervisor's
+                     transitions with their causes, the operator's actions (EVENTS; handed over as the run
+                     ends, `event`)
 
 It streams, a chunk at a time (hil/outputs/mcap_file.py: memory flat in a run's length). Writing never
 fails a run: an error stops the messages there, stop() still completes the file and records the error as
@@ -46,6 +50,10 @@ SIGNALS = "/can/{message}"
 ZENOH = "/zenoh/{key}"
 REJECTED = "/zenoh/rejected"
 TRACE = "/trace"
+FAULT_WINDOWS = "/events/fault_windows"
+FAULT_LOG = "/events/faults"
+SUPERVISOR = "/events/supervisor"
+OPERATOR = "/events/operator"
 FAILED = "failed"
 """The metadata record that says why the file's messages stop early."""
 ROW = COLUMNS[:TELEMETRY]
@@ -56,6 +64,9 @@ class Frame(msgspec.Struct, omit_defaults=True):
     """One CAN frame as can.log has it (the flags only when set)."""
 
     stamp: float
+    """Simulated time, s: when the recorder took it (the message's log time)."""
+    wall: float
+    """can.log's stamp: the bus's wall-clock time, s."""
     id: int
     data: bytes | bytearray
     """python-can's Message.data is a bytearray, kept as is (msgspec writes either as base64)."""
@@ -94,7 +105,8 @@ def _frames_schema() -> bytes:
     frame = {
         "type": "object",
         "properties": {
-            "stamp": {"type": "number", "description": "the bus's wall-clock stamp, s (can.log's)"},
+            "stamp": {"type": "number", "description": "simulated time, s: when the CAN log took it"},
+            "wall": {"type": "number", "description": "the bus's wall-clock stamp, s (can.log's)"},
             "id": {"type": "integer", "description": "arbitration id"},
             "data": BYTES,
             "extended": flag,
@@ -129,6 +141,57 @@ def _payload_schema(payload: type) -> bytes:
 def _rejected_schema() -> bytes:
     properties = {"key": {"type": "string"}, "reason": {"type": "string"}, "data": BYTES}
     return _schema("Rejected", properties, "a zenoh input that does not decode as its key's payload")
+
+
+_TEXT, _NUMBER, _INTEGER = {"type": "string"}, {"type": "number"}, {"type": "integer"}
+_STATE = {"type": "string", "description": "NORMAL, LIMITING, STOPPING, ESTOP or RECOVERY"}
+EVENTS: dict[str, tuple[str, dict, str]] = {
+    FAULT_WINDOWS: (
+        "FaultWindow",
+        {
+            "fault": {**_INTEGER, "description": "its number in the run (the scenario's, then live ones)"},
+            "kind": _TEXT,
+            "description": {**_TEXT, "description": "the kind and its parameters"},
+            "start": {**_NUMBER, "description": "s, when it began to act (the message's time)"},
+            "end": {**_NUMBER, "description": "s, when it stopped acting (the run's end if it never did)"},
+            "live": {"type": "boolean", "description": "injected into the running run (not scheduled)"},
+            "expect": {"type": ["object", "null"], "description": "the reaction it expects (docs/faults.md)"},
+        },
+        "the window one fault acted in, at its start",
+    ),
+    FAULT_LOG: (
+        "FaultEvent",
+        {
+            "fault": _INTEGER,
+            "kind": _TEXT,
+            "action": {**_TEXT, "description": "inject, start, end or clear"},
+            "detail": _TEXT,
+        },
+        "a line of the fault log (summary.json fault_events)",
+    ),
+    SUPERVISOR: (
+        "SupervisorEvent",
+        {
+            "kind": {**_TEXT, "description": "transition, reset_refused or contactor_opened"},
+            "from_state": _STATE,
+            "to_state": _STATE,
+            "cause": {**_TEXT, "description": "safety/machine.py Cause"},
+            "detail": _TEXT,
+        },
+        "the supervisor's transition (or refused reset) with its cause (summary.json safety.events)",
+    ),
+    OPERATOR: (
+        "OperatorAction",
+        {
+            "action": {**_TEXT, "description": "estop, cut_power or reset"},
+            "source": {**_TEXT, "description": "who sent it (button: a wired e-stop)"},
+            "supervisor_state": {**_STATE, "description": "the supervisor's state when it came"},
+            "scheduled": {"type": "boolean", "description": "one of the scenario's own [[operator]] steps"},
+        },
+        "an operator's e-stop, category-0 cut or reset as the supervisor took it in",
+    ),
+}
+"""The event topics: (schema title, properties, description)."""
 
 
 def _trace_layout() -> tuple[list[tuple[str, int]], dict[str, list[tuple[str, int]]]]:
@@ -259,6 +322,19 @@ class McapLog(can.Listener):
         except Exception as exc:
             self._fail(exc)
 
+    def event(self, topic: str, t: float, message: dict) -> None:
+        """Something that happened at `t` (s) on one of the EVENTS topics, as its schema describes it."""
+        if not self._on:
+            return
+        try:
+            title, properties, description = EVENTS[topic]
+            channel = self._channels.get(topic) or self._channel(
+                topic, title, lambda: _schema(title, properties, description)
+            )
+            self._file.message(channel, round(t * 1e9), self._json(message))
+        except Exception as exc:
+            self._fail(exc)
+
     def stop(self) -> None:
         """The frames still held (those after the last tick), then the file's summary: it is complete,
         also after an error (up to it, with the error as metadata)."""
@@ -285,9 +361,16 @@ class McapLog(can.Listener):
         """The frames taken at one time: raw on /can/frames, then each decoded on its message's channel."""
         frames, self._frames = self._frames, []
         encode, decoders = self._json, self._decoders
+        t = self._frames_t
         raw = [
             Frame(
-                m.timestamp, m.arbitration_id, m.data, m.is_extended_id, m.is_remote_frame, m.is_error_frame
+                t,
+                m.timestamp,
+                m.arbitration_id,
+                m.data,
+                m.is_extended_id,
+                m.is_remote_frame,
+                m.is_error_frame,
             )
             for m in frames
         ]

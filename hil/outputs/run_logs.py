@@ -1,6 +1,7 @@
 """The logs a run streams as it goes, can.log (python-can's candump writer) and run.mcap (mcap_log.py), behind
 one object the run feeds: every frame the CAN log's recorder takes (a python-can `Listener`), every zenoh
-input the controller was sent (`zenoh`), every tick's trace row (`trace`), then `stop()`.
+input the controller was sent (`zenoh`), every tick's trace row (`trace`), the run's events as it ends
+(`event`), then `stop()`.
 
 They are written in a process of their own (`LogProcess`), not on the tick's thread: together they cost
 about a fifth of a compiled lockstep tick (docs/performance.md), and in their own process they cost the tick
@@ -45,8 +46,9 @@ from hil.outputs.mcap_log import McapLog
 
 log = logging.getLogger(__name__)
 
-FRAME, ZENOH, TRACE = 0, 1, 2
-"""What a call handed over is: a frame the recorder took (at simulated time t), a zenoh input, a trace row."""
+FRAME, ZENOH, TRACE, EVENT = 0, 1, 2, 3
+"""What a call handed over is: a frame the recorder took (at simulated time t), a zenoh input, a trace row,
+an event."""
 BATCH_TICKS = 16
 """Ticks handed over in one write to the pipe (a write and the process's wake-up per tick cost more than
 the pickling)."""
@@ -111,6 +113,10 @@ class LocalLogs(can.Listener):
         if self._mcap is not None:
             self._mcap.trace(row)
 
+    def event(self, topic: str, t: float, message: dict) -> None:
+        if self._mcap is not None:
+            self._mcap.event(topic, t, message)
+
     def stop(self) -> None:
         writer, mcap, self._writer, self._mcap = self._writer, self._mcap, None, None
         if writer is not None:
@@ -173,6 +179,9 @@ class LogProcess(can.Listener):
         self._ticks += 1
         if self._ticks % BATCH_TICKS == 0:
             self._hand_over()
+
+    def event(self, topic: str, t: float, message: dict) -> None:
+        self._calls.append((EVENT, topic, t, message))
 
     def stop(self) -> None:
         """Hand over what is left, wait for the files to be finished, and take the process's report."""
@@ -285,6 +294,8 @@ def _serve(calls: IO[bytes], report: IO[bytes]) -> None:
                 logs.on_message_received(_message(call[2]))
             elif kind == ZENOH:
                 logs.zenoh(call[1], call[2], call[3])
+            elif kind == EVENT:
+                logs.event(call[1], call[2], call[3])
             else:
                 logs.trace(call[1])
     logs.stop()

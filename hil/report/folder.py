@@ -17,10 +17,12 @@ from pathlib import Path
 import msgspec
 import numpy as np
 
+from hil.outputs.mcap_log import FAULT_LOG, FAULT_WINDOWS, OPERATOR, SUPERVISOR
 from hil.outputs.mcap_log import check as check_mcap
 from hil.outputs.trace_log import describe
-from hil.run.judge import RunResult
+from hil.run.judge import RunResult, operator_actions
 from hil.run.measurements import unavailable
+from hil.run.scenario import Scenario
 from hil.run.trace import Trace
 from safety.machine import State
 
@@ -111,6 +113,8 @@ def summary(result: RunResult) -> dict:
             for n, (spec, window) in enumerate(zip(tr.faults, tr.fault_windows, strict=True))
         ],
         "fault_events": [msgspec.to_builtins(e) for e in tr.fault_events],
+        "operator_actions": result.operator_actions(),
+        "operator_actions_dropped": tr.operator_actions_dropped,
         "bus": tr.bus,
         "timing": {
             "wall_time": round(t.wall_time, 3),
@@ -156,6 +160,46 @@ def safety_summary(tr: Trace) -> dict:
         "ended_resting": bool(len(tr.resting) and tr.resting[-1]),
         "drives_off_at": _drives_off_at(tr),
     }
+
+
+def events(tr: Trace, scenario: Scenario) -> list[tuple[str, float, dict]]:
+    """The run's events as run.mcap carries them, (topic, t, message): each fault's window, the fault log,
+    the supervisor's events, the operator's actions; the same records as the summary's."""
+    out: list[tuple[str, float, dict]] = []
+    for n, (spec, window) in enumerate(zip(tr.faults, tr.fault_windows, strict=True)):
+        if window is not None:
+            window_message = {
+                "fault": n,
+                "kind": spec.kind,
+                "description": spec.describe(),
+                "start": round(window[0], 6),
+                "end": round(window[1], 6),
+                "live": n >= len(scenario.faults),
+                "expect": msgspec.to_builtins(spec.expect),
+            }
+            out.append((FAULT_WINDOWS, window[0], window_message))
+    out += [
+        (FAULT_LOG, e.t, {k: v for k, v in msgspec.to_builtins(e).items() if k != "t"})
+        for e in tr.fault_events
+    ]
+    out += [
+        (
+            SUPERVISOR,
+            e.t,
+            {
+                "kind": e.kind,
+                "from_state": e.from_state,
+                "to_state": e.to_state,
+                "cause": e.cause,
+                "detail": e.detail,
+            },
+        )
+        for e in tr.safety_events
+    ]
+    out += [
+        (OPERATOR, a["t"], {k: v for k, v in a.items() if k != "t"}) for a in operator_actions(tr, scenario)
+    ]
+    return sorted(out, key=lambda event: event[1])
 
 
 def _drives_off_at(tr: Trace) -> float | None:

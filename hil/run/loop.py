@@ -76,6 +76,10 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
     finally:
         clock.stop()
     rig.faults.finish(plant.tick, plant.t)
+    if supervisor is None:
+        rig.hear_operator()  # what was sent during the last tick
+    # The operator's actions as the supervisor here took them in, or as the rig heard them sent elsewhere.
+    operator = rig if supervisor is None else supervisor
     timing = clock.stats()
     for _ in range(50 if n else 0):  # the last telemetry samples may still be in flight
         take_telemetry()
@@ -112,6 +116,8 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
         faults=list(rig.faults.specs),
         fault_events=list(rig.faults.events),
         fault_windows=[rig.faults.window(n, plant.t) for n in range(len(rig.faults.specs))],
+        operator_actions=list(operator.operator_actions),
+        operator_actions_dropped=operator.operator_actions_dropped,
         failure=failure,
         stopped_early=stopped,
     )

@@ -53,7 +53,8 @@ from hil.outputs.inputs_log import InputsLog
 from plant.ballbot import PlantCore
 from plant.drives import DriveState, MotorDrive
 from plant.sensors import DriveFeedback, ImuSample, TesSample
-from safety.node import SupervisorNode
+from safety.machine import State
+from safety.node import OPERATOR_ACTIONS_KEPT, OperatorRecord, SupervisorNode
 
 COMMANDS: dict[str, int] = {name: motor for motor, name in enumerate(DRIVE_COMMAND)}
 """Each drive's command frame (keyed by name as frames carry it: Received.name) -> its motor."""
@@ -63,6 +64,8 @@ TELEMETRY_CAPACITY = 1 << 12
 SC_REPEAT_EVERY = 40  # ticks between repeats of an unchanged SC request (keeps it fresh for the supervisor)
 STOP_POLL = 0.05
 """s: the longest a wait for a frame goes without looking whether the run was asked to stop."""
+SCENARIO_SOURCE = "scenario"
+"""The source of the SC requests and operator actions the scenario schedules (a person's are theirs)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -215,6 +218,14 @@ class Rig:
             else link.subscribe(keys.safety_state, SafetyState, capacity=1 << 14)
         )
         """With a supervisor in another process: its transitions as it announces them."""
+        self.operator_heard: Subscription[EstopCommand] | None = (
+            None if supervisor is not None else link.subscribe(keys.safety_estop, EstopCommand, capacity=256)
+        )
+        """With a supervisor in another process: the operator commands the rig hears it sent (the embedded
+        supervisor records those it takes in itself, `SupervisorNode.operator_actions`)."""
+        self.operator_actions: list[OperatorRecord] = []
+        """What `operator_heard` brought, with the supervisor's state as its last frame said."""
+        self.operator_actions_dropped = 0
         self._permitted = False
         plant.drives.set_permission(False)  # both paths open until the supervisor's first frame
         plant.drives.set_contactor(False)
@@ -307,10 +318,22 @@ class Rig:
         one elsewhere is waited for (its permission, and its recovery commands while it holds the drives)."""
         if self.supervisor is not None:
             self.supervisor.update(self.plant.t, fence=k if lockstep else None)
-        elif lockstep:
+            return
+        self.hear_operator()
+        if lockstep:
             self._await_supervisor(guard)
             if self.takeover:
                 self._await_recovery(k, guard)
+
+    def hear_operator(self) -> None:
+        """The operator commands sent to a supervisor elsewhere, each with the state it was last heard in."""
+        heard = self.operator_heard
+        for cmd in heard.drain() if heard is not None else ():
+            if len(self.operator_actions) >= OPERATOR_ACTIONS_KEPT:
+                self.operator_actions_dropped += 1
+                continue
+            state = State(self.safety_state).name if self.safety_state >= 0 else "none"
+            self.operator_actions.append(OperatorRecord(self.plant.t, cmd.action, cmd.source, state))
 
     # ------------------------------------------------------------------------------------------ outputs
     def _sample(self) -> tuple[Sequence[DriveFeedback], ImuSample, TesSample, set[str]]:
@@ -397,7 +420,7 @@ class Rig:
             stamp=self.plant.t,
             mode=current.mode,
             speed_cap=current.cap,
-            source="scenario",
+            source=SCENARIO_SOURCE,
         )
         self._put(k, key, request, self.sc_link)
         self._sc_last, self._sc_sent_tick = current, k
@@ -410,11 +433,13 @@ class Rig:
             command: EstopCommand | ControllerCommand
             if action == "estop" or action == "reset":
                 key = self.keys.safety_estop
-                command = EstopCommand(seq=self._next_seq(key), stamp=t, action=action, source="operator")
+                command = EstopCommand(
+                    seq=self._next_seq(key), stamp=t, action=action, source=SCENARIO_SOURCE
+                )
             else:
                 key = self.keys.controller_command
                 command = ControllerCommand(
-                    seq=self._next_seq(key), stamp=t, action=action, source="operator"
+                    seq=self._next_seq(key), stamp=t, action=action, source=SCENARIO_SOURCE
                 )
             self._put(k, key, command, self.operator_link)
 

@@ -9,6 +9,7 @@ a plane, and bounds; the verdict of each is recorded with the measured value.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Annotated, Any, Literal
 
@@ -22,6 +23,7 @@ from safety.config import SupervisorConfig
 from safety.machine import Cause
 
 Positive = Annotated[float, msgspec.Meta(gt=0)]
+TickRate = Annotated[float, msgspec.Meta(gt=0, le=100_000)]
 Duration = Annotated[float, msgspec.Meta(gt=0, le=MAX_DURATION)]
 Seed = Annotated[int, msgspec.Meta(ge=0)]
 
@@ -138,8 +140,14 @@ class Scenario(_Record, frozen=True):
     clock: Literal["lockstep", "realtime"] = "lockstep"
     duration: Duration = 10.0
     seed: Seed = 0
-    tick_hz: Positive = 400.0
+    tick_hz: TickRate = 400.0
     initial_tilt_deg: tuple[float, float] = (0.0, 0.0)
+    """The chassis tilt the robot is released at, [pitch, roll] deg: finite, and within the bench's fall bound
+    (`check_start`: the bound is the bench's sim file's)."""
+    fall: Literal["forbidden", "expected"] = "forbidden"
+    """forbidden: a fall fails the run, whatever its criteria say (the verdict `no fall`, part of every run's
+    verdict). expected: the run is meant to end in a fall (a push beyond the robot's limit) and fails if the
+    robot stays up (the verdict `expected fall`)."""
     sc: list[ScEntry] = msgspec.field(default_factory=lambda: [ScEntry(mode="free")])
     intent: Intent = Intent()
     operator: list[OperatorEntry] = []
@@ -152,6 +160,26 @@ class Scenario(_Record, frozen=True):
 
     def __post_init__(self) -> None:
         self.supervisor_config(SupervisorConfig())  # a misspelt rule fails when the scenario loads
+        for plane, deg in zip(("pitch", "roll"), self.initial_tilt_deg, strict=True):
+            if not math.isfinite(deg):  # msgspec takes nan and inf for a float
+                raise ValueError(
+                    f"initial_tilt_deg = {list(self.initial_tilt_deg)}: the {plane} tilt must be a finite "
+                    "number of degrees"
+                )
+        if self.fall == "expected":
+            for c in self.criteria:
+                if c.metric == "fallen" and not c.check(1.0):
+                    raise ValueError(f'fall = "expected" and a criterion {c.label} {c.describe()} contradict')
+
+    def check_start(self, fall_tilt_deg: float, sim_file: str) -> None:
+        """Raise ValueError unless the start state is one the robot can be released in: each tilt within the
+        fall bound (a robot that starts fallen tests nothing)."""
+        for plane, deg in zip(("pitch", "roll"), self.initial_tilt_deg, strict=True):
+            if abs(deg) >= fall_tilt_deg:
+                raise ValueError(
+                    f"initial_tilt_deg = {list(self.initial_tilt_deg)}: the {plane} tilt must be within "
+                    f"±{fall_tilt_deg:g} deg, the fall bound (fall_tilt_deg of {sim_file})"
+                )
 
     def tick_of(self, t: float) -> int:
         """The tick a scheduled time (s) falls on: times become ticks once, when the run is built, and the

@@ -15,6 +15,7 @@ from hil.faults import FaultError, FaultEvent, FaultSpec
 from hil.run.clock import TimingStats
 from hil.run.rig import TickStats
 from safety.machine import Event
+from safety.node import OperatorRecord
 
 
 class ControllerUnavailable(RuntimeError):
@@ -90,6 +91,11 @@ class Trace:
     fault_events: list[FaultEvent] = field(default_factory=list)
     fault_windows: list[tuple[float, float] | None] = field(default_factory=list)
     """Per fault: (start, end) of the time it acted, None if it never started."""
+    operator_actions: list[OperatorRecord] = field(default_factory=list)
+    """Every operator e-stop, category-0 cut and reset the supervisor took in (the scenario's own among
+    them), whatever its state, and every press of a wired e-stop button."""
+    operator_actions_dropped: int = 0
+    """Operator actions beyond the record's length (safety/node.py OPERATOR_ACTIONS_KEPT): counted only."""
     failure: Failure | None = None
     """Why the run stopped before its end (None: it ran to the end, or to a fall)."""
     stopped_early: bool = False

@@ -304,6 +304,7 @@ def run_case(case: Case, out: Path | None = None, bench: Bench | None = None) ->
     there (summary, CAN log, trace, recording, plots: the bench's outputs)."""
     from hil.pipeline import run
     from hil.run.build import RunOptions
+    from hil.run.judge import RUN_RULES
 
     bench = bench or load_bench()
     twin_wall = _time_twin(case, bench)
@@ -318,13 +319,16 @@ def run_case(case: Case, out: Path | None = None, bench: Bench | None = None) ->
         return CaseResult.errored(case, detail, time.monotonic() - start)
     tr = result.trace
     judged = case.role != "plain"
+    # A faulty case's falls and stops are its classification's to judge (against its twin; a fall the fault
+    # makes unrecoverable passes), not the rules every run has.
+    verdicts = [v for v in result.verdicts if case.role != "faulty" or v.criterion not in RUN_RULES]
     released = release_end(tr, result.scenario.initial_tilt_deg) if len(tr.t) else 0.0
     res = CaseResult(
         case.id,
         case.scenario,
         result.passed,
         time.monotonic() - start,
-        [asdict(v) for v in result.verdicts],
+        [asdict(v) for v in verdicts],
         fallen=tr.fallen,
         peak_tilt_after_release_deg=measure(tr, "max_tilt_deg", "both", released or 0.0)
         if len(tr.t)
