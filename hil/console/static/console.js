@@ -587,6 +587,7 @@ async function loadHistory() {
     }
     tr.children[5].className = `v-${run.verdict}`;
     if (run.fallen) tr.children[6].className = "bad";
+    tr.children[10].className = tr.children[11].className = "when";
     const files = document.createElement("td");
     for (const name of run.files) {
       const a = document.createElement("a");
