@@ -970,6 +970,8 @@ def test_an_exposed_console_asks_each_person_to_log_in_and_logs_who_did_what(rig
     assert ask("api/estop", {}, cookie=f"{accounts.COOKIE}=forged")[0] == 401
     status, reply = ask("api/login", {"name": "alice", "password": "guess"})
     assert status == 401 and reply["error"] == "wrong name or password"
+    forged = "x\nconsole audit 2026-01-01T00:00:00+00:00 alice (operator) from 127.0.0.1: estop -> 200"
+    assert ask("api/login", {"name": forged, "password": "guess"})[0] == 401
 
     bob = log_in("bob")
     status, info = ask("api/info", cookie=bob)
@@ -997,6 +999,8 @@ def test_an_exposed_console_asks_each_person_to_log_in_and_logs_who_did_what(rig
     ):
         assert line in said, f"{line!r} not in the audit log:\n{said}"
     assert all(re.match(r"console audit \d{4}-\d\d-\d\dT\d\d:\d\d:\d\d", a) for a in audit)
+    assert all("\n" not in a for a in audit), "a name typed at the login stays on its line"
+    assert "x\\nconsole audit 2026" in said
 
 
 def test_in_the_browser_each_person_logs_in_and_acts_with_their_role(rig, tmp_path):

@@ -275,9 +275,11 @@ class Handler(BaseHTTPRequestHandler):
     def _audit(self, person: Person | None, action: str, status: int, detail: str) -> None:
         who = "(not logged in)" if person is None else f"{person.name or '(no login)'} ({person.role})"
         stamp = datetime.now().astimezone().isoformat(timespec="seconds")
-        self.server.audit(
+        line = (
             f"console audit {stamp} {who} from {self.client_address[0]}: {action} -> {int(status)} {detail}"
         )
+        # One line per action, whatever a name typed at the login holds: no forged second line.
+        self.server.audit("".join(c if c.isprintable() else repr(c)[1:-1] for c in line))
 
     # ------------------------------------------------------------------------------------------- GET
     def _get(self) -> None:
