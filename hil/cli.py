@@ -27,6 +27,7 @@ import msgspec
 
 from drivers.config import MAX_DURATION, load_toml
 from drivers.resources import find, shipped
+from hil.console.roles import PERSON_ROLES
 
 if TYPE_CHECKING:
     from hil.bench.bench import Bench
@@ -747,6 +748,7 @@ def _console(args: argparse.Namespace) -> int:
     from dataclasses import asdict
 
     from drivers.keys import Keys
+    from hil.console import accounts
     from hil.console.events import Broadcast
     from hil.console.rig_link import RigLink, fault_catalog
     from hil.console.server import Console, ListenError, check_exposure, parse_listen, tls_context
@@ -754,33 +756,78 @@ def _console(args: argparse.Namespace) -> int:
     try:  # the options first: a mistake costs no zenoh session
         listen = parse_listen(args.listen)
         tls = tls_context(args.tls_cert, args.tls_key)
-        check_exposure(listen, tls)
-    except ListenError as exc:
+        people = accounts.load(args.accounts) if args.accounts else None
+        check_exposure(listen, tls, bool(people))
+    except (ListenError, accounts.AccountsError) as exc:
         print(f"pure-hil console: {exc}", file=sys.stderr)
         return 2
     source = (args.source or f"console {args.identity} {getpass.getuser()}@{socket.gethostname()}")[:64]
     bench, session, card = _join_rig(args)
-    link = RigLink(session, Keys(bench.zenoh.prefix), args.identity, source, Broadcast())
-    info = {
-        "card": None if card is None else asdict(card),
-        "bench": bench.name,
-        "source": source,
-        "faults": fault_catalog(),
-    }
-    try:
-        console = Console(link, info, listen, tls).start()
+    link = RigLink(
+        session,
+        Keys(bench.zenoh.prefix),
+        args.identity,
+        source,
+        Broadcast(),
+        None if card is None else asdict(card),
+    )
+    info = {"bench": bench.name, "faults": fault_catalog()}
+    try:  # its output is its audit log: who did what, from where, and the answer
+        console = Console(link, info, listen, tls, people, audit=lambda line: print(line, flush=True))
+        console.start()
     except ListenError as exc:
         link.close()
         session.close()
         print(f"pure-hil console: {exc}", file=sys.stderr)
         return 2
     rig = card.describe() if card else f"bench {bench.name} through its router"
+    login = f", {len(people)} accounts" if people else ""
     _until_interrupted(
-        f"pure-hil console: {rig}, role {args.identity}; Ctrl-C to stop\nconsole: {console.url}"
+        f"pure-hil console: {rig}, role {args.identity}{login}; Ctrl-C to stop\nconsole: {console.url}"
     )
     console.close()
     link.close()
     session.close()
+    return 0
+
+
+def _accounts(args: argparse.Namespace) -> int:
+    """Who may log in to a console: add (or change), remove, list the accounts of a file."""
+    import getpass
+
+    from hil.console import accounts
+
+    path = Path(args.file)
+    try:
+        people = accounts.load(path) if path.exists() or args.action != "add" else {}
+        if args.action == "list":
+            for person in people.values():
+                print(f"{person.name}\t{person.role}")
+            return 0
+        if args.name is None:
+            raise accounts.AccountsError(
+                f"pure-hil accounts {args.action} FILE NAME: give the account's NAME"
+            )
+        if args.action == "remove":
+            if people.pop(args.name, None) is None:
+                raise accounts.AccountsError(f"{path}: no account {args.name!r}")
+            if not people:
+                raise accounts.AccountsError(f"{path}: {args.name} is its last account (delete the file)")
+        else:
+            if sys.stdin.isatty():
+                password = getpass.getpass(f"password for {args.name}: ")
+                if getpass.getpass("again: ") != password:
+                    raise accounts.AccountsError("the two passwords differ")
+            else:  # a script: the first line of stdin
+                password = sys.stdin.readline().rstrip("\n")
+            accounts.check_new(args.name, args.role, password)
+            people[args.name] = accounts.Account(args.name, args.role, accounts.hash_password(password))
+        accounts.save(path, people)
+    except accounts.AccountsError as exc:
+        print(f"pure-hil accounts: {exc}", file=sys.stderr)
+        return 2
+    done = "removed" if args.action == "remove" else f"{args.role}, scrypt"
+    print(f"pure-hil accounts: {args.name} {done} in {path} ({len(people)} accounts, mode 0600)")
     return 0
 
 
@@ -1116,10 +1163,33 @@ def build_parser() -> argparse.ArgumentParser:
         "(start, stop, e-stop, reset), fault-injector (faults), any other watches",
     )
     con.add_argument(
-        "--source", default=None, help="who its e-stops say they are from (default: console ROLE user@host)"
+        "--source",
+        default=None,
+        help="who its e-stops say they are from (default: console ROLE user@host; with --accounts: "
+        "console ROLE NAME, the person logged in)",
+    )
+    con.add_argument(
+        "--accounts",
+        default=None,
+        metavar="FILE",
+        help="who may log in, each with a bench role (pure-hil accounts); needed off loopback",
     )
     add_bench_options(con)
     con.set_defaults(func=_console)
+
+    acc = sub.add_parser(
+        "accounts", help="who may log in to a console: names, roles, scrypt hashes (docs/security.md)"
+    )
+    acc.add_argument("action", choices=("add", "remove", "list"), help="add (or change), remove, list")
+    acc.add_argument("file", help="the accounts file (JSON, kept mode 0600)")
+    acc.add_argument("name", nargs="?", default=None, help="the account's name (add, remove)")
+    acc.add_argument(
+        "--role",
+        default="monitor",
+        choices=PERSON_ROLES,
+        help="its bench role (add); the password is asked twice on a terminal, else read from stdin",
+    )
+    acc.set_defaults(func=_accounts)
 
     crt = sub.add_parser("certs", help="certificates for the secured bench router (docs/security.md)")
     crt.add_argument("action", choices=("init",), help="make a CA and every role's certificate")

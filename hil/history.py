@@ -2,21 +2,27 @@
 
 The service writes a row as a run begins (RUNNING) and completes it as the run ends, whether it passed,
 failed, was stopped or raised; a row still RUNNING whose service process is gone was cut short by that
-process's end (INTERRUPTED). The file stays across restarts; consoles read it through the service's
-`PREFIX/rig/history` queryable and fetch a run's files through `PREFIX/rig/file` (`History.file` decides
-what may be read: a plain file directly inside a run folder that resolves inside the output folder).
+process's end (INTERRUPTED). At the end the row also takes from the run's own summary.json whether the robot
+fell and how, the faults that acted and when, and the operators' actions (e-stops, resets, cuts: who and
+when), where the summary records them. The file stays across restarts (an older file gains the new columns,
+empty for its old rows); consoles read it through the service's `PREFIX/rig/history` queryable, with ISO
+8601 times, and fetch a run's files through `PREFIX/rig/file` (`History.file` decides what may be read: a
+plain file directly inside a run folder that resolves inside the output folder).
 """
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import sqlite3
 import threading
 import time
+from datetime import datetime
 from pathlib import Path
 
 from hil.bench.rigs import alive
+from hil.faults import parse_fault
 
 FILE_NAME = "history.sqlite"
 SCHEMA = """
@@ -36,6 +42,13 @@ CREATE TABLE IF NOT EXISTS runs (
     pid INTEGER NOT NULL            -- the service process that made it
 )
 """
+ADDED = {
+    "fallen": "INTEGER",  # summary.json: 1 fell, 0 did not; NULL: no summary
+    "fall_cause": "TEXT",
+    "faults": "TEXT",  # JSON: each fault as described, with the window it acted in
+    "operator_actions": "TEXT",  # JSON: summary.json's operator_actions, as recorded
+}
+"""Columns taken from the run's summary.json at its end; a file made before them gains them, empty."""
 COLUMNS = (
     "id",
     "folder",
@@ -49,6 +62,7 @@ COLUMNS = (
     "started",
     "ended",
     "files",
+    *ADDED,
 )
 PLAIN_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]{0,127}")
 """A file name a console may ask for: no separator, no leading dot (so neither '..' nor hidden files)."""
@@ -87,6 +101,10 @@ class History:
         self._lock = threading.Lock()
         with self._lock:
             self._db.execute(SCHEMA)
+            present = {row[1] for row in self._db.execute("PRAGMA table_info(runs)")}
+            for column, kind in ADDED.items():
+                if column not in present:
+                    self._db.execute(f"ALTER TABLE runs ADD COLUMN {column} {kind}")
             running = self._db.execute("SELECT id, pid FROM runs WHERE verdict = 'RUNNING'").fetchall()
             for run_id, pid in running:
                 if pid == os.getpid() or not alive(pid):
@@ -110,16 +128,19 @@ class History:
     def end(
         self, run_id: int, verdict: str, first_cause: str | None = None, error: str | None = None
     ) -> None:
-        """The run's end: its verdict, the supervisor's first cause, and the files its folder holds now."""
+        """The run's end: its verdict, the supervisor's first cause, the files its folder holds now, and
+        what its summary.json says of a fall, the faults and the operators' actions."""
         with self._lock:
             row = self._db.execute("SELECT folder FROM runs WHERE id = ?", (run_id,)).fetchone()
             if row is None:
                 return
             folder = self.folder / row[0]
             files = sorted(p.name for p in folder.iterdir() if p.is_file()) if folder.is_dir() else []
+            recorded = _from_summary(folder / "summary.json")
             self._db.execute(
-                "UPDATE runs SET verdict = ?, first_cause = ?, error = ?, ended = ?, files = ? WHERE id = ?",
-                (verdict, first_cause, error, time.time(), "/".join(files), run_id),
+                "UPDATE runs SET verdict = ?, first_cause = ?, error = ?, ended = ?, files = ?, fallen = ?, "
+                "fall_cause = ?, faults = ?, operator_actions = ? WHERE id = ?",
+                (verdict, first_cause, error, time.time(), "/".join(files), *recorded, run_id),
             )
 
     def runs(self, limit: int = 50, before: int | None = None) -> list[dict]:
@@ -169,4 +190,52 @@ class History:
     def _record(row: tuple) -> dict:
         record = dict(zip(COLUMNS, row, strict=True))
         record["files"] = [f for f in record["files"].split("/") if f]
+        for stamp in ("started", "ended"):
+            record[stamp] = iso(record[stamp])
+        record["fallen"] = None if record["fallen"] is None else bool(record["fallen"])
+        for listed in ("faults", "operator_actions"):
+            record[listed] = None if record[listed] is None else json.loads(record[listed])
         return record
+
+
+def iso(stamp: float | None) -> str | None:
+    """A wall-clock stamp as ISO 8601 with the machine's UTC offset, to the second."""
+    if stamp is None:
+        return None
+    return datetime.fromtimestamp(stamp).astimezone().isoformat(timespec="seconds")
+
+
+def _from_summary(path: Path) -> tuple[int | None, str | None, str | None, str | None]:
+    """(fallen, fall_cause, faults, operator_actions) of a run's summary.json for its row (NULL where the
+    run wrote none, or did not record that): the faults as described, each with the window it acted in;
+    the operators' actions as the summary records them."""
+    try:
+        summary = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None, None, None, None
+    if not isinstance(summary, dict):
+        return None, None, None, None
+    fallen = summary.get("fallen")
+    faults = summary.get("faults")
+    actions = summary.get("operator_actions")
+    return (
+        None if not isinstance(fallen, bool) else int(fallen),
+        summary.get("fall_cause") if isinstance(summary.get("fall_cause"), str) else None,
+        None if not isinstance(faults, list) else json.dumps([_fault(f) for f in faults]),
+        None if not isinstance(actions, list) else json.dumps(actions),
+    )
+
+
+def _fault(entry: object) -> str:
+    """'sensor.stuck imu.pitch ... acted 1.0-3.0 s' (or 'never acted') from a summary's fault entry."""
+    if not isinstance(entry, dict) or not isinstance(entry.get("fault"), dict):
+        return str(entry)
+    fault = entry["fault"]
+    try:
+        described = parse_fault(fault, "summary.json faults").describe()
+    except ValueError:  # a fault of another version's catalog: its kind at least
+        described = str(fault.get("kind", "?"))
+    acted = entry.get("acted")
+    if isinstance(acted, list) and len(acted) == 2:
+        return f"{described}, acted {acted[0]:g}-{acted[1]:g} s"
+    return f"{described}, never acted"

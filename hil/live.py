@@ -6,10 +6,11 @@ it is attached to, so nothing is copied per tick and nothing is locked: the tick
 sample costs the plant's truth, a look at the rig's counters and one JSON put. The put is at low priority
 with congestion control DROP: a slow or absent console loses samples, the run never waits for it.
 
-A sample (JSON): scenario, run id, simulated time; speed, chassis tilt and torso lean (pitch plane) and the
-controller's command speed; the supervisor's state, cap, last cause and new events; the drives' permission,
-power and the main contactor; the controller's heartbeats (rate in simulated time, state); the run's
-overruns, missed commands and wall-clock speed; the faults in force.
+A sample (JSON): scenario, run id, simulated time; speed (forward, signed), chassis tilt and torso lean
+(pitch plane, signed) and the controller's command speed (forward), as plots.png draws them; the SC's
+command cap (in limit mode) and the supervisor's state, cap, last cause and new events; the drives'
+permission, power and the main contactor; the controller's heartbeats (rate in simulated time, state); the
+run's overruns, missed commands and wall-clock speed; the faults in force.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import zenoh
 
 from drivers.can_codec import MessageName
 from drivers.keys import Keys
-from drivers.schemas import ControllerTelemetry, PayloadError, SafetyState, decode
+from drivers.schemas import ControllerTelemetry, PayloadError, SafetyState, ScCommand, decode
 from hil.faults import FaultSet
 from hil.run.build import RunStatus
 from safety.machine import State
@@ -55,6 +56,7 @@ class LiveStream:
         # subscriptions are left alone (its loop drains them).
         self._telemetry = session.declare_subscriber(keys.controller_telemetry, zenoh.handlers.RingChannel(1))
         self._safety = session.declare_subscriber(keys.safety_state, zenoh.handlers.RingChannel(1))
+        self._sc = session.declare_subscriber(keys.sc_command, zenoh.handlers.RingChannel(1))
         self._next = 0.0
         self.begin("", None, 0)
 
@@ -69,6 +71,7 @@ class LiveStream:
         self._events_seen = 0
         self._command = math.nan
         self._safety_state: SafetyState | None = None
+        self._sc_command: ScCommand | None = None
         self.status: RunStatus | None = None
         """The run's latest RunStatus (the loop's progress report, every 0.5 s): overruns, speed factor."""
 
@@ -90,19 +93,25 @@ class LiveStream:
         rig = faults.rig if faults is not None else None
         telemetry = _newest(self._telemetry, ControllerTelemetry)
         if telemetry is not None:
-            self._command = math.hypot(*telemetry.command_speed)
+            self._command = telemetry.command_speed[0]
         state = _newest(self._safety, SafetyState)
         if state is not None:
             self._safety_state = state
+        sc = _newest(self._sc, ScCommand)
+        if sc is not None:
+            self._sc_command = sc
+        sc = self._sc_command
         drives = plant.drives
         sample = {
             "run": self._run_id,
             "scenario": self._scenario,
             "t": round(tr.t, 4),
-            "speed": round(math.hypot(*tr.velocity), 4),
+            "speed": round(tr.velocity[0], 4),
             "tilt_deg": round(math.degrees(tr.tilt[0]), 3),
             "lean_deg": round(math.degrees(tr.lean[0]), 3),
             "command_speed": None if math.isnan(self._command) else round(self._command, 4),
+            "sc_mode": None if sc is None else sc.mode,
+            "sc_cap": sc.speed_cap if sc is not None and sc.mode == "limit" else None,
             "powered": tr.powered,
             "resting": tr.resting,
             "fall_cause": tr.fallen,
@@ -163,5 +172,5 @@ class LiveStream:
             self._events_seen = len(events)
 
     def close(self) -> None:
-        for declared in (self._telemetry, self._safety, self._publisher):
+        for declared in (self._telemetry, self._safety, self._sc, self._publisher):
             declared.undeclare()

@@ -24,9 +24,11 @@ Every run is written to the output folder's history (hil/history.py) as it begin
 from __future__ import annotations
 
 import json
+import os
 import threading
 import time
 from contextlib import ExitStack
+from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -37,7 +39,7 @@ from drivers.config import ConfigError, decode_toml
 from drivers.keys import Keys
 from drivers.resources import shipped
 from hil.bench.bench import Bench, load_bench
-from hil.bench.rigs import announce
+from hil.bench.rigs import RigCard, announce
 from hil.faults import FaultSet, parse_fault
 from hil.history import History, NotServed
 from hil.live import LiveStream
@@ -104,11 +106,13 @@ class RigService:
         self._announced = ExitStack()
         if self.bench.zenoh.mode == "loopback":  # operators' clients find it (hil/bench/rigs.py)
             self.endpoint = self.bench.zenoh.hub_endpoint()
-            self._announced.enter_context(
+            self.card = self._announced.enter_context(
                 announce(session, self.keys.prefix, self.bench.name, self.endpoint, "serve")
             )
         else:
             self.endpoint = self.bench.zenoh.endpoint or "the bench router"
+            self.card = RigCard(self.bench.name, self.endpoint, os.getpid(), "serve", time.time())
+        """Who answers: a console pins itself to this card's id (docs/rig.md, "The console")."""
 
     # ---------------------------------------------------------------------------------- queryables
     def _reply(self, query: zenoh.Query, body: dict) -> None:
@@ -135,6 +139,7 @@ class RigService:
             "run": self.run_id,
             "bench": {**describe(self.bench), "description": self.bench.description},
             "scenarios": list(self.scenarios),
+            "card": asdict(self.card),
         }
 
     def _fault_status(self) -> list[dict]:

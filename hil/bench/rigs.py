@@ -13,11 +13,12 @@ from __future__ import annotations
 
 import json
 import os
+import secrets
 import tempfile
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import zenoh
@@ -44,6 +45,8 @@ class RigCard:
     """'serve', 'run SCENARIO', 'supervisor'."""
     started: float
     """Wall clock, s."""
+    id: str = field(default_factory=lambda: secrets.token_hex(6))
+    """This rig process's own: a restarted rig may get its pid back, never its id (a console pins to it)."""
 
     def describe(self) -> str:
         return f"{self.runs} on bench {self.bench}, pid {self.pid}, at {self.endpoint}"

@@ -12,7 +12,15 @@ ACTIONS: dict[str, frozenset[str]] = {
 """Role -> the actions its console offers; every other role (monitor, ...) only watches."""
 
 EVERY_ACTION = ("start", "stop", "estop", "reset", "inject", "clear")
+PERSON_ROLES = ("operator", "fault-injector", "monitor")
+"""The bench's roles a person logged in to a console may have (hil/console/accounts.py)."""
 
 
 def allowed(role: str) -> frozenset[str]:
     return ACTIONS.get(role, frozenset())
+
+
+def allowed_to(person_role: str, console_role: str) -> frozenset[str]:
+    """What a person may do on a console: their role's actions, never more than the console's own role
+    (its certificate: on the secured bench the router would refuse the rest anyway)."""
+    return allowed(person_role) & allowed(console_role)

@@ -2,19 +2,23 @@
 data, and the run files of the history, with the standard library's ThreadingHTTPServer.
 
     GET  /                       the page (and /static/NAME: its script and style)
-    GET  /api/info               role, the actions it allows, the rig's card, the fault catalog
+    GET  /api/info               who is logged in, their role and the actions it allows, the rig the console
+                                 is pinned to, the fault catalog
     GET  /api/status             the service's last status
     GET  /api/history?limit=N&before=RUN
     GET  /api/events             Server-Sent Events: status (1 Hz), live (20 Hz while a run goes), safety,
-                                 history (a run began or ended)
+                                 latch (the e-stop latch and the supervisor's last word), history
     GET  /runs/RUN/NAME          a file of a past run's folder (which ones: hil/history.py)
     POST /api/start {"scenario": NAME} | /api/stop | /api/estop {"cut_power": bool} | /api/reset
          /api/inject {"kind": ..., ...} | /api/clear {"number": N or null}
+    POST /api/login {"name": ..., "password": ...} | /api/logout      (a console with accounts)
 
 Every answer but the page, its files and the run files is JSON; a bad request is a 4xx with {"ok": false,
 "error": ...}, never a traceback. Requests must name this server in Host (a DNS-rebinding page cannot reach
 it) and POSTs must be JSON (a foreign page's form cannot post one without the browser asking first, and the
 console never answers that question), so a page elsewhere in the operator's browser cannot press its buttons.
+A console with accounts (hil/console/accounts.py) serves nothing but the page to a person not logged in, and
+every action is written to its audit log with who asked, from where, and the answer.
 """
 
 from __future__ import annotations
@@ -25,14 +29,19 @@ import logging
 import socket
 import ssl
 import threading
+import time
+from collections.abc import Callable
+from datetime import datetime
 from http import HTTPStatus
+from http.cookies import CookieError, SimpleCookie
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from urllib.parse import parse_qs, unquote, urlsplit
 
+from hil.console.accounts import COOKIE, Account, LoginRefused, Person, Sessions
 from hil.console.events import Broadcast
 from hil.console.rig_link import Refused, RigLink
-from hil.console.roles import EVERY_ACTION, allowed
+from hil.console.roles import EVERY_ACTION, allowed_to
 
 log = logging.getLogger(__name__)
 
@@ -89,13 +98,25 @@ def tls_context(cert: str | None, key: str | None) -> ssl.SSLContext | None:
     return context
 
 
-def check_exposure(listen: tuple[str, int], tls: ssl.SSLContext | None) -> None:
-    """Off loopback the page (and the role's actions) would cross a network in the clear: refused."""
+def check_exposure(listen: tuple[str, int], tls: ssl.SSLContext | None, accounts: bool) -> None:
+    """Off loopback the page would cross a network in the clear, or act for whoever reaches it: refused
+    without TLS and without accounts."""
     host, port = listen
-    if not is_loopback(host) and tls is None:
+    if is_loopback(host):
+        return
+    if tls is None:
         raise ListenError(
             f"--listen {host}:{port} is not loopback: give --tls-cert and --tls-key to expose the console"
         )
+    if not accounts:
+        raise ListenError(
+            f"--listen {host}:{port} is not loopback: give --accounts FILE (who may log in and their roles; "
+            "pure-hil accounts add) to expose the console"
+        )
+
+
+def audit_to_log(line: str) -> None:
+    log.info("%s", line)
 
 
 def _static() -> dict[str, tuple[bytes, str]]:
@@ -119,9 +140,13 @@ class Console(ThreadingHTTPServer):
         info: dict,
         listen: tuple[str, int] = ("127.0.0.1", 0),
         tls: ssl.SSLContext | None = None,
+        accounts: dict[str, Account] | None = None,
+        audit: Callable[[str], None] = audit_to_log,
     ):
-        """`info`: what /api/info adds (the rig's card, the bench, the fault catalog)."""
-        check_exposure(listen, tls)
+        """`info`: what /api/info adds (the bench, the fault catalog); `accounts`: who may log in (None: no
+        login, the page acts with the console's role; only on loopback); `audit`: where each action's line
+        goes."""
+        check_exposure(listen, tls, bool(accounts))
         host, port = listen
         self.address_family = socket.AF_INET6 if ":" in host else socket.AF_INET
         try:
@@ -130,8 +155,9 @@ class Console(ThreadingHTTPServer):
             raise ListenError(f"--listen {host}:{port}: {exc.strerror or exc}") from None
         self.link, self.tls = link, tls
         self.role = link.role
-        self.actions = allowed(link.role)
-        self.info = {"role": self.role, "actions": sorted(self.actions), **info}
+        self.info = info
+        self.sessions = Sessions(accounts) if accounts else None
+        self.audit = audit
         self.static = _static()
         self.pages = threading.BoundedSemaphore(MAX_PAGES)
         port = self.server_address[1]
@@ -185,11 +211,11 @@ class Handler(BaseHTTPRequestHandler):
         self.end_headers()
         self.wfile.write(body)
 
-    def _json(self, status: int, body: dict) -> None:
-        self._send(status, json.dumps(body).encode(), "application/json")
+    def _json(self, status: int, body: dict, extra: dict | None = None) -> None:
+        self._send(status, json.dumps(body).encode(), "application/json", extra)
 
-    def _error(self, status: int, message: str) -> None:
-        self._json(status, {"ok": False, "error": message})
+    def _error(self, status: int, message: str, **more) -> None:
+        self._json(status, {"ok": False, "error": message, **more})
 
     def _guarded(self, handle) -> None:
         try:
@@ -222,6 +248,39 @@ class Handler(BaseHTTPRequestHandler):
 
     do_HEAD = do_PUT = do_DELETE = do_PATCH = do_OPTIONS = _method_not_allowed
 
+    # ------------------------------------------------------------------------------------------- who
+    def _token(self) -> str | None:
+        try:
+            cookie = SimpleCookie(self.headers.get("Cookie", ""))
+        except CookieError:
+            return None
+        morsel = cookie.get(COOKIE)
+        return None if morsel is None else morsel.value
+
+    def _person(self) -> Person | None:
+        """Who asks: the person logged in, or the console's own role where it has no accounts (None: a
+        console with accounts, and nobody logged in)."""
+        sessions = self.server.sessions
+        if sessions is None:
+            return Person("", self.server.role)
+        return sessions.person(self._token(), time.monotonic())
+
+    def _logged_in(self) -> Person | None:
+        """The person asking, or None after answering 401 (the page then shows its login)."""
+        person = self._person()
+        if person is None:
+            self._error(HTTPStatus.UNAUTHORIZED, "log in first", login=True)
+        return person
+
+    def _audit(self, person: Person | None, action: str, status: int, detail: str) -> None:
+        who = "(not logged in)" if person is None else f"{person.name or '(no login)'} ({person.role})"
+        stamp = datetime.now().astimezone().isoformat(timespec="seconds")
+        line = (
+            f"console audit {stamp} {who} from {self.client_address[0]}: {action} -> {int(status)} {detail}"
+        )
+        # One line per action, whatever a name typed at the login holds: no forged second line.
+        self.server.audit("".join(c if c.isprintable() else repr(c)[1:-1] for c in line))
+
     # ------------------------------------------------------------------------------------------- GET
     def _get(self) -> None:
         url = urlsplit(self.path)
@@ -229,14 +288,19 @@ class Handler(BaseHTTPRequestHandler):
         if path in ("/", "/index.html"):
             body, kind = self.server.static["index.html"]
             self._send(HTTPStatus.OK, body, kind)
-        elif path.startswith("/static/"):
+            return
+        if path.startswith("/static/"):
             found = self.server.static.get(path.removeprefix("/static/"))
             if found is None:
                 self._error(HTTPStatus.NOT_FOUND, f"no static file {path}")
             else:
                 self._send(HTTPStatus.OK, *found)
-        elif path == "/api/info":
-            self._json(HTTPStatus.OK, {"ok": True, **self.server.info})
+            return
+        person = self._logged_in()
+        if person is None:
+            return
+        if path == "/api/info":
+            self._info(person)
         elif path == "/api/status":
             status = self.server.link.status
             if status is None:
@@ -253,6 +317,28 @@ class Handler(BaseHTTPRequestHandler):
             self._run_file(path)
         else:
             self._error(HTTPStatus.NOT_FOUND, f"nothing at {path}")
+
+    def _info(self, person: Person) -> None:
+        server = self.server
+        actions = allowed_to(person.role, server.role)
+        self._json(
+            HTTPStatus.OK,
+            {
+                "ok": True,
+                **server.info,
+                "role": person.role,
+                "person": person.name or None,
+                "console_role": server.role,
+                "login": server.sessions is not None,
+                "actions": sorted(actions),
+                "card": server.link.pinned,
+                "source": self._source(person),
+            },
+        )
+
+    def _source(self, person: Person) -> str:
+        """Who this person's e-stops and resets say they are from (the supervisor's `estop_by`)."""
+        return f"console {person.role} {person.name}" if person.name else self.server.link.source
 
     def _history(self, query: dict[str, list[str]]) -> None:
         numbers = {}
@@ -310,7 +396,8 @@ class Handler(BaseHTTPRequestHandler):
             seq, first = events.snapshot()
             self.wfile.write(b"retry: 1000\n\n" + b"".join(first))
             self.wfile.flush()
-            while not events.closed:
+            # A session that ends (logged out, expired) ends its stream at the next event or keepalive.
+            while not events.closed and self._person() is not None:
                 seq, newer = events.wait(seq, KEEPALIVE)
                 self.wfile.write(b"".join(newer) if newer else b": keepalive\n\n")
                 self.wfile.flush()
@@ -318,20 +405,17 @@ class Handler(BaseHTTPRequestHandler):
             pages.release()
 
     # ------------------------------------------------------------------------------------------ POST
-    def _post(self) -> None:
-        action = urlsplit(self.path).path.removeprefix("/api/")
-        if action not in EVERY_ACTION:
-            self._error(HTTPStatus.NOT_FOUND, f"no action {self.path}")
-            return
+    def _body(self, action: str) -> dict | None:
+        """The request's JSON object, or None after answering 4xx."""
         if self.headers.get_content_type() != "application/json":
             self._error(
                 HTTPStatus.UNSUPPORTED_MEDIA_TYPE, "POST a JSON body (Content-Type: application/json)"
             )
-            return
+            return None
         length = self.headers.get("Content-Length", "0")
         if not length.isdigit() or int(length) > MAX_BODY:
             self._error(HTTPStatus.BAD_REQUEST, f"Content-Length: expected at most {MAX_BODY} bytes")
-            return
+            return None
         raw = self.rfile.read(int(length))
         try:
             body = json.loads(raw) if raw.strip() else {}
@@ -339,24 +423,77 @@ class Handler(BaseHTTPRequestHandler):
                 raise ValueError("expected a JSON object")
         except ValueError as exc:
             self._error(HTTPStatus.BAD_REQUEST, f"/api/{action}: the body is not a JSON object ({exc})")
+            return None
+        return body
+
+    def _post(self) -> None:
+        action = urlsplit(self.path).path.removeprefix("/api/")
+        if action not in (*EVERY_ACTION, "login", "logout"):
+            self._error(HTTPStatus.NOT_FOUND, f"no action {self.path}")
             return
-        if action not in self.server.actions:
-            who = self.server.role
-            self._error(HTTPStatus.FORBIDDEN, f"role {who} may not {action} (docs/security.md: roles)")
+        body = self._body(action)
+        if body is None:
+            return
+        if action in ("login", "logout"):
+            self._session(action, body)
+            return
+        person = self._logged_in()
+        if person is None:
+            self._audit(None, action, HTTPStatus.UNAUTHORIZED, "refused: not logged in")
+            return
+        if action not in allowed_to(person.role, self.server.role):
+            message = f"role {person.role} may not {action} (docs/security.md: roles)"
+            if person.role != self.server.role:
+                message += f" on a console whose own role is {self.server.role}"
+            self._error(HTTPStatus.FORBIDDEN, message)
+            self._audit(person, action, HTTPStatus.FORBIDDEN, "refused: not the role's")
             return
         try:
-            reply = self._act(action, body)
+            reply = self._act(action, body, person)
         except Refused as exc:
             self._error(exc.status, str(exc))
+            self._audit(person, action, exc.status, f"refused: {exc}")
             return
         if reply.get("ok"):
-            self._json(HTTPStatus.OK, reply)
+            status = HTTPStatus.OK
         elif "no answer" in reply.get("error", ""):
-            self._json(HTTPStatus.BAD_GATEWAY, reply)
+            status = HTTPStatus.BAD_GATEWAY
         else:
-            self._json(HTTPStatus.CONFLICT, reply)  # the service or the supervisor said no
+            status = HTTPStatus.CONFLICT  # the service or the supervisor said no
+        self._json(status, reply)
+        said = reply.get("message") or reply.get("error") or _done(reply)
+        self._audit(person, action, status, said)
 
-    def _act(self, action: str, body: dict) -> dict:
+    def _session(self, action: str, body: dict) -> None:
+        sessions = self.server.sessions
+        if sessions is None:
+            self._error(HTTPStatus.NOT_FOUND, "this console has no accounts: nobody logs in")
+            return
+        secure = "; Secure" if self.server.tls is not None else ""
+        if action == "logout":
+            person = sessions.logout(self._token())
+            forget = f"{COOKIE}=; Path=/; Max-Age=0; HttpOnly; SameSite=Strict{secure}"
+            self._json(HTTPStatus.OK, {"ok": True}, {"Set-Cookie": forget})
+            if person is not None:
+                self._audit(person, "logout", HTTPStatus.OK, "")
+            return
+        name, password = body.get("name"), body.get("password")
+        if not isinstance(name, str) or not isinstance(password, str):
+            self._error(HTTPStatus.BAD_REQUEST, '/api/login: expected {"name": NAME, "password": PASSWORD}')
+            return
+        try:
+            token, person = sessions.login(name, password, self.client_address[0], time.monotonic())
+        except LoginRefused as exc:
+            self._error(exc.status, str(exc))
+            self._audit(Person(name[:32], "?"), "login", exc.status, f"refused: {exc}")
+            return
+        cookie = f"{COOKIE}={token}; Path=/; HttpOnly; SameSite=Strict{secure}"
+        self._json(
+            HTTPStatus.OK, {"ok": True, "person": person.name, "role": person.role}, {"Set-Cookie": cookie}
+        )
+        self._audit(person, "login", HTTPStatus.OK, "")
+
+    def _act(self, action: str, body: dict, person: Person) -> dict:
         link = self.server.link
         if action == "start":
             scenario = body.get("scenario")
@@ -369,15 +506,24 @@ class Handler(BaseHTTPRequestHandler):
             cut = body.get("cut_power", False)
             if not isinstance(cut, bool):
                 raise Refused(HTTPStatus.BAD_REQUEST, '/api/estop: "cut_power" is true or false')
-            return link.estop("cut_power" if cut else "estop")
+            return link.estop("cut_power" if cut else "estop", self._source(person))
         if action == "reset":
-            return link.estop("reset")
+            return link.estop("reset", self._source(person))
         if action == "inject":
             return link.inject(body)
         number = body.get("number")
         if number is not None and (type(number) is not int or number < 0):
             raise Refused(HTTPStatus.BAD_REQUEST, '/api/clear: "number" is a fault number >= 0 or null')
         return link.clear(number)
+
+
+def _done(reply: dict) -> str:
+    """An action's answer in a few words, for the audit log."""
+    if "state" in reply:
+        state = reply["state"] or {}
+        return f"supervisor {state.get('state')} ({state.get('reason')}), estop_by {state.get('estop_by')!r}"
+    shown = {k: reply[k] for k in ("scenario", "run", "stopping", "fault", "cleared") if k in reply}
+    return json.dumps(shown)
 
 
 def serve(link: RigLink, info: dict, listen: tuple[str, int], tls: ssl.SSLContext | None) -> Console:
