@@ -10,6 +10,7 @@ clock, no I/O: the caller owns time by calling `step()`.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import mujoco
 import numpy as np
@@ -31,7 +32,6 @@ from plant.model3d import (
     build_model,
 )
 from plant.params import RiderParams, RobotParams, SimParams
-from plant.sensors import Record
 
 SLIP_SPEED = 0.01
 """m/s of the ball's contact point over the floor beyond which a tick counts as slipping."""
@@ -40,7 +40,7 @@ Pair = tuple[float, float]
 Triple = tuple[float, float, float]
 
 
-class Motion(Record):
+class Motion(NamedTuple):
     """What a tick's outputs read of MuJoCo's state, read once per tick (pairs are (pitch, roll) or
     (forward, left) in the heading frame)."""
 
@@ -62,42 +62,9 @@ class Motion(Record):
     slip: float
     """Speed of the ball's contact point over the floor, m/s."""
 
-    def __init__(
-        self,
-        attitude: Triple,
-        tilt_rate: Pair,
-        yaw_rate: float,
-        velocity: Pair,
-        ball_rate: Pair,
-        position: Pair,
-        gyro: Triple,
-        accel: Triple,
-        lean: Pair,
-        lean_rate: Pair,
-        slip: float,
-    ) -> None:
-        self.attitude, self.tilt_rate, self.yaw_rate = attitude, tilt_rate, yaw_rate
-        self.velocity, self.ball_rate, self.position = velocity, ball_rate, position
-        self.gyro, self.accel, self.lean, self.lean_rate, self.slip = gyro, accel, lean, lean_rate, slip
-
     @property
     def tilt(self) -> Pair:
         return self.attitude[1], self.attitude[0]
-
-    def _values(self) -> tuple[object, ...]:
-        return (
-            self.attitude,
-            self.tilt_rate,
-            self.yaw_rate,
-            self.velocity,
-            self.ball_rate,
-            self.position,
-            self.gyro,
-            self.accel,
-            self.lean,
-            self.lean_rate,
-            self.slip,
-        )
 
 
 def euler_zyx(q: tuple[float, float, float, float]) -> tuple[float, float, float]:

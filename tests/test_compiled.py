@@ -33,6 +33,7 @@ COMPILED_SUITE = (
     "tests/test_controller_units.py",  # controller/estimator.py, controller/balance.py, controller/core.py
     "tests/test_controller_closed_loop.py",
     "tests/test_plant_dynamics.py",  # plant/plane.py
+    "tests/test_plant3d.py",  # plant/ballbot3d.py (Python) on the compiled PlantCore, drives, sensors
     "tests/test_sensors.py",  # plant/sensors.py
     "tests/test_omniwheel.py",  # plant/omniwheel.py
     "tests/test_rider.py",
