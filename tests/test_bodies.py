@@ -1,14 +1,21 @@
-"""The robot and its rider in 3-D (hil/outputs/bodies.py): each body's shapes placed by its pose land where
-MuJoCo puts the model's geoms (the 3-D plant in random configurations, its welded bodies folded onto the
-chassis, the planar plant upright), and the pose log streams."""
+"""The robot and its rider in 3-D (hil/outputs/bodies.py, foxglove.py): each body's shapes placed by its pose
+land where MuJoCo puts the model's geoms (the 3-D plant in random configurations, its welded bodies folded
+onto the chassis, the planar plant upright); the pose log streams; and a run's run.mcap (read back with the
+`mcap` package's reader) holds every body's pose at 100 Hz equal to the plant's and to trace.npy's truth,
+with the shapes once, while trace.npy and the CAN frames stay as they are without them."""
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
+import can
+import msgspec
 import mujoco
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
 from hil.outputs.bodies import (
     POSE_VALUES,
@@ -20,10 +27,16 @@ from hil.outputs.bodies import (
     plant_bodies,
     rotate,
 )
+from hil.outputs.foxglove import FrameTransforms
+from hil.pipeline import run
+from hil.run.build import RunOptions
+from hil.run.scenario import Intent, Scenario
 from plant.ballbot import Plant
-from plant.ballbot3d import Plant3D
+from plant.ballbot3d import Plant3D, euler_zyx
 from plant.model3d import build_model
+from plant.rider import Ramp
 from tests.helpers import RIDER_75, robot, sim
+from tests.test_mcap import bench
 
 BODY_NAMES = ["ball", "chassis", "thigh_left", "shank_left", "thigh_right", "shank_right", "torso"]
 
@@ -162,6 +175,22 @@ def test_the_pose_log_gives_back_every_row_and_leaves_no_file(tmp_path, streamed
     assert PoseLog(bodies, tmp_path).close().values.shape == (0, len(bodies), POSE_VALUES)
 
 
+def test_a_frame_transform_is_the_pose_in_foxgloves_fields():
+    plant = Plant3D(robot(), None, sim(plant="3d"))
+    bodies = plant_bodies(plant)
+    row = [0.1, -0.2, 0.3, 0.5, 0.5, -0.5, 0.5, 1e-17, 2.0, float("nan"), 1.0, 0.0, 0.0, 0.0]
+    messages = [json.loads(m) for m in FrameTransforms(bodies).encode(12_345_678_901, row)]
+    assert messages[0] == {
+        "timestamp": {"sec": 12, "nsec": 345_678_901},
+        "parent_frame_id": "world",
+        "child_frame_id": "ball",
+        "translation": {"x": 0.1, "y": -0.2, "z": 0.3},
+        "rotation": {"x": 0.5, "y": -0.5, "z": 0.5, "w": 0.5},
+    }
+    assert messages[1]["translation"] == {"x": 1e-17, "y": 2.0, "z": None}  # NaN: JSON's null
+    assert messages[1]["child_frame_id"] == "chassis" and messages[1]["rotation"]["w"] == 1.0
+
+
 def test_flatten_orders_each_pose_position_first():
     poses = {"b": ((4.0, 5.0, 6.0), (0.0, 1.0, 0.0, 0.0)), "a": ((1.0, 2.0, 3.0), (1.0, 0.0, 0.0, 0.0))}
     assert flatten(poses, ["a", "b"]) == [
@@ -180,3 +209,145 @@ def test_flatten_orders_each_pose_position_first():
         0.0,
         0.0,
     ]
+
+
+# ------------------------------------------------------------------------------------ a run, end to end
+TICKS = 241  # not a multiple of the pose interval: the last tick's poses are taken as well
+SCENARIO = Scenario(
+    name="bodies",
+    rider="configs/riders/s16_mwcu_52kg_167.toml",
+    law="ihacs",
+    duration=TICKS / 400,
+    seed=4,
+    intent=Intent(pitch=[Ramp(to=12.0, duration=0.4)], roll=[Ramp(to=-6.0, duration=0.4)]),
+)
+
+
+@pytest.fixture(scope="module")
+def ride(tmp_path_factory) -> tuple[Path, dict[int, dict]]:
+    """A run with every output, and the plant's own poses after every tick."""
+    out = tmp_path_factory.mktemp("ride")
+    seen: dict[int, dict] = {}
+    options = RunOptions(on_tick=lambda plant: seen.update({plant.tick: plant.poses()}))
+    result = run(SCENARIO, bench(recording=True), out=out, options=options)
+    assert result.trace.failure is None and result.trace.stats.ticks == TICKS
+    assert json.loads((out / "summary.json").read_text())["outputs_failed"] == {}
+    return out, seen
+
+
+def read(path: Path, topic: str) -> list[tuple[int, dict]]:
+    with open(path, "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        return [(m.log_time, json.loads(m.data)) for _, _, m in reader.iter_messages(topics=[topic])]
+
+
+def pose_ticks() -> list[int]:
+    return [*range(4, TICKS, 4), TICKS]
+
+
+def as_pose(message: dict) -> tuple[tuple, tuple]:
+    p, r = message["translation"], message["rotation"]
+    return (p["x"], p["y"], p["z"]), (r["w"], r["x"], r["y"], r["z"])
+
+
+def test_run_mcap_has_each_bodys_pose_at_100_hz_equal_to_the_plants(ride):
+    out, seen = ride
+    with open(out / "run.mcap", "rb") as f:
+        summary = make_reader(f).get_summary()
+    channels = {c.topic: summary.schemas[c.schema_id] for c in summary.channels.values()}
+    for name in BODY_NAMES:
+        assert (channels[f"/pose/{name}"].name, channels[f"/pose/{name}"].encoding) == (
+            "foxglove.FrameTransform",
+            "jsonschema",
+        )
+        got = read(out / "run.mcap", f"/pose/{name}")
+        # At t = 0 (before the first tick), every 4th tick (100 Hz), and the last tick.
+        assert [t for t, _ in got] == [0] + [k * 2_500_000 for k in pose_ticks()]
+        for t, m in got:
+            assert m["parent_frame_id"] == "world" and m["child_frame_id"] == name
+            assert m["timestamp"]["sec"] * 1_000_000_000 + m["timestamp"]["nsec"] == t
+        assert [as_pose(m) for _, m in got[1:]] == [seen[k][name] for k in pose_ticks()]
+        assert [as_pose(m) for _, m in got[1:]] != [seen[k - 1][name] for k in pose_ticks()]  # control
+    # Against the truth trace.npy keeps: the ball's centre is the position, the chassis' orientation the tilt.
+    rows = np.load(out / "trace.npy")
+    ball, chassis = read(out / "run.mcap", "/pose/ball")[1:], read(out / "run.mcap", "/pose/chassis")[1:]
+    for k, (_, b), (_, c) in zip(pose_ticks(), ball, chassis, strict=True):
+        row = rows[k - 1]
+        assert abs(row[0] - k / 400) < 1e-12
+        assert (b["translation"]["x"], b["translation"]["y"]) == (row[7], row[8])
+        roll, pitch, _ = euler_zyx(as_pose(c)[1])
+        assert abs(pitch - row[3]) < 1e-9 and abs(roll - row[4]) < 1e-9
+    assert rows[-1, 3] > 0.01 and abs(rows[-1, 5]) > 0.01, "the robot tilted and the rider leaned"
+
+
+def schema_mismatch(value, schema: dict, where: str = "") -> str | None:
+    """Where a message differs from its JSON Schema: an object with a field the schema has not, or without
+    one it has; a value of another type (None: nowhere)."""
+    kind = schema.get("type")
+    if kind == "object":
+        if not isinstance(value, dict) or set(value) != set(schema["properties"]):
+            return f"{where}: {sorted(value) if isinstance(value, dict) else value}"
+        for key, sub in schema["properties"].items():
+            if (wrong := schema_mismatch(value[key], sub, f"{where}.{key}")) is not None:
+                return wrong
+        return None
+    if kind == "array":
+        for i, item in enumerate(value):
+            if schema["items"].get("properties") and (
+                wrong := schema_mismatch(item, schema["items"], f"{where}[{i}]")
+            ):
+                return wrong
+        return None if isinstance(value, list) else where
+    types = {"number": (int, float), "integer": int, "string": str, "boolean": bool}[kind]
+    return None if isinstance(value, types) and (kind == "boolean" or not isinstance(value, bool)) else where
+
+
+def test_the_scene_draws_each_body_in_its_frame_once(ride):
+    out, _ = ride
+    with open(out / "run.mcap", "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        schemas = {c.topic: summary.schemas[c.schema_id] for c in summary.channels.values()}
+    scene = read(out / "run.mcap", "/scene")
+    assert [t for t, _ in scene] == [0] and schemas["/scene"].name == "foxglove.SceneUpdate"
+    update = scene[0][1]
+    assert schema_mismatch(update, json.loads(schemas["/scene"].data)) is None
+    pose = read(out / "run.mcap", "/pose/torso")[0][1]
+    assert schema_mismatch(pose, json.loads(schemas["/pose/torso"].data)) is None
+    assert schema_mismatch({**pose, "extra": 1}, json.loads(schemas["/pose/torso"].data)) is not None
+    entities = {e["id"]: e for e in update["entities"]}
+    assert list(entities) == BODY_NAMES
+    counts = {n: (len(e["spheres"]), len(e["cylinders"]), len(e["cubes"])) for n, e in entities.items()}
+    # A capsule is a cylinder with a sphere at each end; the shank has its foot too.
+    assert counts == {
+        "ball": (1, 0, 0),
+        "chassis": (0, 2, 0),
+        "thigh_left": (2, 1, 0),
+        "shank_left": (4, 2, 0),
+        "thigh_right": (2, 1, 0),
+        "shank_right": (4, 2, 0),
+        "torso": (2, 1, 0),
+    }
+    for name, e in entities.items():
+        assert (e["frame_id"], e["frame_locked"], e["lifetime"]) == (name, True, {"sec": 0, "nsec": 0})
+    ball = entities["ball"]["spheres"][0]
+    plant = Plant3D(robot(), None, sim(plant="3d"))
+    radius = plant.robot.ball.radius
+    assert ball["size"] == {"x": 2 * radius, "y": 2 * radius, "z": 2 * radius}
+
+
+def test_the_trace_and_the_frames_are_the_same_without_the_bodies(ride, tmp_path):
+    """The poses are an addition: a run that takes none (no recording, no run.mcap) writes the same
+    trace.npy byte for byte and the same frames in the same order (can.log's wall-clock stamps aside)."""
+    out, _ = ride
+    run(SCENARIO, bench(recording=False, mcap=False), out=tmp_path)
+    assert not (tmp_path / "run.mcap").exists()
+    assert (tmp_path / "trace.npy").read_bytes() == (out / "trace.npy").read_bytes()
+
+    def frames(path: Path) -> list[tuple[int, bytes]]:
+        return [(m.arbitration_id, bytes(m.data)) for m in can.LogReader(str(path))]
+
+    assert frames(tmp_path / "can.log") == frames(out / "can.log")
+    other = msgspec.structs.replace(SCENARIO, seed=5)  # positive control: what changes the trace is seen
+    run(other, bench(recording=False, mcap=False), out=tmp_path / "other")
+    assert (tmp_path / "other" / "trace.npy").read_bytes() != (out / "trace.npy").read_bytes()

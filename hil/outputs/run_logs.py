@@ -1,6 +1,7 @@
 """The logs a run streams as it goes, can.log (python-can's candump writer) and run.mcap (mcap_log.py), behind
 one object the run feeds: every frame the CAN log's recorder takes (a python-can `Listener`), every zenoh
-input the controller was sent (`zenoh`), every tick's trace row (`trace`), then `stop()`.
+input the controller was sent (`zenoh`), every tick's trace row (`trace`), the bodies and their poses for
+run.mcap's 3-D view (`bodies` once, then `poses`; `takes_poses`: only with run.mcap), then `stop()`.
 
 They are written in a process of their own (`LogProcess`), not on the tick's thread: together they cost
 about a fifth of a compiled lockstep tick (docs/performance.md), and in their own process they cost the tick
@@ -41,12 +42,14 @@ import can
 
 from drivers.keys import Keys
 from drivers.shared_bus import MESSAGE_FIELDS
+from hil.outputs.bodies import Body
 from hil.outputs.mcap_log import McapLog
 
 log = logging.getLogger(__name__)
 
-FRAME, ZENOH, TRACE = 0, 1, 2
-"""What a call handed over is: a frame the recorder took (at simulated time t), a zenoh input, a trace row."""
+FRAME, ZENOH, TRACE, BODIES, POSES = 0, 1, 2, 3, 4
+"""What a call handed over is: a frame the recorder took (at simulated time t), a zenoh input, a trace row,
+the bodies the poses name, a row of poses."""
 BATCH_TICKS = 16
 """Ticks handed over in one write to the pipe (a write and the process's wake-up per tick cost more than
 the pickling)."""
@@ -82,6 +85,8 @@ class LocalLogs(can.Listener):
         """An output that stopped, and why (run.mcap's errors are in its file too: its check reads them)."""
         self._mcap: McapLog | None = None
         self._writer: can.Listener | None = None
+        self.takes_poses = mcap is not None
+        """run.mcap is written: it wants the bodies and their poses."""
         if mcap is not None:
             try:
                 self._mcap = mcap.open()
@@ -110,6 +115,14 @@ class LocalLogs(can.Listener):
     def trace(self, row: tuple[float, ...]) -> None:
         if self._mcap is not None:
             self._mcap.trace(row)
+
+    def bodies(self, bodies: tuple[Body, ...]) -> None:
+        if self._mcap is not None:
+            self._mcap.bodies(bodies)
+
+    def poses(self, t: float, row: list[float]) -> None:
+        if self._mcap is not None:
+            self._mcap.poses(t, row)
 
     def stop(self) -> None:
         writer, mcap, self._writer, self._mcap = self._writer, self._mcap, None, None
@@ -140,6 +153,7 @@ class LogProcess(can.Listener):
         self.cpu_s = 0.0
         """The writer process's CPU time, s (after stop())."""
         self._names = [name for name, on in ((CAN_LOG, can_log), (MCAP, mcap)) if on is not None]
+        self.takes_poses = mcap is not None
         self._calls: list[tuple[Any, ...]] = []
         self._ticks = 0
         self._broken: str | None = None
@@ -173,6 +187,12 @@ class LogProcess(can.Listener):
         self._ticks += 1
         if self._ticks % BATCH_TICKS == 0:
             self._hand_over()
+
+    def bodies(self, bodies: tuple[Body, ...]) -> None:
+        self._calls.append((BODIES, bodies))
+
+    def poses(self, t: float, row: list[float]) -> None:
+        self._calls.append((POSES, t, row))
 
     def stop(self) -> None:
         """Hand over what is left, wait for the files to be finished, and take the process's report."""
@@ -285,8 +305,12 @@ def _serve(calls: IO[bytes], report: IO[bytes]) -> None:
                 logs.on_message_received(_message(call[2]))
             elif kind == ZENOH:
                 logs.zenoh(call[1], call[2], call[3])
-            else:
+            elif kind == TRACE:
                 logs.trace(call[1])
+            elif kind == POSES:
+                logs.poses(call[1], call[2])
+            else:
+                logs.bodies(call[1])
     logs.stop()
     with contextlib.suppress(OSError):  # nobody may be waiting for it any more
         data = pickle.dumps({"failed": logs.failed, "cpu_s": time.process_time()})
