@@ -1,8 +1,9 @@
-"""The robot and its rider in 3-D (hil/outputs/bodies.py, foxglove.py): each body's shapes placed by its pose
-land where MuJoCo puts the model's geoms (the 3-D plant in random configurations, its welded bodies folded
-onto the chassis, the planar plant upright); the pose log streams; and a run's run.mcap (read back with the
-`mcap` package's reader) holds every body's pose at 100 Hz equal to the plant's and to trace.npy's truth,
-with the shapes once, while trace.npy and the CAN frames stay as they are without them."""
+"""The robot and its rider in 3-D (hil/outputs/bodies.py, foxglove.py, recording.py): each body's shapes
+placed by its pose land where MuJoCo puts the model's geoms (the 3-D plant in random configurations, its
+welded bodies folded onto the chassis, the planar plant upright); the pose log streams; and a run's run.mcap
+(read back with the `mcap` package's reader) and recording.rrd (rerun's own reader) hold every body's pose
+at 100 Hz equal to the plant's and to trace.npy's truth, with the shapes once, while trace.npy and the CAN
+frames stay as they are without them."""
 
 from __future__ import annotations
 
@@ -334,6 +335,35 @@ def test_the_scene_draws_each_body_in_its_frame_once(ride):
     plant = Plant3D(robot(), None, sim(plant="3d"))
     radius = plant.robot.ball.radius
     assert ball["size"] == {"x": 2 * radius, "y": 2 * radius, "z": 2 * radius}
+
+
+def test_the_recording_has_the_bodies_moving_on_the_simulated_timeline(ride):
+    import rerun.chunk
+
+    out, seen = ride
+    reader = rerun.chunk.RrdReader(str(out / "recording.rrd"))
+    chunks = list(reader.stream())
+    for name in BODY_NAMES:
+        moving = [c for c in chunks if c.entity_path == f"/bodies/{name}" and not c.is_static]
+        assert len(moving) == 1
+        batch = moving[0].to_record_batch()
+        times = batch.column("sim_time").cast("int64").to_pylist()
+        assert times == [0] + [k * 2_500_000 for k in pose_ticks()]
+        translation = np.array(batch.column("Transform3D:translation").to_pylist())[:, 0]
+        quaternion = np.array(batch.column("Transform3D:quaternion").to_pylist())[:, 0]
+        expected = [seen[k][name] for k in pose_ticks()]
+        assert np.allclose(translation[1:], [p for p, _ in expected], atol=1e-6)  # rerun keeps float32
+        assert np.allclose(quaternion[1:], [(x, y, z, w) for _, (w, x, y, z) in expected], atol=1e-6)
+    shapes = {c.entity_path: c for c in chunks if c.is_static and c.entity_path.startswith("/bodies/")}
+    assert set(shapes) == {
+        "/bodies/ball/ellipsoids",
+        "/bodies/chassis/cylinders",
+        *(f"/bodies/{limb}/capsules" for limb in BODY_NAMES[2:]),
+    }
+    ball = shapes["/bodies/ball/ellipsoids"].to_record_batch()
+    radius = Plant3D(robot(), None, sim(plant="3d")).robot.ball.radius
+    assert np.allclose(ball.column("Ellipsoids3D:half_sizes").to_pylist()[0], [[radius] * 3])
+    assert "/bodies:ViewCoordinates:xyz" in str(reader.store().schema())
 
 
 def test_the_trace_and_the_frames_are_the_same_without_the_bodies(ride, tmp_path):
