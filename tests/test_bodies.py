@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import mmap
 from pathlib import Path
 
 import can
@@ -21,6 +22,7 @@ from mcap.reader import make_reader
 from hil.outputs.bodies import (
     POSE_VALUES,
     PoseLog,
+    PoseTaker,
     every,
     flatten,
     model_bodies,
@@ -160,6 +162,13 @@ def test_the_pose_rate():
     assert [every(hz) for hz in (400.0, 1000.0, 100.0, 250.0, 50.0)] == [4, 10, 1, 3, 1]
 
 
+def in_a_map(a: np.ndarray) -> bool:
+    """`a` is a view of a memory-mapped file (its memory the file's pages, not the process's)."""
+    while isinstance(a, np.ndarray):
+        a = a.base
+    return isinstance(a, mmap.mmap)
+
+
 @pytest.mark.parametrize("streamed", [True, False])
 def test_the_pose_log_gives_back_every_row_and_leaves_no_file(tmp_path, streamed):
     plant = Plant3D(robot(), RIDER_75, sim(plant="3d"))
@@ -170,6 +179,7 @@ def test_the_pose_log_gives_back_every_row_and_leaves_no_file(tmp_path, streamed
         log.append(i * 0.01, row.tolist())
     poses = log.close()
     assert isinstance(poses.values, np.memmap) is streamed
+    assert all(in_a_map(a) is streamed for a in (poses.values, poses.t))  # streamed: views, no copy
     assert np.array_equal(poses.t, np.arange(2500) * 0.01)
     assert np.array_equal(poses.values, rows.reshape(2500, len(bodies), POSE_VALUES))
     assert list(tmp_path.iterdir()) == []  # streamed to a file with no name: nothing left behind
@@ -210,6 +220,28 @@ def test_flatten_orders_each_pose_position_first():
         0.0,
         0.0,
     ]
+
+
+def test_the_pose_taker_keeps_and_sends_the_same_poses_at_its_rate_and_the_last_tick(tmp_path):
+    planar = Plant(robot(), RIDER_75, sim(plant="planar"))
+    sent: list[tuple[float, list[float]]] = []
+    taker = PoseTaker(planar, True, tmp_path, lambda t, row: sent.append((t, row)))
+    assert taker.every == 4
+    expected = {}
+    taker.take(planar, 0)
+    expected[0] = planar.poses()
+    for n in range(1, 11):
+        planar.step()
+        if n % taker.every == 0:
+            taker.take(planar, n)
+            expected[n] = planar.poses()
+    expected[10] = planar.poses()
+    kept = taker.close(planar, 10)
+    assert [b.name for b in kept.bodies] == ["ball", "chassis", "torso"]
+    assert np.array_equal(kept.t, [n / 400 for n in expected]) and [t for t, _ in sent] == list(kept.t)
+    rows = [flatten(poses, ["ball", "chassis", "torso"]) for poses in expected.values()]
+    assert np.array_equal(kept.values.reshape(len(rows), -1), rows) and [row for _, row in sent] == rows
+    assert taker.close(planar, 10) is not None and len(sent) == len(rows), "the last tick is taken once"
 
 
 # ------------------------------------------------------------------------------------ a run, end to end

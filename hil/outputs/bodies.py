@@ -178,6 +178,7 @@ class PoseLog:
         self._buffer = np.full((BLOCK, self._width), np.nan)
         self._kept: list[np.ndarray] = []
         self._file = None if folder is None else tempfile.TemporaryFile(dir=folder)  # noqa: SIM115
+        self._closed: Poses | None = None
 
     def append(self, t: float, row: Sequence[float]) -> None:
         """One pose of every body at `t`: a row as `flatten` makes it."""
@@ -190,6 +191,9 @@ class PoseLog:
             self._write(buffer)
 
     def close(self) -> Poses:
+        """Every pose appended (the same on a second call)."""
+        if self._closed is not None:
+            return self._closed
         filled = self._buffer[: self.rows % BLOCK]
         if len(filled):
             self._write(filled)
@@ -201,7 +205,8 @@ class PoseLog:
             rows = np.memmap(self._file, np.float64, "r", shape=shape) if self.rows else np.zeros(shape)
             self._file.close()  # the map keeps the file until it is dropped
         values = rows[:, 1:].reshape(self.rows, len(self.bodies), POSE_VALUES)
-        return Poses(self.bodies, rows[:, 0], values)
+        self._closed = Poses(self.bodies, rows[:, 0], values)
+        return self._closed
 
     def _write(self, rows: np.ndarray) -> None:
         if self._file is None:
