@@ -31,11 +31,12 @@ def _object(title: str, description: str, properties: dict) -> dict:
     return {"title": title, "description": description, "type": "object", "properties": properties}
 
 
-def _time(description: str) -> dict:
+def _time(description: str, title: str = "time") -> dict:
+    """A time (or, titled "duration", a length of time) as seconds and nanoseconds."""
     second = {"type": "integer", "minimum": 0}
     nanosecond = {"type": "integer", "minimum": 0, "maximum": 999_999_999}
     return {
-        "title": "time",
+        "title": title,
         "description": description,
         "type": "object",
         "properties": {"sec": second, "nsec": nanosecond},
@@ -87,7 +88,7 @@ def scene_update_schema() -> bytes:
             "timestamp": _time("when the entity was published"),
             "frame_id": {"type": "string", "description": "the body's frame"},
             "id": {"type": "string", "description": "the body"},
-            "lifetime": _time("0: until replaced"),
+            "lifetime": _time("how long it is shown; 0: until replaced", "duration"),
             "frame_locked": {"type": "boolean", "description": "true: it moves with its frame"},
             "metadata": unused,
             "arrows": unused,
