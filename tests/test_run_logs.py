@@ -21,6 +21,7 @@ from drivers.keys import Keys
 from drivers.schemas import TesWrench, encode
 from hil.bench.bench import load_bench
 from hil.outputs import run_logs
+from hil.outputs.bodies import Body, Shape
 from hil.outputs.run_logs import LocalLogs, LogProcess, McapSpec, open_logs
 from hil.outputs.trace_log import TELEMETRY
 from hil.pipeline import run
@@ -29,16 +30,27 @@ from hil.run.build import run_logs as build_run_logs
 from tests.test_mcap import SCENARIO, bench
 
 TICKS = 300  # more than a batch's ticks, not a multiple of them: stop() hands over the rest
+BODIES = (
+    Body(
+        "ball",
+        (Shape("sphere", (0.11, 0.0, 0.0), (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0), (1.0, 0.5, 0.0, 1.0)),),
+    ),
+    Body(
+        "torso",
+        (Shape("capsule", (0.1, 0.3, 0.0), (0.0, 0.0, 0.4), (1.0, 0.0, 0.0, 0.0), (0.8, 0.5, 0.3, 1.0)),),
+    ),
+)
 
 
 def feed(logs: LocalLogs | LogProcess) -> None:
     """A run's calls: every tick the frames the recorder takes (at that tick's time), a zenoh input now and
-    then (one that does not decode), and the tick's row."""
+    then (one that does not decode), and the tick's row; the bodies first, their poses every 4th tick."""
     bus = open_bus(BusConfig(interface="pure_shared", channel=private_channel("logs")))
     node = CanNode(bus, name="rig")
     now = [0.0]
     logs.clock = lambda: now[0]
     wrench = TesWrench(seq=0, stamp=0.0, force=(0.0, 0.0, -500.0), moment=(0.0, 0.0, 0.0), cop=(0.0, 0.0))
+    logs.bodies(BODIES)
     for k in range(TICKS):
         now[0] = k / 400
         frames = [
@@ -54,6 +66,10 @@ def feed(logs: LocalLogs | LogProcess) -> None:
             key = Keys().tes_wrench
             logs.zenoh(k, key, encode(msgspec.structs.replace(wrench, seq=k)) if k % 21 else b"\xff garbage")
         logs.trace((k / 400, *[0.001 * k] * (TELEMETRY - 1)))
+        if k % 4 == 0:
+            logs.poses(
+                k / 400, [0.001 * k, 0.0, 0.11, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.5, 0.99, 0.0, 0.1, 0.0]
+            )
     logs.stop()
     bus.shutdown()
 
@@ -77,6 +93,7 @@ def test_the_process_writes_the_same_bytes_as_the_ticks_thread(tmp_path):
         reader = make_reader(f, validate_crcs=True)
         topics = {channel.topic for channel in reader.get_summary().channels.values()}
     assert {"/can/SYNC", "/can/IMU_RATE", "/can/frames", "/trace", "/zenoh/rejected"} <= topics
+    assert {"/scene", "/pose/ball", "/pose/torso"} <= topics
 
 
 def test_the_process_is_its_own_session_reports_its_cpu_and_ends(tmp_path):

@@ -16,6 +16,9 @@ publish time alike):
     /events/...      what happened, at its time: each fault's window, the fault log, the supervisor's
                      transitions with their causes, the operator's actions (EVENTS; handed over as the run
                      ends, `event`)
+    /pose/<body>     a body's pose as Foxglove's FrameTransform from "world": at 0, at 100 Hz and at the
+                     last tick (hil/outputs/bodies.py, foxglove.py)
+    /scene           every body's shapes as Foxglove's SceneUpdate, once at 0, each in its body's frame
 
 It streams, a chunk at a time (hil/outputs/mcap_file.py: memory flat in a run's length). Writing never
 fails a run: an error stops the messages there, stop() still completes the file and records the error as
@@ -27,7 +30,7 @@ from __future__ import annotations
 
 import logging
 import operator
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import can
@@ -39,6 +42,15 @@ from drivers.keys import PAYLOADS, Keys
 from drivers.schemas import (
     PayloadError,
     decode,
+)
+from hil.outputs.bodies import Body
+from hil.outputs.foxglove import (
+    FRAME_TRANSFORM,
+    SCENE_UPDATE,
+    FrameTransforms,
+    frame_transform_schema,
+    scene_update,
+    scene_update_schema,
 )
 from hil.outputs.mcap_file import McapFile
 from hil.outputs.trace_log import COLUMNS, TELEMETRY
@@ -54,6 +66,8 @@ FAULT_WINDOWS = "/events/fault_windows"
 FAULT_LOG = "/events/faults"
 SUPERVISOR = "/events/supervisor"
 OPERATOR = "/events/operator"
+POSE = "/pose/{body}"
+SCENE = "/scene"
 FAILED = "failed"
 """The metadata record that says why the file's messages stop early."""
 ROW = COLUMNS[:TELEMETRY]
@@ -258,6 +272,8 @@ class McapLog(can.Listener):
         self._frames_t = 0.0
         """When the recorder took the frames in `_frames`, s."""
         self._trace_json, self._trace_values = _trace_template()
+        self._transforms: FrameTransforms | None = None
+        self._pose_channels: list[int] = []
         self._file = McapFile(path, library="pure-hil")
         self._on = False
         """Messages are written (until the first error)."""
@@ -332,6 +348,32 @@ class McapLog(can.Listener):
                 topic, title, lambda: _schema(title, properties, description)
             )
             self._file.message(channel, round(t * 1e9), self._json(message))
+        except Exception as exc:
+            self._fail(exc)
+
+    def bodies(self, bodies: Sequence[Body]) -> None:
+        """The bodies the poses will name: their shapes on /scene at 0, and a /pose/<body> channel each."""
+        if not self._on:
+            return
+        try:
+            scene = self._channel(SCENE, SCENE_UPDATE, scene_update_schema)
+            self._file.message(scene, 0, scene_update(bodies))
+            schema = self._file.schema(FRAME_TRANSFORM, "jsonschema", frame_transform_schema())
+            self._pose_channels = [
+                self._file.channel(POSE.format(body=b.name), "json", schema) for b in bodies
+            ]
+            self._transforms = FrameTransforms(bodies)
+        except Exception as exc:
+            self._fail(exc)
+
+    def poses(self, t: float, row: Sequence[float]) -> None:
+        """Every body's pose at `t` (a row as hil/outputs/bodies.py `flatten` makes it): a FrameTransform
+        on each body's channel."""
+        if not self._on or self._transforms is None:
+            return
+        try:
+            at = round(t * 1e9)
+            self._file.messages(at, self._pose_channels, self._transforms.encode(at, row))
         except Exception as exc:
             self._fail(exc)
 

@@ -1,5 +1,7 @@
 """The run's rerun recording: states, commands and the rider on a simulated-time timeline, written to a
-file in column batches (one chunk per signal group and block of ticks, never one call per tick).
+file in column batches (one chunk per signal group and block of ticks, never one call per tick), and the
+robot and its rider in 3-D: each body's shapes once under `bodies/<body>`, its pose as a Transform3D on the
+same timeline (hil/outputs/bodies.py).
 
 File sink only: no viewer is spawned and nothing is served (network rule); CI=1 keeps rerun's analytics off.
 """
@@ -17,6 +19,8 @@ os.environ.setdefault("CI", "1")  # rerun's analytics are off in CI mode; the SD
 import rerun as rr
 from rerun.chunk import Chunk, LazyChunkStream
 
+from hil.outputs.bodies import Body, Poses, Shape
+
 SIGNALS = {
     # entity path: (trace attribute, series names)
     "speed/actual": ("velocity", ["forward", "left"]),
@@ -33,6 +37,8 @@ DEGREES = {"tilt/chassis", "tilt/command", "rider/lean"}
 BLOCK = 4096
 """Ticks per chunk: the recording is written as it is produced, one block at a time (memory flat in a run's
 length: rerun's LazyChunkStream writes each chunk as the generator yields it)."""
+BODIES = "bodies"
+"""The 3-D view's root: z up, a child entity per body."""
 
 
 def write_rrd(path: Path, trace, name: str = "pure-hil") -> None:
@@ -82,6 +88,71 @@ def _chunks(trace):
         "events/faults",
         [(float(f.t), f"fault {f.fault} {f.action}: {f.kind} {f.detail}".strip(), "WARN") for f in faults],
     )
+    poses = getattr(trace, "poses", None)
+    if poses is not None:
+        yield from _body_chunks(poses)
+
+
+def _body_chunks(poses: Poses):
+    """The bodies: z up, each body's shapes (static), then its poses a block at a time."""
+    up = rr.ViewCoordinates.columns(xyz=[rr.components.ViewCoordinates.RIGHT_HAND_Z_UP])
+    yield Chunk.from_columns(BODIES, indexes=[], columns=up)
+    for body in poses.bodies:
+        yield from _shape_chunks(body)
+    for start in range(0, len(poses.t), BLOCK):
+        block = slice(start, start + BLOCK)
+        times = [rr.TimeColumn("sim_time", duration=np.asarray(poses.t[block], float))]
+        for i, body in enumerate(poses.bodies):
+            values = np.asarray(poses.values[block, i], float)
+            columns = rr.Transform3D.columns(translation=values[:, 0:3], quaternion=values[:, [4, 5, 6, 3]])
+            yield Chunk.from_columns(f"{BODIES}/{body.name}", indexes=times, columns=columns)
+
+
+ARCHETYPES = {
+    "sphere": "ellipsoids",
+    "ellipsoid": "ellipsoids",
+    "capsule": "capsules",
+    "cylinder": "cylinders",
+}
+"""The entity under a body that holds its shapes of a kind (boxes: `boxes`)."""
+
+
+def _shape_chunks(body: Body):
+    """A body's shapes in its frame, one static chunk per archetype (rerun's quaternions are x, y, z, w)."""
+    groups: dict[str, list[Shape]] = {}
+    for shape in body.shapes:
+        groups.setdefault(ARCHETYPES.get(shape.kind, "boxes"), []).append(shape)
+    for name, shapes in groups.items():
+        turns = [(x, y, z, w) for w, x, y, z in (s.orientation for s in shapes)]
+        colors = [s.rgba for s in shapes]
+        lengths, radii = [2 * s.size[1] for s in shapes], [s.size[0] for s in shapes]
+        centers = [s.position for s in shapes]
+        archetype: type[rr.Ellipsoids3D | rr.Capsules3D | rr.Cylinders3D | rr.Boxes3D]
+        if name == "ellipsoids":
+            archetype = rr.Ellipsoids3D
+            half = [s.size if s.kind == "ellipsoid" else (s.size[0],) * 3 for s in shapes]
+            columns = rr.Ellipsoids3D.columns(
+                half_sizes=half, centers=centers, quaternions=turns, colors=colors
+            )
+        elif name == "capsules":  # rerun's runs from its origin along +z; MuJoCo's is centred on it
+            archetype = rr.Capsules3D
+            ends = [s.along_z(-s.size[1]) for s in shapes]
+            columns = rr.Capsules3D.columns(
+                lengths=lengths, radii=radii, translations=ends, quaternions=turns, colors=colors
+            )
+        elif name == "cylinders":
+            archetype = rr.Cylinders3D
+            columns = rr.Cylinders3D.columns(
+                lengths=lengths, radii=radii, centers=centers, quaternions=turns, colors=colors
+            )
+        else:
+            archetype = rr.Boxes3D
+            columns = rr.Boxes3D.columns(
+                half_sizes=[s.size for s in shapes], centers=centers, quaternions=turns, colors=colors
+            )
+        solid = archetype.columns(fill_mode=[rr.components.FillMode.Solid])
+        entity = f"{BODIES}/{body.name}/{name}"
+        yield Chunk.from_columns(entity, indexes=[], columns=[*columns.partition([len(shapes)]), *solid])
 
 
 LIVE = {

@@ -1,7 +1,8 @@
 """The logs a run streams as it goes, can.log (python-can's candump writer) and run.mcap (mcap_log.py), behind
 one object the run feeds: every frame the CAN log's recorder takes (a python-can `Listener`), every zenoh
-input the controller was sent (`zenoh`), every tick's trace row (`trace`), the run's events as it ends
-(`event`), then `stop()`.
+input the controller was sent (`zenoh`), every tick's trace row (`trace`), the bodies and their poses for
+run.mcap's 3-D view (`bodies` once, then `poses`; `takes_poses`: only with run.mcap), the run's events as it
+ends (`event`), then `stop()`.
 
 They are written in a process of their own (`LogProcess`), not on the tick's thread: together they cost
 about a fifth of a compiled lockstep tick (docs/performance.md), and in their own process they cost the tick
@@ -42,13 +43,14 @@ import can
 
 from drivers.keys import Keys
 from drivers.shared_bus import MESSAGE_FIELDS
+from hil.outputs.bodies import Body
 from hil.outputs.mcap_log import McapLog
 
 log = logging.getLogger(__name__)
 
-FRAME, ZENOH, TRACE, EVENT = 0, 1, 2, 3
+FRAME, ZENOH, TRACE, EVENT, BODIES, POSES = 0, 1, 2, 3, 4, 5
 """What a call handed over is: a frame the recorder took (at simulated time t), a zenoh input, a trace row,
-an event."""
+an event, the bodies the poses name, a row of poses."""
 BATCH_TICKS = 16
 """Ticks handed over in one write to the pipe (a write and the process's wake-up per tick cost more than
 the pickling)."""
@@ -84,6 +86,8 @@ class LocalLogs(can.Listener):
         """An output that stopped, and why (run.mcap's errors are in its file too: its check reads them)."""
         self._mcap: McapLog | None = None
         self._writer: can.Listener | None = None
+        self.takes_poses = mcap is not None
+        """run.mcap is written: it wants the bodies and their poses."""
         if mcap is not None:
             try:
                 self._mcap = mcap.open()
@@ -117,6 +121,14 @@ class LocalLogs(can.Listener):
         if self._mcap is not None:
             self._mcap.event(topic, t, message)
 
+    def bodies(self, bodies: tuple[Body, ...]) -> None:
+        if self._mcap is not None:
+            self._mcap.bodies(bodies)
+
+    def poses(self, t: float, row: list[float]) -> None:
+        if self._mcap is not None:
+            self._mcap.poses(t, row)
+
     def stop(self) -> None:
         writer, mcap, self._writer, self._mcap = self._writer, self._mcap, None, None
         if writer is not None:
@@ -146,6 +158,7 @@ class LogProcess(can.Listener):
         self.cpu_s = 0.0
         """The writer process's CPU time, s (after stop())."""
         self._names = [name for name, on in ((CAN_LOG, can_log), (MCAP, mcap)) if on is not None]
+        self.takes_poses = mcap is not None
         self._calls: list[tuple[Any, ...]] = []
         self._ticks = 0
         self._broken: str | None = None
@@ -182,6 +195,12 @@ class LogProcess(can.Listener):
 
     def event(self, topic: str, t: float, message: dict) -> None:
         self._calls.append((EVENT, topic, t, message))
+
+    def bodies(self, bodies: tuple[Body, ...]) -> None:
+        self._calls.append((BODIES, bodies))
+
+    def poses(self, t: float, row: list[float]) -> None:
+        self._calls.append((POSES, t, row))
 
     def stop(self) -> None:
         """Hand over what is left, wait for the files to be finished, and take the process's report."""
@@ -296,8 +315,12 @@ def _serve(calls: IO[bytes], report: IO[bytes]) -> None:
                 logs.zenoh(call[1], call[2], call[3])
             elif kind == EVENT:
                 logs.event(call[1], call[2], call[3])
-            else:
+            elif kind == TRACE:
                 logs.trace(call[1])
+            elif kind == POSES:
+                logs.poses(call[1], call[2])
+            else:
+                logs.bodies(call[1])
     logs.stop()
     with contextlib.suppress(OSError):  # nobody may be waiting for it any more
         data = pickle.dumps({"failed": logs.failed, "cpu_s": time.process_time()})

@@ -103,6 +103,8 @@ class Built:
     """The loop's scheduling under the real-time clock."""
     logs: RunLogs | None = None
     """can.log and run.mcap, which the loop hands every tick's row (None: neither written)."""
+    keep_poses: bool = False
+    """The recording draws the bodies: the loop keeps their poses (hil/outputs/bodies.py)."""
 
 
 BOOT_TIMEOUT = {"embedded": 10.0, "spawned": 30.0, "external": 120.0}
@@ -175,9 +177,11 @@ def build(
     faults.attach(rig)
     trace = None if out is None else out / "trace.npy"
     law = law_of(bench, scenario)
-    return Built(
+    built = Built(
         rig, plant, wire.bus_config, law, clock, scenario.duration, parts.dut, trace, bench.realtime, logs
     )
+    built.keep_poses = out is not None and bench.outputs.recording
+    return built
 
 
 @dataclass(frozen=True, slots=True)

@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 
+from hil.outputs.bodies import PoseTaker
 from hil.outputs.trace_log import TELEMETRY, TraceLog
 from hil.run.build import Built, RunOptions, RunStatus
 from hil.run.clock import Clock, LockstepClock, RealtimeClock
@@ -41,7 +42,10 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
 
     supervisor = rig.supervisor  # its record outlives a kill
     logs = built.logs
+    poses = _pose_taker(built)
     n = 0
+    if poses is not None:
+        poses.take(plant, n)
     began = time.monotonic()
     next_report = began + 0.5
     failure = None
@@ -60,6 +64,8 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
             if logs is not None:
                 logs.trace(row)
             n += 1
+            if poses is not None and n % poses.every == 0:
+                poses.take(plant, n)
             if n % TELEMETRY_EVERY == 0:  # long before the subscription's ring could overflow
                 take_telemetry()
             if options.stop_on_fall and tr.fallen:
@@ -80,6 +86,7 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
         rig.hear_operator()  # what was sent during the last tick
     # The operator's actions as the supervisor here took them in, or as the rig heard them sent elsewhere.
     operator = rig if supervisor is None else supervisor
+    kept = None if poses is None else poses.close(plant, n)
     timing = clock.stats()
     for _ in range(50 if n else 0):  # the last telemetry samples may still be in flight
         take_telemetry()
@@ -120,7 +127,21 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
         operator_actions_dropped=operator.operator_actions_dropped,
         failure=failure,
         stopped_early=stopped,
+        poses=kept,
     )
+
+
+def _pose_taker(built: Built) -> PoseTaker | None:
+    """The bodies' poses for the outputs that draw them (the recording, run.mcap); None: neither does."""
+    logs = built.logs
+    send = logs.poses if logs is not None and logs.takes_poses else None
+    if not built.keep_poses and send is None:
+        return None
+    folder = None if built.trace_path is None else built.trace_path.parent
+    taker = PoseTaker(built.plant, built.keep_poses, folder, send)
+    if logs is not None and send is not None:
+        logs.bodies(taker.bodies)
+    return taker
 
 
 def _status(tr: Truth, rig: Rig, clock: Clock, duration: float, began: float) -> RunStatus:

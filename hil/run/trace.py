@@ -12,6 +12,7 @@ from drivers.config import ConfigError
 from drivers.plugs import PlugNotFound
 from drivers.zenoh_link import ZenohConfigError
 from hil.faults import FaultError, FaultEvent, FaultSpec
+from hil.outputs.bodies import Poses
 from hil.run.clock import TimingStats
 from hil.run.rig import TickStats
 from safety.machine import Event
@@ -102,6 +103,8 @@ class Trace:
     """Its caller stopped it (an operator's Ctrl-C, the service's stop) before the scenario's end."""
     outputs_failed: dict[str, str] = field(default_factory=dict)
     """Logs the run streamed that failed as it wrote them (can.log, run.mcap), and why."""
+    poses: Poses | None = None
+    """The bodies' poses for the recording's 3-D view (hil/outputs/bodies.py); None: none were kept."""
 
     @classmethod
     def empty(cls, failure: Failure) -> Trace:
