@@ -75,6 +75,8 @@ PLANES = tuple(
 )
 """Per plane: its checks' name, its attitude input, its rate input."""
 ATTITUDES = frozenset(attitude for _, attitude, _ in PLANES)
+DRIVES = frozenset(f"Drive{i}" for i in (1, 2, 3))
+"""The drives' parts (drivers.can_codec.PARTS)."""
 """The IMU's attitude inputs (Roll, Pitch)."""
 ATTITUDE_LSB = 1e-4
 """rad: IMU_ATTITUDE's resolution (the DBC); "it moved" means several of these."""
@@ -396,15 +398,17 @@ class Monitors:
         What a check isolates by itself (an encoder's position against its velocity, a frozen or replayed
         channel) is named directly. A cross-check that fails names its likeliest input unless a direct
         finding already explains it: the yaw check the one of the gyro and the three encoders whose
-        exclusion leaves the smoothest ball rates (safety/recovery.py `odd_one_out`); an attitude or
-        speed-trend check the plane's attitude, rate or accelerometer by the accelerometer's own tilt
-        (safety/recovery.py `blame`)."""
+        exclusion leaves the smoothest ball rates (safety/recovery.py `odd_one_out`), unless a drive is
+        named (a dead drive's partners' yaw torque spins the ball on the floor: the encoders then disagree
+        with the gyro although none lies; on the 3-D plant within 22 ms, before the torque check); an
+        attitude or speed-trend check the plane's attitude, rate or accelerometer by the accelerometer's own
+        tilt (safety/recovery.py `blame`)."""
         named = self._named
         failed = self._failed
         if not failed:
             return frozenset(named)
         out = set(named)
-        if "yaw" in failed and not named & {*ENCODERS, "RateZ"}:
+        if "yaw" in failed and not named & {*ENCODERS, "RateZ", *DRIVES}:
             out.add(self.isolated.odd_one_out())
         for i, (plane, attitude, rate) in enumerate(PLANES):
             trend = f"{plane} trend" in failed
@@ -521,7 +525,7 @@ class Monitors:
         return tuple(found)
 
     def _drive_named(self) -> bool:
-        return any(f"Drive{d.index}" in self.named for d in self.drives)
+        return not self.named.isdisjoint(DRIVES)
 
     def dead_drive(self) -> int | None:
         """The drive (0-2) the diagnosis names, if one: the recovery law balances on the other two."""
