@@ -39,6 +39,7 @@ class Body(_Lenient, frozen=True):
     """m above the ball centre."""
     inertia_pitch: Positive = 0.5
     inertia_roll: Positive = 0.5
+    inertia_yaw: Positive = 0.3
     top_height: Positive = 0.386
     """m of the chassis top (the seat's base) above the ball centre."""
     imu_height: Positive = 0.2
@@ -269,6 +270,15 @@ class RecoveryRules(_Strict, frozen=True):
     """kg assumed before the seat has said what the rider weighs."""
     rider_com: Positive = 0.3
     """m of the rider's centre of mass above the seat (a seated adult's trunk, head and arms)."""
+    rider_yaw_inertia: Positive = 0.035
+    """kg m² per kg of rider about the chassis axis: a seated rider's trunk behind it, thighs and shanks
+    ahead (Winter's segments at 1.75 m, docs/physics.md §5; two-wheel law only)."""
+    rider_roll_yaw_product: float = 0.030
+    """kg m² per kg of rider: −Σ m x z about the ball centre, the legs ahead and low, the trunk behind and
+    high; it couples the chassis' roll to its yaw (two-wheel law only)."""
+    coupled_velocity_share: Fraction = 0.3
+    """On two wheels, the share of the coupled plane's position and ball rate in its feedback; the rest of
+    its ball rate is the yaw rate, which the pair's torque changes with it (docs/safety.md "A dead drive")."""
     attitude_filter: Positive = 2.0
     """s: the integrated rates are pulled toward a trusted attitude with this time constant; once the
     attitude is found faulty they carry it alone."""

@@ -2,11 +2,13 @@
 with what physics allows, and says when they disagree (pure: values in, a finding out; no I/O, no clock).
 
 What PURE's sensors make redundant (docs/safety.md "Diagnostics"):
-- the three encoders determine (vx, vy, yaw rate) exactly; the gyro's RateZ is a second yaw rate;
+- the three encoders determine the ball's rotation relative to the chassis; with the ball not spinning on
+  the floor and the gyro's roll and pitch rates, that is the chassis' yaw rate, which RateZ measures too;
 - each drive reports its position and its velocity: the position's derivative must match the velocity;
 - the attitude must follow the integrated body rates;
 - the horizontal specific force (accelerometer, rotated by the attitude) integrates to the change of the
-  IMU point's velocity: the encoders' speed plus the chassis' rotation about the ball;
+  IMU point's velocity: the encoders' speed plus the chassis' rotation about the ball (in the heading frame,
+  which turns with the chassis);
 - the measured torque follows the command through the drive's current loop;
 - a seat carries a seated rider: weight within a band of the tared weight, COP on the seat, COP consistent
   with force and moment, no faster change than a body and the chassis make;
@@ -210,21 +212,30 @@ class EncoderCheck(Check):
 
 
 class YawCheck(Check):
-    """The yaw rate the three encoders determine vs the gyro's RateZ."""
+    """The chassis' yaw rate the encoders give vs the gyro's RateZ.
 
-    def __init__(self, rules: SensorRules, to_relative: np.ndarray, period: float):
+    The three encoders measure the ball's rotation relative to the chassis, all three components. A ball that
+    does not spin on the floor turns about a horizontal axis, so (ω_rel + ω) · up = 0 (body axes, `up` the
+    world's vertical from the attitude): with the gyro's roll and pitch rates that fixes the chassis' rate
+    about its own axis. Tilted and rolling, the ball's rotation has a part along the chassis axis (ball rate ×
+    tilt across the motion: 0.5 rad/s at 1.4 m/s and 2.5 deg), which a level-robot relation takes for yaw."""
+
+    def __init__(self, rules: SensorRules, period: float):
         super().__init__("yaw rate, encoders vs gyro")
         self.rules = rules
-        self.row = tuple(float(-x) for x in to_relative[2])  # ψ̇ = −(G⁻¹ m)[2]
         n = max(round(rules.window / period), 2)
         self.difference, self.magnitude, self.time = Window(n), Window(n), Window(n)
 
-    def encoders(self, motor_velocity: list[float]) -> float:
-        r = self.row
-        return r[0] * motor_velocity[0] + r[1] * motor_velocity[1] + r[2] * motor_velocity[2]
+    @staticmethod
+    def encoders(relative: Sequence[float], rate: Sequence[float], roll: float, pitch: float) -> float:
+        """The chassis' rate about its own axis from the relative ball rates (G⁻¹ m) and the gyro's x, y."""
+        ux, uy, uz = body_up(roll, pitch)
+        return -(ux * (relative[0] + rate[0]) + uy * (relative[1] + rate[1])) / uz - relative[2]
 
-    def update(self, motor_velocity: list[float], gyro: float, dt: float) -> Finding | None:
-        encoders = self.encoders(motor_velocity)
+    def update(
+        self, relative: Sequence[float], rate: Sequence[float], roll: float, pitch: float, dt: float
+    ) -> Finding | None:
+        encoders, gyro = self.encoders(relative, rate, roll, pitch), rate[2]
         self.difference.add((encoders - gyro) * dt)
         self.magnitude.add(max(abs(encoders), abs(gyro)) * dt)
         self.time.add(dt)
@@ -235,6 +246,10 @@ class YawCheck(Check):
         if not self.exceeds(self.difference.total / span, bound):
             return None
         return self.finding(f"{encoders:.3f} rad/s from the encoders, {gyro:.3f} rad/s from the gyro")
+
+    def reset(self) -> None:
+        for w in (self.difference, self.magnitude, self.time):
+            w.clear()
 
 
 class AttitudeCheck(Check):
@@ -264,8 +279,8 @@ class AttitudeCheck(Check):
 
 
 class TrendCheck(Check):
-    """One plane: the change of the IMU point's horizontal velocity (the encoders' ground speed plus the
-    chassis turning about the ball, h cos θ θ̇) vs the horizontal specific force integrated."""
+    """One direction of the heading frame: the change of the IMU point's horizontal velocity (the ball's
+    ground speed plus the chassis turning about the ball) vs the horizontal specific force integrated."""
 
     def __init__(self, plane: str, rules: SensorRules, period: float):
         super().__init__(f"{plane} speed trend vs accelerometer")
@@ -277,8 +292,9 @@ class TrendCheck(Check):
         self.previous_accel: float | None = None
 
     def update(self, velocity: float, accel: float, dt: float) -> Finding | None:
-        """`velocity`: the IMU point's horizontal velocity from the encoders, m/s; `accel`: the horizontal
-        specific force, m/s²."""
+        """`velocity`: the IMU point's horizontal velocity from the encoders, m/s; `accel`: what changes it,
+        m/s²: the horizontal specific force, plus the turn of the heading frame it is measured in (a velocity
+        fixed in the world turns under a chassis turning at ψ̇: ψ̇ × v, 0.56 m/s² at 0.7 m/s and 0.8 rad/s)."""
         if self.previous_accel is not None:
             self.integral += 0.5 * (accel + self.previous_accel) * dt
         self.previous_accel = accel
@@ -426,9 +442,61 @@ def motor_jacobian(robot: RobotGeometry) -> np.ndarray:
     return np.array(rows)
 
 
-def world_acceleration(accel: Sequence[float], roll: float, pitch: float) -> tuple[float, float, float]:
-    """The body specific force in the heading frame: world = Ry(pitch) Rx(roll) body."""
-    bx, by, bz = accel
+def heading_frame(vector: Sequence[float], roll: float, pitch: float) -> tuple[float, float, float]:
+    """A body vector in the heading frame (the world turned to the chassis' heading): Ry(pitch) Rx(roll) v."""
+    bx, by, bz = vector
     sr, cr, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
     u1, u2 = cr * by - sr * bz, sr * by + cr * bz
     return cp * bx + sp * u2, u1, -sp * bx + cp * u2
+
+
+def trend_inputs(
+    relative: Sequence[float],
+    rate: Sequence[float],
+    accel: Sequence[float],
+    roll: float,
+    pitch: float,
+    radius: float,
+    imu_height: float,
+) -> tuple[tuple[float, float], tuple[float, float]]:
+    """For the speed-trend checks, forward and left in the heading frame: the IMU point's velocity and what
+    changes it. The velocity is the ball's (its rotation, relative + the chassis', turned into the frame)
+    plus the chassis' rotation about the ball (ω × h·axis); it changes by the horizontal specific force and
+    by the frame's own turn at the heading's rate, which turns a velocity fixed in the world under it."""
+    ball = heading_frame((relative[0] + rate[0], relative[1] + rate[1], relative[2] + rate[2]), roll, pitch)
+    wx, wy, wz = heading_frame(rate, roll, pitch)
+    nx, ny, nz = chassis_axis(roll, pitch)
+    forward = radius * ball[1] + imu_height * (wy * nz - wz * ny)
+    left = -radius * ball[0] + imu_height * (wz * nx - wx * nz)
+    turn = euler_rates(rate, roll, pitch)[2]
+    ax, ay, _ = heading_frame(accel, roll, pitch)
+    return (forward, ax + turn * left), (left, ay - turn * forward)
+
+
+def body_frame(vector: Sequence[float], roll: float, pitch: float) -> tuple[float, float, float]:
+    """A heading-frame vector in body axes (`heading_frame` undone): Rx(−roll) Ry(−pitch) v."""
+    hx, hy, hz = vector
+    sr, cr, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
+    u0, u2 = cp * hx - sp * hz, sp * hx + cp * hz
+    return u0, cr * hy + sr * u2, -sr * hy + cr * u2
+
+
+def body_up(roll: float, pitch: float) -> tuple[float, float, float]:
+    """The world's vertical in body axes (the heading frame's z seen from the chassis)."""
+    sr, cr, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
+    return -sp, cp * sr, cp * cr
+
+
+def chassis_axis(roll: float, pitch: float) -> tuple[float, float, float]:
+    """The chassis' own axis (body z) in the heading frame."""
+    sr, cr, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
+    return cr * sp, -sr, cr * cp
+
+
+def euler_rates(rate: Sequence[float], roll: float, pitch: float) -> tuple[float, float, float]:
+    """ZYX Euler angle rates (roll, pitch, heading) from body rates: what the attitude's angles do. A chassis
+    tilted while it turns has body rates that differ from them by the turn rate times the tilt."""
+    wx, wy, wz = rate
+    sr, cr = math.sin(roll), math.cos(roll)
+    turn = sr * wy + cr * wz
+    return wx + turn * math.tan(pitch), cr * wy - sr * wz, turn / math.cos(pitch)

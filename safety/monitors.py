@@ -45,8 +45,9 @@ from safety.diagnostics import (
     TorqueCheck,
     TrendCheck,
     YawCheck,
+    heading_frame,
     motor_jacobian,
-    world_acceleration,
+    trend_inputs,
 )
 from safety.machine import STREAMS, Cause, DriveReport, Finding, Observation, Request
 from safety.recovery import IsolatedEstimator, leave_one_out
@@ -74,6 +75,8 @@ PLANES = tuple(
 )
 """Per plane: its checks' name, its attitude input, its rate input."""
 ATTITUDES = frozenset(attitude for _, attitude, _ in PLANES)
+DRIVES = frozenset(f"Drive{i}" for i in (1, 2, 3))
+"""The drives' parts (drivers.can_codec.PARTS)."""
 """The IMU's attitude inputs (Roll, Pitch)."""
 ATTITUDE_LSB = 1e-4
 """rad: IMU_ATTITUDE's resolution (the DBC); "it moved" means several of these."""
@@ -189,7 +192,7 @@ class Monitors:
         self.last: dict[str, float] = dict.fromkeys(STREAMS, -math.inf)
         self.drives = [Drive(i, config, robot, period) for i in (1, 2, 3)]
         sensors = config.sensors
-        self.yaw = YawCheck(sensors, to_relative, period)
+        self.yaw = YawCheck(sensors, period)
         self.attitude_checks = (AttitudeCheck("roll", sensors), AttitudeCheck("pitch", sensors))
         self.trend = (TrendCheck("forward", sensors, period), TrendCheck("left", sensors, period))
         self.seat = SeatCheck(
@@ -319,7 +322,7 @@ class Monitors:
         if name == MessageName.IMU_ATTITUDE:  # the body rates
             evidence = [abs(r) * self.period for r in rates]
         elif name == MessageName.IMU_RATE:  # the attitude they drive; the yaw rate the encoders determine
-            encoder_yaw = self.yaw.encoders([d.velocity for d in self.drives])
+            encoder_yaw = self.yaw.encoders(self._relative(), rates, attitude[0], attitude[1])
             evidence = [
                 abs(attitude[0] - self._attitude_at_rate[0]),
                 abs(attitude[1] - self._attitude_at_rate[1]),
@@ -350,7 +353,7 @@ class Monitors:
             self._wrench_id = (w.seq, w.stamp)
             self.last["wrench"] = t
             attitude = self.imu[MessageName.IMU_ATTITUDE]
-            vertical = world_acceleration(self.imu[MessageName.IMU_ACCEL], attitude[0], attitude[1])[2]
+            vertical = heading_frame(self.imu[MessageName.IMU_ACCEL], attitude[0], attitude[1])[2]
             found = self.seat.sample(
                 w.force,
                 w.moment,
@@ -395,15 +398,17 @@ class Monitors:
         What a check isolates by itself (an encoder's position against its velocity, a frozen or replayed
         channel) is named directly. A cross-check that fails names its likeliest input unless a direct
         finding already explains it: the yaw check the one of the gyro and the three encoders whose
-        exclusion leaves the smoothest ball rates (safety/recovery.py `odd_one_out`); an attitude or
-        speed-trend check the plane's attitude, rate or accelerometer by the accelerometer's own tilt
-        (safety/recovery.py `blame`)."""
+        exclusion leaves the smoothest ball rates (safety/recovery.py `odd_one_out`), unless a drive is
+        named (a dead drive's partners' yaw torque spins the ball on the floor: the encoders then disagree
+        with the gyro although none lies; on the 3-D plant within 22 ms, before the torque check); an
+        attitude or speed-trend check the plane's attitude, rate or accelerometer by the accelerometer's own
+        tilt (safety/recovery.py `blame`)."""
         named = self._named
         failed = self._failed
         if not failed:
             return frozenset(named)
         out = set(named)
-        if "yaw" in failed and not named & {*ENCODERS, "RateZ"}:
+        if "yaw" in failed and not named & {*ENCODERS, "RateZ", *DRIVES}:
             out.add(self.isolated.odd_one_out())
         for i, (plane, attitude, rate) in enumerate(PLANES):
             trend = f"{plane} trend" in failed
@@ -434,8 +439,8 @@ class Monitors:
         if not (math.isfinite(self.last["drives"]) and math.isfinite(self.last["imu"])):
             return None
         rate = self.imu[MessageName.IMU_RATE]
-        rel = self._relative()
-        nominal = self.radius * math.hypot(rel[1] + rate[1], rel[0] + rate[0])
+        roll, pitch, _ = self.imu[MessageName.IMU_ATTITUDE]
+        nominal = self._ground_speed(self._relative(), rate, roll, pitch)
         if not self.degraded:
             return nominal
         if self.named & set(ENCODERS) and self.isolated.ready:
@@ -444,9 +449,18 @@ class Monitors:
         estimates = [nominal]
         for solve, others in self._leave_one_out:
             known = [velocities[j] for j in others]
-            x, y = solve(known, rate[2])
-            estimates.append(self.radius * math.hypot(y + rate[1], x + rate[0]))
+            estimates.append(self._ground_speed(solve(known, rate, roll, pitch), rate, roll, pitch))
         return max(estimates)
+
+    def _ground_speed(
+        self, relative: tuple[float, float, float], rate: list[float], roll: float, pitch: float
+    ) -> float:
+        """The ball's speed over the floor: its rotation (relative + the chassis') turned into the heading
+        frame, the horizontal part (a ball spinning on the floor spins about the vertical: no speed)."""
+        x, y, _ = heading_frame(
+            (relative[0] + rate[0], relative[1] + rate[1], relative[2] + rate[2]), roll, pitch
+        )
+        return self.radius * math.hypot(x, y)
 
     def tilt(self) -> float | None:
         if not math.isfinite(self._imu_seen[MessageName.IMU_ATTITUDE]):
@@ -468,20 +482,25 @@ class Monitors:
             return []
         roll, pitch, _ = self.imu[MessageName.IMU_ATTITUDE]
         rate = self.imu[MessageName.IMU_RATE]
-        velocities = [d.velocity for d in self.drives]
+        rel = self._relative()
         coupling = (abs(rate[0]) + abs(rate[1]) + abs(rate[2])) * math.tan(max(abs(roll), abs(pitch)))
+        if self._drive_named():
+            # Two wheels' torque carries a yaw torque past what the floor holds: the ball spins on it, and
+            # the yaw check's premise fails (docs/safety.md "A dead drive").
+            self.yaw.reset()
+            yaw = None
+        else:
+            yaw = self.yaw.update(rel, rate, roll, pitch, dt)
         found = [
-            self.yaw.update(velocities, rate[2], dt),
+            yaw,
             self.attitude_checks[0].update(roll, rate[0], coupling, dt),
             self.attitude_checks[1].update(pitch, rate[1], coupling, dt),
         ]
-        rel = self._relative()
-        forward = self.radius * (rel[1] + rate[1])
-        left = -self.radius * (rel[0] + rate[0])
-        h = self.imu_height
-        ax, ay, _ = world_acceleration(self.imu[MessageName.IMU_ACCEL], roll, pitch)
-        found.append(self.trend[0].update(forward + h * math.cos(pitch) * rate[1], ax, dt))
-        found.append(self.trend[1].update(left - h * math.cos(roll) * rate[0], ay, dt))
+        (forward, a_forward), (left, a_left) = trend_inputs(
+            rel, rate, self.imu[MessageName.IMU_ACCEL], roll, pitch, self.radius, self.imu_height
+        )
+        found.append(self.trend[0].update(forward, a_forward, dt))
+        found.append(self.trend[1].update(left, a_left, dt))
         for i, finding in enumerate(found):
             if finding is not None:
                 self._failed.add(CROSS_CHECKS[i])
@@ -504,6 +523,9 @@ class Monitors:
             if drive.fault or drive.dead_to_the_law(t, held, confirm):
                 self._named.add(f"Drive{drive.index}")
         return tuple(found)
+
+    def _drive_named(self) -> bool:
+        return not self.named.isdisjoint(DRIVES)
 
     def dead_drive(self) -> int | None:
         """The drive (0-2) the diagnosis names, if one: the recovery law balances on the other two."""

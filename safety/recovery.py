@@ -17,6 +17,7 @@ Which input stands in for which (the redundancy PURE has):
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -28,7 +29,7 @@ from scipy.linalg import solve_continuous_are
 
 from drivers.can_codec import ENCODERS, TILT_INPUTS
 from safety.config import RecoveryRules, RobotGeometry
-from safety.diagnostics import motor_jacobian
+from safety.diagnostics import YawCheck, body_frame, body_up, euler_rates, heading_frame, motor_jacobian
 
 G0 = 9.80665
 ATTITUDE_WINDOW = 40
@@ -46,35 +47,41 @@ ODD_ONE_OUT_TICKS = 40
 (25 ms) and the fault's onset before it."""
 
 
-Solver = Callable[[Sequence[float], float], tuple[float, float]]
-"""(the two other drives' velocities, the yaw rate) -> the ball-to-body rates (x, y)."""
+Solver = Callable[[Sequence[float], Sequence[float], float, float], tuple[float, float, float]]
+"""(the two other drives' velocities, the body rates, roll, pitch) -> the ball-to-body rates (x, y, z)."""
 
 
 def leave_one_out(jacobian: np.ndarray) -> list[tuple[Solver, list[int]]]:
-    """For each drive, a solver for the ball-to-body rates (x, y) from the other two drives' velocities and
-    the yaw rate: what the rates are if that drive's encoder is the wrong one. Scalar arithmetic: numpy's
-    per-call overhead dominates a 2 x 2 solve, and the supervisor runs four of them every tick."""
+    """For each drive, a solver for the ball-to-body rates from the other two drives' velocities, the gyro and
+    the attitude: what the rates are if that drive's encoder is the wrong one. The third equation is the
+    ball not spinning on the floor, (ω_rel + ω) · up = 0 (safety/diagnostics.py `YawCheck`). Scalar
+    arithmetic: numpy's per-call overhead dominates a 2 x 2 solve, and the supervisor runs four every tick."""
     solvers: list[tuple[Solver, list[int]]] = []
     for i in range(3):
         others = [j for j in range(3) if j != i]
-        inverse = np.linalg.inv(jacobian[np.ix_(others, [0, 1])])
-        (a, b), (c, d) = ((float(x) for x in row) for row in inverse)
-        c0, c1 = (float(x) for x in jacobian[others, 2])
+        (a0, b0, c0), (a1, b1, c1) = ((float(x) for x in jacobian[j]) for j in others)
 
         def solve(
             known: Sequence[float],
-            yaw_rate: float,
-            a: float = a,
-            b: float = b,
-            c: float = c,
-            d: float = d,
+            rate: Sequence[float],
+            roll: float,
+            pitch: float,
+            a0: float = a0,
+            b0: float = b0,
             c0: float = c0,
+            a1: float = a1,
+            b1: float = b1,
             c1: float = c1,
-        ) -> tuple[float, float]:
-            # yaw_rate is the body's ψ̇ (the gyro's RateZ) and r2 = −ψ̇: each remaining motor's rate minus
-            # its yaw part, through the 2×2 inverse.
-            m0, m1 = known[0] + c0 * yaw_rate, known[1] + c1 * yaw_rate
-            return a * m0 + b * m1, c * m0 + d * m1
+        ) -> tuple[float, float, float]:
+            # r_z = −ω_z − (u_x (r_x + ω_x) + u_y (r_y + ω_y)) / u_z into each motor's row: 2 x 2 in r_x, r_y.
+            ux, uy, uz = body_up(roll, pitch)
+            px, py = ux / uz, uy / uz
+            z0 = -rate[2] - px * rate[0] - py * rate[1]
+            m00, m01, m10, m11 = a0 - c0 * px, b0 - c0 * py, a1 - c1 * px, b1 - c1 * py
+            k0, k1 = known[0] - c0 * z0, known[1] - c1 * z0
+            det = m00 * m11 - m01 * m10
+            x, y = (m11 * k0 - m01 * k1) / det, (m00 * k1 - m10 * k0) / det
+            return x, y, z0 - px * x - py * y
 
         solvers.append((solve, others))
     return solvers
@@ -85,11 +92,13 @@ class Plane:
     """One plane's state as the recovery law sees it (roll: about x; pitch: about y; docs/physics.md)."""
 
     tilt: float = 0.0
+    """The attitude's angle (ZYX Euler: in the heading frame), rad."""
     tilt_rate: float = 0.0
+    """Its rate (an Euler rate, not the gyro's body rate), rad/s."""
     ball_rate: float = 0.0
-    """φ̇: the ball's absolute rate, rad/s (relative rate + tilt rate)."""
+    """φ̇: the ball's rotation about the heading frame's axis, rad/s (its ground speed / r)."""
     ball_angle: float = 0.0
-    """φ since the takeover began, rad."""
+    """φ: the ball's travel since the takeover began (integrated in the world), about this axis, rad."""
     integrated: float | None = None
     """The complementary filter's tilt: rates integrated, pulled toward a trusted attitude."""
     derivative: float = 0.0
@@ -122,6 +131,11 @@ class IsolatedEstimator:
         self.planes = (Plane(), Plane())
         """(roll, pitch)."""
         self.yaw_rate = 0.0
+        """The chassis' rate about its own axis (the gyro's RateZ, or the encoders' when it is named)."""
+        self.heading = 0.0
+        """rad the chassis has turned since the takeover began (the attitude's yaw rate integrated)."""
+        self.travel = [0.0, 0.0]
+        """The ball's rotation since the takeover began, about the world's x and y (its ground travel / r)."""
         self._candidates: list[tuple[float, float]] | None = None
         """The ball rates (x, y) under each single-fault hypothesis: the gyro wrong (three encoders), or
         encoder 1, 2 or 3 wrong (the other two and the gyro)."""
@@ -150,44 +164,84 @@ class IsolatedEstimator:
         self._t = t
         rules = self.rules
         planes_ok = True
+        measured: list[float | None] = [None, None]
+        body: list[float | None] = [None, None]
         # Indexed loops here, not zip(..., strict=True): compiled, that is generic iteration every update.
         for i, plane in enumerate(self.planes):
             attitude_name, rate_name = TILT_INPUTS[i]
-            measured = None if attitude is None or attitude_name in suspects else attitude[i]
-            body_rate = None if rate is None or rate_name in suspects else rate[i]
+            measured[i] = None if attitude is None or attitude_name in suspects else attitude[i]
+            body[i] = None if rate is None or rate_name in suspects else rate[i]
             if attitude is not None and dt > 0.0:
                 if plane.last_attitude is not None:
                     raw = (attitude[i] - plane.last_attitude) / dt
                     plane.derivative += (raw - plane.derivative) * min(dt / rules.rate_filter, 1.0)
                 plane.last_attitude = attitude[i]
-            plane.tilt_rate = body_rate if body_rate is not None else plane.derivative
+            # A faulty rate is replaced by the attitude's derivative; both missing: nothing to balance on.
+            has_rate = body[i] is not None or (measured[i] is not None and attitude is not None)
+            planes_ok = planes_ok and (plane.integrated is not None or measured[i] is not None) and has_rate
+        roll, pitch = (m if m is not None else p.tilt for m, p in zip(measured, self.planes, strict=True))
+        # The body rates as best known: a named roll or pitch rate stands in from its attitude's derivative.
+        wx, wy = (b if b is not None else p.derivative for b, p in zip(body, self.planes, strict=True))
+        gyro_z = None if rate is None or "RateZ" in suspects else rate[2]
+        self._track_hypotheses(velocities, rate, roll, pitch)
+        relative = self._relative(
+            velocities, (wx, wy, 0.0 if gyro_z is None else gyro_z), gyro_z is None, suspects, roll, pitch
+        )
+        if gyro_z is not None:
+            self.yaw_rate = gyro_z
+        elif relative is not None:
+            self.yaw_rate = YawCheck.encoders(relative, (wx, wy), roll, pitch)
+        euler = euler_rates((wx, wy, self.yaw_rate), roll, pitch)
+        for i, plane in enumerate(self.planes):
+            plane.tilt_rate = euler[i] if body[i] is not None else plane.derivative
+            trusted = measured[i]
             if plane.integrated is None:
-                plane.integrated = measured
+                plane.integrated = trusted
             elif dt > 0.0:
                 plane.integrated += plane.tilt_rate * dt
-                if measured is not None and attitude_name not in doubted:
-                    plane.integrated += (measured - plane.integrated) * min(dt / rules.attitude_filter, 1.0)
-            if measured is not None:
-                plane.tilt = measured
+                if trusted is not None and TILT_INPUTS[i][0] not in doubted:
+                    plane.integrated += (trusted - plane.integrated) * min(dt / rules.attitude_filter, 1.0)
+            if trusted is not None:
+                plane.tilt = trusted
             elif plane.integrated is not None:
                 plane.tilt = plane.integrated
-            # A faulty rate is replaced by the attitude's derivative; both missing: nothing to balance on.
-            has_rate = body_rate is not None or (measured is not None and attitude is not None)
-            planes_ok = planes_ok and plane.integrated is not None and has_rate
-        self._track_hypotheses(velocities, rate)
-        relative = self._relative(velocities, rate, suspects)
         self.ready = planes_ok and relative is not None
         if relative is None:
             return
-        if attitude is not None and rate is not None and accel is not None and relative is not None:
+        if attitude is not None and rate is not None and accel is not None:
             self._vote_attitude(attitude, rate, accel, relative, dt)
-        gyro_z = None if rate is None or "RateZ" in suspects else rate[2]
-        self.yaw_rate = gyro_z if gyro_z is not None else -relative[2]
-        for i, plane in enumerate(self.planes):
-            plane.ball_rate = relative[i] + plane.tilt_rate
-            plane.ball_angle += plane.ball_rate * dt
+        self.heading += euler[2] * dt
+        # The ball's rotation in the heading frame: the relative rates turned by the tilt, plus the chassis'
+        # own horizontal rotation there (φ̇ cos θ, θ̇). A ball spinning on the floor spins about the
+        # vertical: it drops out of both.
+        roll_plane, pitch_plane = self.planes
+        rx, ry, _ = heading_frame(relative, roll, pitch)
+        roll_plane.ball_rate = rx + roll_plane.tilt_rate * math.cos(pitch)
+        pitch_plane.ball_rate = ry + pitch_plane.tilt_rate
+        c, s = math.cos(self.heading), math.sin(self.heading)
+        self.travel[0] += (c * roll_plane.ball_rate - s * pitch_plane.ball_rate) * dt
+        self.travel[1] += (s * roll_plane.ball_rate + c * pitch_plane.ball_rate) * dt
+        self._travel_in_heading()
 
-    def _track_hypotheses(self, velocities: Sequence[float | None], rate: Sequence[float] | None) -> None:
+    def _travel_in_heading(self) -> None:
+        """The planes' ball angles: the world travel seen from the current heading."""
+        c, s = math.cos(self.heading), math.sin(self.heading)
+        x, y = self.travel
+        self.planes[0].ball_angle = c * x + s * y
+        self.planes[1].ball_angle = -s * x + c * y
+
+    def hold_within(self, angle: float) -> None:
+        """The anchor follows the robot beyond `angle` (rad of ball travel) from it: a rider who leaned it
+        away and then sits up is not driven back further than that."""
+        x, y = self.travel
+        far = math.hypot(x, y)
+        if far > angle:
+            self.travel = [x * angle / far, y * angle / far]
+            self._travel_in_heading()
+
+    def _track_hypotheses(
+        self, velocities: Sequence[float | None], rate: Sequence[float] | None, roll: float, pitch: float
+    ) -> None:
         """How much each hypothesis' ball rates jumped tick to tick over the last ticks: a sensor that
         steps, flips or drifts makes every estimate that uses it jump; the one without it stays smooth."""
         m0, m1, m2 = velocities
@@ -197,7 +251,8 @@ class IsolatedEstimator:
         known = (m0, m1, m2)
         candidates = [(r00 * m0 + r01 * m1 + r02 * m2, r10 * m0 + r11 * m1 + r12 * m2)]
         for solve, others in self._leave_one_out:
-            candidates.append(solve([known[j] for j in others], rate[2]))
+            x, y, _ = solve([known[j] for j in others], rate, roll, pitch)
+            candidates.append((x, y))
         if self._candidates is not None:
             for i, before in enumerate(self._candidates):
                 now = candidates[i]
@@ -294,9 +349,16 @@ class IsolatedEstimator:
             plane.blamed = None
 
     def _relative(
-        self, velocities: Sequence[float | None], rate: Sequence[float] | None, suspects: frozenset[str]
+        self,
+        velocities: Sequence[float | None],
+        rate: Sequence[float],
+        no_yaw_rate: bool,
+        suspects: frozenset[str],
+        roll: float,
+        pitch: float,
     ) -> tuple[float, float, float] | None:
-        """Ball-to-body rates (x, y, z) from the trusted encoders (and the gyro's yaw rate if one is not)."""
+        """Ball-to-body rates (x, y, z) from the trusted encoders (two, the gyro and the attitude if one is
+        not: the ball does not spin on the floor); `no_yaw_rate`: the gyro's RateZ is not to be used."""
         bad = [i for i in range(3) if velocities[i] is None or ENCODERS[i] in suspects]
         if not bad:
             m0, m1, m2 = velocities
@@ -307,16 +369,16 @@ class IsolatedEstimator:
                     r10 * m0 + r11 * m1 + r12 * m2,
                     r20 * m0 + r21 * m1 + r22 * m2,
                 )
-        if len(bad) > 1 or rate is None or "RateZ" in suspects:
+        if len(bad) > 1 or no_yaw_rate:
             return None
         solve, others = self._leave_one_out[bad[0]]
-        x, y = solve(cast("list[float]", [velocities[j] for j in others]), rate[2])  # others: not the bad one
-        return x, y, -rate[2]
+        return solve(cast("list[float]", [velocities[j] for j in others]), rate, roll, pitch)
 
     def engage(self) -> None:
-        """The takeover begins: the ball angle counts from here."""
-        for plane in self.planes:
-            plane.ball_angle = 0.0
+        """The takeover begins: the heading and the ball's travel count from here."""
+        self.heading = 0.0
+        self.travel = [0.0, 0.0]
+        self._travel_in_heading()
 
     @property
     def speed(self) -> float:
@@ -335,10 +397,13 @@ def accelerometer_tilt(a: float, norm: float, offset: float) -> float:
     return math.asin(min(max(a / norm, -1.0), 1.0)) - offset
 
 
-def plane_gain(robot: RobotGeometry, rules: RecoveryRules, rider_mass: float, inertia: float) -> np.ndarray:
+def plane_gain(
+    robot: RobotGeometry, rules: RecoveryRules, rider_mass: float, inertia: float, chassis: float = 1.0
+) -> np.ndarray:
     """LQR gain K (τ = −K s, s = [θ, φ, θ̇, φ̇]) of the planar ballbot linearised upright (Fankhauser &
     Gwerder's model, the rider a point mass `rider_com` above the seat, the drivetrain's inertia left out:
-    under 1 % of the body's here)."""
+    under 1 % of the body's here). `chassis`: how the chassis takes the reaction of a torque τ on the ball,
+    as −chassis·τ (1 in a plane of its own; a pair of wheels' coupled plane differs: `chassis_factor`)."""
     ball, body = robot.ball, robot.body
     seat = body.top_height + body.seat_height + rules.rider_com
     mass = body.mass + rider_mass
@@ -354,7 +419,7 @@ def plane_gain(robot: RobotGeometry, rules: RecoveryRules, rider_mass: float, in
     a[0, 2] = a[1, 3] = 1.0
     a[2, 0] = m11 * gravity / det
     a[3, 0] = -m12 * gravity / det
-    b = np.array([[0.0], [0.0], [-(m11 + m12) / det], [(m22 + m12) / det]])
+    b = np.array([[0.0], [0.0], [-(m11 * chassis + m12) / det], [(m22 + m12 * chassis) / det]])
     q = np.diag([rules.q_tilt, rules.q_position, rules.q_tilt_rate, rules.q_ball_rate])
     rr = np.array([[rules.r]])
     p = solve_continuous_are(a, b, q, rr)
@@ -362,34 +427,77 @@ def plane_gain(robot: RobotGeometry, rules: RecoveryRules, rider_mass: float, in
     return gain
 
 
+@dataclass(frozen=True, slots=True)
+class Pair:
+    """The two drives left when one is dead, and what their torques can do. Their two torques make a torque
+    on the ball in a plane of three dimensions: about one horizontal axis (`free`) without any yaw torque,
+    about the axis across it (`coupled`) only with a yaw torque `yaw_per_torque` times as large, whose
+    reaction turns the chassis (docs/safety.md "A dead drive")."""
+
+    drives: list[int]
+    to_motor: np.ndarray
+    """2 x 2: a horizontal torque on the ball (x, y) -> the two drives' torques."""
+    free: tuple[float, float]
+    coupled: tuple[float, float]
+    yaw_per_torque: float
+
+
+def pair(jacobian: np.ndarray, dead: int) -> Pair:
+    drives = [j for j in range(3) if j != dead]
+    rows = jacobian[drives]  # each drive's torque axis on the ball (τ = Gᵀ T)
+    to_motor = np.linalg.inv(rows[:, :2].T)
+    yaw = to_motor.T @ rows[:, 2]  # τ_z = yaw · (τ_x, τ_y) for any torque the pair makes
+    k = float(np.hypot(*yaw))
+    coupled = (float(yaw[0]) / k, float(yaw[1]) / k)
+    return Pair(drives, to_motor, (-coupled[1], coupled[0]), coupled, k)
+
+
+MASSES = np.arange(0.0, MAX_RIDER + RIDER_STEP / 2, RIDER_STEP)
+"""kg: the riders the gains are solved for."""
+FACTORS = np.linspace(-4.0, 4.0, 17)
+"""The chassis factors the coupled plane's gains are solved for (interpolated between): PURE's pairs with
+a 50-120 kg rider and up to 15 deg of tilt lie within ±3.5."""
+
+
+@functools.cache
+def gain_tables(robot: RobotGeometry, rules: RecoveryRules) -> tuple[np.ndarray, np.ndarray]:
+    """The gains for riders every RIDER_STEP kg, (roll, pitch) planes and the coupled plane of a pair for
+    every chassis factor: solved once per process and robot (a takeover only interpolates: a Riccati solve
+    at the takeover would delay its frame by milliseconds; the 171 of them take 0.7-1.6 s on a loaded 2-core
+    machine)."""
+    body = robot.body
+    planes = np.array(
+        [
+            [plane_gain(robot, rules, m, inertia) for inertia in (body.inertia_roll, body.inertia_pitch)]
+            for m in MASSES
+        ]
+    )
+    inertia = 0.5 * (body.inertia_roll + body.inertia_pitch)
+    coupled = np.array([[plane_gain(robot, rules, m, inertia, float(f)) for f in FACTORS] for m in MASSES])
+    planes.setflags(write=False)  # shared by every law of the process
+    coupled.setflags(write=False)
+    return planes, coupled
+
+
 class RecoveryLaw:
-    """τ = −K s per plane, the yaw rate damped, mapped onto the motors and held to their limit. Without one
-    drive (found not to make its torque) the other two make the two balancing torques and the yaw is left
-    free: a ballbot can balance on two omniwheels while it turns."""
+    """τ = −K s per plane, the yaw rate damped, mapped onto the motors and held to their limit.
+
+    Without one drive (found not to make its torque) the other two balance in two planes of their own:
+    about their yaw-free axis as in a plane of three drives (this brakes without turning the robot), and
+    across it, where every torque turns the chassis too. There the yaw is left free but not ignored: the
+    pair's torque ties the yaw rate to that plane's momentum (J_z ψ̇ + κ p = const), so that plane's
+    velocity feedback is partly the yaw rate (`coupled_velocity_share`), and its gains follow how the
+    chassis takes the pair's torque now: the rider's legs ahead of the axis and the chassis' own tilt couple
+    its roll to the yaw the torque brings (`chassis_factor`)."""
 
     def __init__(self, robot: RobotGeometry, rules: RecoveryRules):
         self.robot, self.rules = robot, rules
-        transpose = motor_jacobian(robot).T
-        self._to_motor = np.linalg.inv(transpose)
-        self._without = tuple(
-            (
-                [j for j in range(3) if j != i],
-                np.linalg.inv(transpose[np.ix_([0, 1], [j for j in range(3) if j != i])]),
-            )
-            for i in range(3)
-        )
-        """Per drive: the other two, and the map from the balancing torques (x, y) onto them."""
+        jacobian = motor_jacobian(robot)
+        self._to_motor = np.linalg.inv(jacobian.T)
+        self._pairs = tuple(pair(jacobian, i) for i in range(3))
         self.limit = robot.drive.torque_limit
-        body = robot.body
-        # The gains for riders every RIDER_STEP kg, solved once: a takeover only interpolates (two Riccati
-        # solves would delay the takeover frame by milliseconds).
-        self._masses = np.arange(0.0, MAX_RIDER + RIDER_STEP / 2, RIDER_STEP)
-        self._table = np.array(
-            [
-                [plane_gain(robot, rules, m, inertia) for inertia in (body.inertia_roll, body.inertia_pitch)]
-                for m in self._masses
-            ]
-        )
+        self._masses = MASSES
+        self._table, self._coupled_table = gain_tables(robot, rules)
         self.gains = self.design(None)
 
     def design(self, seat_load: float | None) -> tuple[np.ndarray, np.ndarray]:
@@ -400,25 +508,87 @@ class RecoveryLaw:
             [[np.interp(rider, self._masses, self._table[:, p, i]) for i in range(4)] for p in range(2)]
         )
         self.gains = (gains[0], gains[1])
+        self._coupled_gains = np.array(
+            [
+                [np.interp(rider, self._masses, self._coupled_table[:, f, i]) for i in range(4)]
+                for f in range(len(FACTORS))
+            ]
+        )
+        self._chassis_inertia(rider)
         return self.gains
+
+    def _chassis_inertia(self, rider: float) -> None:
+        """The chassis' and the seated rider's inertia about the ball centre, body axes (the rider a point
+        mass for roll and pitch, as in `plane_gain`; per kg of rider for yaw and the roll-yaw product)."""
+        body, rules = self.robot.body, self.rules
+        seat = body.top_height + body.seat_height + rules.rider_com
+        level = body.mass * body.com_height**2 + rider * seat**2
+        xz = rules.rider_roll_yaw_product * rider
+        inertia = np.array(
+            [
+                [body.inertia_roll + level, 0.0, xz],
+                [0.0, body.inertia_pitch + level, 0.0],
+                [xz, 0.0, body.inertia_yaw + rules.rider_yaw_inertia * rider],
+            ]
+        )
+        self._inverse_inertia = np.linalg.inv(inertia)
+        self._yaw_inertia = float(inertia[2, 2])
+        r, mass = self.robot.ball.radius, body.mass + rider
+        self._ball_inertia = self.robot.ball.mass * r**2 + self.robot.ball.inertia + mass * r**2
+
+    def chassis_factor(self, dead: int, roll: float, pitch: float) -> float:
+        """How the chassis takes the pair's torque about the coupled axis, against a plane of its own (1):
+        its tilt rate's response to that torque with the yaw free, the reaction of the torque and of the yaw
+        torque that comes with it (both about body axes) through the inertia tilted with the chassis. The
+        rider's legs ahead of the axis (a roll-yaw product of inertia) and a chassis tilted back under a
+        leaning rider move it far from 1, to below 0 (docs/safety.md)."""
+        p = self._pairs[dead]
+        ex, ey = p.coupled
+        q = body_frame((ex, ey, 0.0), roll, pitch)  # the heading frame's coupled axis, in body axes
+        inverse = self._inverse_inertia
+        push = inverse @ np.array([ex, ey, p.yaw_per_torque])
+        qv = np.asarray(q)
+        return float(qv @ push) / float(qv @ inverse @ qv)
 
     def torques(self, estimate: IsolatedEstimator, without: int | None = None) -> tuple[float, float, float]:
         """The motor torques for the estimate; `without`: a drive (0-2) that makes no torque."""
-        limit_angle = self.rules.position_limit / estimate.radius
-        ball = []
-        for plane, gain in zip(estimate.planes, self.gains, strict=True):
-            # Anti-windup: beyond the limit the anchor moves with the robot, so a rider who leaned it away
-            # and then sits up is not driven back further than the limit.
-            plane.ball_angle = min(max(plane.ball_angle, -limit_angle), limit_angle)
-            state = (plane.tilt, plane.ball_angle, plane.tilt_rate, plane.ball_rate)
-            ball.append(-sum(k * x for k, x in zip(gain, state, strict=True)))
+        # Anti-windup: beyond the limit the anchor moves with the robot, so a rider who leaned it away and
+        # then sits up is not driven back further than the limit.
+        estimate.hold_within(self.rules.position_limit / estimate.radius)
+        roll, pitch = estimate.planes
+        states = [(p.tilt, p.ball_angle, p.tilt_rate, p.ball_rate) for p in estimate.planes]
         if without is None:
+            ball = [
+                -sum(k * x for k, x in zip(g, s, strict=True))
+                for g, s in zip(self.gains, states, strict=True)
+            ]
             ball.append(self.rules.yaw_gain * estimate.yaw_rate)
             motor = self._to_motor @ np.asarray(ball)
         else:
-            others, inverse = self._without[without]
+            p = self._pairs[without]
+            (dx, dy), (ex, ey) = p.free, p.coupled
+            free = [dx * a + dy * b for a, b in zip(*states, strict=True)]
+            coupled = [ex * a + ey * b for a, b in zip(*states, strict=True)]
+            share = self.rules.coupled_velocity_share
+            # The yaw rate stands in for part of the coupled plane's ball rate: the pair's torque changes
+            # them together, ψ̇ by −κ/J_z per unit of that plane's momentum m11 φ̇.
+            coupled[1] *= share
+            coupled[3] = (
+                share * coupled[3]
+                - (1.0 - share)
+                * self._yaw_inertia
+                / (p.yaw_per_torque * self._ball_inertia)
+                * estimate.yaw_rate
+            )
+            factor = self.chassis_factor(without, roll.tilt, pitch.tilt)
+            gain_free = dx * dx * self.gains[0] + dy * dy * self.gains[1]
+            gain_coupled = [np.interp(factor, FACTORS, self._coupled_gains[:, i]) for i in range(4)]
+            t_free = -sum(k * x for k, x in zip(gain_free, free, strict=True))
+            t_coupled = -sum(k * x for k, x in zip(gain_coupled, coupled, strict=True))
             motor = np.zeros(3)
-            motor[others] = inverse @ np.asarray(ball)
+            motor[p.drives] = p.to_motor @ np.array(
+                [t_free * dx + t_coupled * ex, t_free * dy + t_coupled * ey]
+            )
         limit = self.limit
         m0, m1, m2 = (float(m) for m in motor)
         return min(max(m0, -limit), limit), min(max(m1, -limit), limit), min(max(m2, -limit), limit)

@@ -139,3 +139,32 @@ def test_the_docs_table_names_each_cases_reaction_modes_and_end():
     rows = table(report).splitlines()
     assert rows[2] == "| `can.babble` |  | DRIVES_SILENT 47.5 ms; NORMAL>ESTOP; fell (unrecoverable) |  |"
     assert len(rows) == 3
+
+
+def test_the_docs_dead_drive_table_names_each_cases_peak_yaw_rate_and_end():
+    from hil.suites.coverage import dead_drives
+
+    def case(scenario, fault_set, ended, yaw, fall_cause=None, excused=""):
+        after = {"ended": ended, "peak_yaw_rate": yaw, "excused": excused}
+        return {
+            "case": f"{scenario}-{fault_set}-seed0",
+            "scenario": f"configs/scenarios/{scenario}.toml",
+            "role": "faulty",
+            "fall_cause": fall_cause,
+            "coverage": {"class": f"DETECTED+{ended}", "after": after},
+        }
+
+    report = {
+        "cases": [
+            case("balance", "plant.drive_torque", "AT_REST", 2.42),
+            case(
+                "slalom", "plant.drive_torque-drive2", "FELL", 11.6, "tilt beyond 30 deg at t=4.138 s", "why"
+            ),
+            case("slalom", "can.babble", "FELL", 0.1, "tilt beyond 30 deg at t=3.5 s"),  # not a dead drive
+        ]
+    }
+    rows = dead_drives(report).splitlines()
+    assert rows[0] == "| dead drive | speed_limiting | slalom | balance |"
+    assert rows[2] == "| drive 1 |  |  | 2.4 rad/s; at rest |"
+    assert rows[3] == "| drive 2 |  | 11.6 rad/s; fell: tilt beyond 30 deg at 4.1 s (unrecoverable) |  |"
+    assert len(rows) == 4

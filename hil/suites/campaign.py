@@ -530,8 +530,8 @@ def coverage_report(results: list[CaseResult]) -> str:
         else "",
         "",
         "| class | case | cause | reaction ms | departed ms | bound ms | to rest s | peak speed m/s "
-        "| peak tilt deg | modes | drives held by | note |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| peak tilt deg | peak yaw rad/s | modes | drives held by | note |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     order = {"ERROR": 0, "MISSED": 1, "LATE": 2, "DETECTED": 3, "BENIGN": 4}
     for r in sorted(
@@ -545,7 +545,7 @@ def coverage_report(results: list[CaseResult]) -> str:
         c = r.coverage
         if c is None:
             lines.append(
-                f"| ERROR | {r.case_id} |  |  |  |  |  |  |  |  |  "
+                f"| ERROR | {r.case_id} |  |  |  |  |  |  |  |  |  |  "
                 f"| {r.error.splitlines()[0][:120] if r.error else ''} |"
             )
             continue
@@ -555,9 +555,9 @@ def coverage_report(results: list[CaseResult]) -> str:
         a = c.after
         after = (
             f"{'' if a.to_rest is None else f'{a.to_rest:.1f}'} | {a.peak_speed:.2f} | {a.peak_tilt_deg:.1f} "
-            f"| {a.modes} | {a.held_by}"
+            f"| {a.peak_yaw_rate:.1f} | {a.modes} | {a.held_by}"
             if a
-            else " |  |  |  | "
+            else " |  |  |  |  | "
         )
         note = "; ".join(x for x in (c.note, a and a.excused and f"unrecoverable: {a.excused}") if x)
         lines.append(
@@ -565,7 +565,7 @@ def coverage_report(results: list[CaseResult]) -> str:
         )
     for r in trips:
         why = r.false_trip or r.error.splitlines()[0]
-        lines.append(f"| FALSE TRIP | {r.case_id} |  |  |  |  |  |  |  |  |  | {why} |")
+        lines.append(f"| FALSE TRIP | {r.case_id} |  |  |  |  |  |  |  |  |  |  | {why} |")
     return "\n".join(line for line in lines if line is not None) + "\n"
 
 

@@ -209,6 +209,8 @@ class Aftermath:
     """s from the fault's start until the robot stood still to the end (None: it did not)."""
     peak_speed: float
     peak_tilt_deg: float
+    peak_yaw_rate: float
+    """rad/s: how fast it turned after the detection (two wheels turn it as they balance)."""
     modes: str
     """The supervisor's modes from the one the fault met on, e.g. NORMAL>RECOVERY>ESTOP."""
     held_by: str
@@ -225,7 +227,7 @@ def aftermath(o: Outcome, start: float, seen: float) -> Aftermath:
     if rest:
         last = moving[-1] + 1 if len(moving) else 0
         to_rest = max(float(t[min(last, len(t) - 1)]) - start, 0.0)
-    peak_speed, peak_tilt, _ = o.peaks_after(seen)
+    peak_speed, peak_tilt, peak_yaw = o.peaks_after(seen)
     after = [(when, state) for when, state, _ in o.transitions if when >= start - 1e-9]
     before = [state for when, state, _ in o.transitions if when < start - 1e-9]
     # The path of modes from the one the fault met: a state entered again for another cause is one mode.
@@ -239,7 +241,7 @@ def aftermath(o: Outcome, start: float, seen: float) -> Aftermath:
         held_by = "nobody" if i is not None and speed[i] > o.standstill_speed else "controller"
     ended = "FELL" if o.fell_at is not None else "AT_REST" if rest else "MOVING"
     excused = o.unrecoverable if ended == "FELL" else ""
-    return Aftermath(ended, to_rest, peak_speed, peak_tilt, modes, held_by, excused)
+    return Aftermath(ended, to_rest, peak_speed, peak_tilt, peak_yaw, modes, held_by, excused)
 
 
 @dataclass(frozen=True, slots=True)
@@ -391,8 +393,40 @@ def table(report: dict, scenarios: tuple[str, ...] = ("speed_limiting", "slalom"
     return "\n".join(lines)
 
 
+DEAD_DRIVES = {"plant.drive_torque": "drive 1", "plant.drive_torque-drive2": "drive 2"}
+"""The diagnostics campaign's dead-drive fault sets (docs/safety.md "A dead drive")."""
+
+
+def dead_drives(report: dict, scenarios: tuple[str, ...] = ("speed_limiting", "slalom", "balance")) -> str:
+    """docs/safety.md's dead-drive table from a diagnostics campaign's report.json: per dead drive and
+    scenario, how the run ended and the peak yaw rate after the detection."""
+    cells: dict[str, dict[str, str]] = {}
+    for case in report["cases"]:
+        coverage = case.get("coverage") or {}
+        after = coverage.get("after")
+        scenario = Path(case["scenario"]).stem
+        fault_set = case["case"].removeprefix(f"{scenario}-").rsplit("-seed", 1)[0]
+        if case["role"] != "faulty" or fault_set not in DEAD_DRIVES or not after:
+            continue
+        ended = ENDED.get(after["ended"], after["ended"])
+        if after["ended"] == "FELL":  # "fell: foot right touched the floor at 5.4 s", from the fault at 3 s
+            how = (case.get("fall_cause") or "").split(" at t=")
+            ended += f": {how[0]} at {float(how[1].split()[0]):.1f} s" if len(how) == 2 else ""
+            ended += " (unrecoverable)" if after.get("excused") else ""
+        yaw = f"{after['peak_yaw_rate']:.1f} rad/s"
+        cells.setdefault(DEAD_DRIVES[fault_set], {})[scenario] = f"{yaw}; {ended}"
+    head = ["dead drive", *scenarios]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for drive in sorted(cells):
+        lines.append("| " + " | ".join([drive, *(cells[drive].get(s, "") for s in scenarios)]) + " |")
+    return "\n".join(lines)
+
+
 if __name__ == "__main__":
     import json
     import sys
 
-    print(table(json.loads(Path(sys.argv[1]).read_text())))
+    report = json.loads(Path(sys.argv[1]).read_text())
+    print(table(report))
+    print()
+    print(dead_drives(report))
