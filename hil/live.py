@@ -10,7 +10,9 @@ A sample (JSON): scenario, run id, simulated time; speed (forward, signed), chas
 (pitch plane, signed) and the controller's command speed (forward), as plots.png draws them; the SC's
 command cap (in limit mode) and the supervisor's state, cap, last cause and new events; the drives'
 permission, power and the main contactor; the controller's heartbeats (rate in simulated time, state); the
-run's overruns, missed commands and wall-clock speed; the faults in force.
+run's overruns, missed commands and wall-clock speed; the faults in force; the robot's pose (`pose`, from
+the same truth: chassis tilt and torso lean (pitch, roll) in trace.npy's signs, heading, the ball's place on
+the floor).
 """
 
 from __future__ import annotations
@@ -44,6 +46,20 @@ def _newest(subscriber: zenoh.Subscriber, kind: type):
         return decode(newest.payload.to_bytes(), kind)
     except PayloadError:
         return None
+
+
+def pose(tr) -> dict:
+    """The robot's pose in a truth, as the console draws it: chassis tilt and torso lean (relative to the
+    chassis) as (pitch, roll) in degrees, signed as trace.npy (pitch + : the top forward, roll + : the top to
+    the right); heading (yaw + : counter-clockwise seen from above) in degrees within [-180, 180); the ball's
+    place on the floor (world x, y from the start) in metres."""
+    heading = (math.degrees(tr.yaw) + 180.0) % 360.0 - 180.0
+    return {
+        "tilt_deg": [round(math.degrees(a), 3) for a in tr.tilt],
+        "lean_deg": [round(math.degrees(a), 3) for a in tr.lean],
+        "heading_deg": round(heading, 2),
+        "position": [round(x, 4) for x in tr.position],
+    }
 
 
 class LiveStream:
@@ -122,6 +138,7 @@ class LiveStream:
             "cause": None,
             "estop_by": None,
             "events": None,  # the embedded supervisor's new events (elsewhere: its state stream says it)
+            "pose": pose(tr),
         }
         safety = self._safety_state
         if safety is not None:

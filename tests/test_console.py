@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import http.client
 import json
+import math
 import os
 import queue
 import re
@@ -36,6 +37,7 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import msgspec
+import numpy as np
 import pytest
 
 from drivers.keys import Keys
@@ -822,7 +824,7 @@ def test_the_live_stream_gives_signed_speed_and_tilt_and_the_sc_cap():
     def plant(forward: float, pitch: float):
         truth = SimpleNamespace(
             t=1.0, velocity=(forward, 0.4), tilt=(pitch, 0.0), lean=(0.1, 0.0), powered=True, resting=False,
-            fallen=None,
+            fallen=None, yaw=0.0, position=(0.0, 0.0),
         )  # fmt: skip
         return SimpleNamespace(truth=lambda: truth, drives=drives)
 
@@ -838,6 +840,84 @@ def test_the_live_stream_gives_signed_speed_and_tilt_and_the_sc_cap():
         assert stream.sample(plant(0.1, 0.0))["sc_cap"] is None, "no cap out of limit mode"
     finally:
         sc.close()
+        stream.close()
+        hub.close()
+
+
+def _axes(quaternion) -> np.ndarray:
+    """A body's rotation matrix (columns: its x, y, z axes in the world) from MuJoCo's (w, x, y, z)."""
+    w, x, y, z = quaternion
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def _seen(poses: dict, body: str) -> tuple[float, float, float]:
+    """Where `body`'s z axis points, read off the bodies' world poses alone (not the plant's Euler angles):
+    (pitch: its top forward, roll: its top to the right, in the chassis' heading frame; heading: the chassis'
+    x axis from the world's x, counter-clockwise), degrees."""
+    chassis_x = _axes(poses["chassis"][1])[:, 0]
+    heading = math.atan2(chassis_x[1], chassis_x[0])
+    up = _axes(poses[body][1])[:, 2]
+    forward = math.cos(heading) * up[0] + math.sin(heading) * up[1]
+    left = -math.sin(heading) * up[0] + math.cos(heading) * up[1]
+    pitch, roll = math.atan2(forward, up[2]), math.asin(-left)  # up = (sin p cos r, -sin r, cos p cos r)
+    return math.degrees(pitch), math.degrees(roll), math.degrees(heading)
+
+
+def test_the_live_pose_is_the_bodies_pose_on_a_ride_signs_included():
+    """The live sample's pose against the 3-D plant's own bodies (plant.poses(): MuJoCo's frames) on a ride
+    released tilted forward and to the right, then turning more than half a circle while the rider leans
+    forward and sways: chassis tilt, heading and the ball's place exactly, the torso (tilt + lean) within a
+    degree."""
+    from hil.live import LiveStream
+    from hil.run.truth_balancer import TruthBalancer
+    from plant.ballbot import RiderIntent
+    from plant.ballbot3d import Plant3D
+    from plant.rider import Hold, Ramp, Sine
+    from tests.helpers import RIDER_75, robot, sim
+
+    intent = RiderIntent(
+        pitch=[Hold(duration=0.5), Ramp(to=10.0, duration=1.0), Hold(duration=2.0)],
+        roll=[Hold(duration=1.0), Sine(amplitude=8.0, frequency_hz=0.5, duration=3.0)],
+    )
+    plant = Plant3D(robot(), RIDER_75, sim(plant="3d"), intent, (math.radians(4.0), math.radians(3.0)))
+    endpoint = hub_endpoint()
+    hub = open_session(role="hub", hub_endpoint=endpoint)
+    stream = LiveStream(hub, KEYS)
+    try:
+        start = stream.sample(plant)["pose"]
+        assert start["tilt_deg"] == [4.0, 3.0] and start["heading_deg"] == 0.0, start
+        top = _axes(plant.poses()["chassis"][1])[:, 2]
+        assert top[0] > 0.05 and top[1] < -0.04, f"released forward (+x) and to the right (-y): {top}"
+        balancer = TruthBalancer(plant)
+        balancer.yaw_rate_command = 0.8
+        seen = []
+        for tick in range(1600):  # 4 s: up to 1.2 m/s, 0.8 rad/s
+            balancer.set_velocity(1.2 * min(1.0, tick / 400))
+            balancer.drive()
+            plant.step()
+            if tick % 40 == 39:
+                sample, poses = stream.sample(plant)["pose"], plant.poses()
+                pitch, roll, heading = _seen(poses, "chassis")
+                assert sample["tilt_deg"] == pytest.approx([pitch, roll], abs=0.002), (plant.t, sample)
+                assert -180.0 <= sample["heading_deg"] < 180.0
+                assert (sample["heading_deg"] - heading + 180.0) % 360.0 - 180.0 == pytest.approx(0, abs=0.01)
+                assert sample["position"] == pytest.approx(poses["ball"][0][:2], abs=1e-4), (plant.t, sample)
+                torso = _seen(poses, "torso")[:2]
+                drawn = [t + lean for t, lean in zip(sample["tilt_deg"], sample["lean_deg"], strict=True)]
+                assert drawn == pytest.approx(torso, abs=1.0), (plant.t, sample, torso)
+                seen.append(sample)
+        assert plant.fallen is None
+        leans = np.array([s["lean_deg"] for s in seen])
+        assert leans[:, 0].max() > 8.0 and leans[:, 1].min() < -5.0 < 5.0 < leans[:, 1].max(), leans
+        headings = [s["heading_deg"] for s in seen]
+        assert min(headings) < -90.0 and max(headings) > 150.0, f"past half a circle, wrapped: {headings}"
+    finally:
         stream.close()
         hub.close()
 
