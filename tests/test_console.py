@@ -1164,6 +1164,96 @@ def test_in_the_browser_each_person_logs_in_and_acts_with_their_role(rig, tmp_pa
         assert line in said, f"{line!r} not in the audit log:\n{said}"
 
 
+TILTED = """
+name = "console_tilted"
+rider = "ref_60kg_180"
+duration = 600.0  # lockstep: ended by the test
+initial_tilt_deg = [5.0, -4.0]
+"""
+POSE_DRAWN = """(() => {
+const el = (id) => document.getElementById(id), p = window.pureConsole.drawnPose;
+const at = (id, name) => parseFloat(el(id).getAttribute(name));
+const deg = (dx, dy) => Math.atan2(dx, dy) * 180 / Math.PI;
+const lean = (line) => deg(at(line, 'x2') - at(line, 'x1'), at(line, 'y1') - at(line, 'y2'));
+return {pose: p, side: lean('pose-side-chassis'), rear: lean('pose-rear-chassis'),
+  side_torso: lean('pose-side-torso'), rear_torso: lean('pose-rear-torso'),
+  ball: [at('pose-top-ball', 'cx'), at('pose-top-ball', 'cy')],
+  heading: deg(at('pose-heading', 'y1') - at('pose-heading', 'y2'),
+    at('pose-heading', 'x2') - at('pose-heading', 'x1')),
+  shown: ['p-tilt-pitch', 'p-tilt-roll', 'p-heading', 'p-x', 'p-y'].map((id) => el(id).textContent),
+  live: (window.pureConsole.lastLive || {}).pose, panel: el('pose-panel').className,
+  age: el('pose-age').textContent};
+})()"""
+"""What the page drew of the pose, and what it says of it."""
+
+
+def _drawn_as_sampled(drawn: dict) -> None:
+    """The page's drawing says what the pose it drew says: each view's angle, the ball, the heading."""
+    pose = drawn["pose"]
+    (pitch, roll), (lean_pitch, lean_roll) = pose["tilt_deg"], pose["lean_deg"]
+    assert drawn["side"] == pytest.approx(pitch, abs=0.05) and drawn["rear"] == pytest.approx(roll, abs=0.05)
+    assert drawn["side_torso"] == pytest.approx(pitch + lean_pitch, abs=0.05), drawn
+    assert drawn["rear_torso"] == pytest.approx(roll + lean_roll, abs=0.05), drawn
+    x, y = pose["position"]
+    assert drawn["ball"] == pytest.approx([x, -y], abs=1e-3), "from above: y up"
+    assert (drawn["heading"] - pose["heading_deg"] + 180) % 360 - 180 == pytest.approx(0, abs=0.05)
+
+
+def test_the_page_draws_the_pose_and_greys_it_when_the_service_goes(rig, tmp_path):
+    """A run released tilted forward and to the left: the page draws it so (side view leaning forward, the
+    view from behind to the left), its numbers and drawing say what the live pose says, the path grows; the
+    service stops answering: the last pose stays, greyed, labelled stale with its age."""
+    service, console = rig
+    tilted = tmp_path / "console_tilted.toml"
+    tilted.write_text(TILTED)
+    service.scenarios = (*service.scenarios, str(tilted))
+    quiet = msgspec.structs.replace(
+        service.bench.outputs, can_log=False, recording=False, plots=False, mcap=False
+    )
+    service.bench = msgspec.structs.replace(service.bench, outputs=quiet)
+    browser = chromium()
+    try:
+        server, _ = console("operator")
+        browser.get(server.url)
+        page_wait(browser, "return document.getElementById('link').textContent == 'service idle'")
+        idle = browser.execute_script("return " + POSE_DRAWN)
+        assert idle["age"] == "no run" and "none" in idle["panel"], idle
+        status, reply = request(server.url + "api/start", {"scenario": str(tilted)})
+        assert status == 200, reply
+        # The first pose the page draws is the release: forward in the side view, left from behind.
+        first = page_wait(browser, f"const d = {POSE_DRAWN}; return d.pose && d", what="a pose")
+        assert first["side"] > 2.0 and first["rear"] < -1.5, f"forward, and to the left: {first}"
+        _drawn_as_sampled(first)
+        page_wait(browser, "return document.getElementById('pose-path').points.length > 3", what="a path")
+        now = browser.execute_script("return " + POSE_DRAWN)
+        _drawn_as_sampled(now)
+        assert now["age"].startswith("live,") and "stale" not in now["panel"], now
+        live = now["live"]
+        numbers = [*live["tilt_deg"], live["heading_deg"]]
+        assert now["shown"] == [f"{v:+.1f}" for v in numbers] + [f"{v:+.2f}" for v in live["position"]], now
+
+        service.close()  # the run ends, and nothing answers any more
+        service.close = lambda: None
+        said = page_wait(
+            browser,
+            "const a = document.getElementById('pose-age').textContent; "
+            "return a.includes('the service does not answer') && a",
+            what="the pose stale",
+        )
+        assert re.fullmatch(r"stale: the service does not answer; [\d.]+ (s|min) old", said), said
+        last = browser.execute_script("return " + POSE_DRAWN)
+        assert "stale" in last["panel"] and "none" not in last["panel"], "the last pose, greyed"
+        _drawn_as_sampled(last)
+        opacity = browser.execute_script(
+            "return getComputedStyle(document.getElementById('pose-side')).opacity"
+        )
+        assert float(opacity) < 1.0
+        browser.save_screenshot(str(tmp_path / "pose.png"))
+    finally:
+        browser.quit()
+        shutil.rmtree(browser.profile_dir, ignore_errors=True)
+
+
 # ----------------------------------------------------------------------------------------- history
 OLD_SCHEMA = """CREATE TABLE runs (id INTEGER PRIMARY KEY AUTOINCREMENT, folder TEXT NOT NULL,
     scenario TEXT NOT NULL, bench TEXT NOT NULL, controller TEXT NOT NULL, clock TEXT NOT NULL,

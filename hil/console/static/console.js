@@ -9,6 +9,9 @@ const WINDOW = 20; // s of simulated time on the charts
 const LIVE_STALE = 1.5; // s: the live stream comes every 50 ms while a run goes
 const SAFETY_STALE = 2.0; // s: the supervisor speaks every 0.1 s simulated (hil/console/latch.py SILENT)
 const STATUS_STALE = 3.5; // s: the console asks the status every second, each question waits up to 2 s
+const PATH_STEP = 0.02; // m between the top view's path points, doubled each time the path is thinned
+const PATH_MAX = 1000; // path points kept: past it every other one goes, so a run of weeks holds as many
+const CHASSIS = 0.51, TORSO = 0.6; // m the pose views draw: ball centre to the hips, hips to the head
 const SHADES = { // the supervisor's states as plots.png shades them
   LIMITING: "rgba(255, 215, 0, 0.35)", STOPPING: "rgba(255, 165, 0, 0.35)",
   RECOVERY: "rgba(0, 191, 255, 0.30)", ESTOP: "rgba(255, 0, 0, 0.25)",
@@ -17,7 +20,7 @@ const $ = (id) => document.getElementById(id);
 const state = {
   info: null, run: null, series: [], scenarios: "", supervisorEvents: false, lastSafety: null,
   samples: 0, lastLive: null, history: [], status: null, latch: null, skew: null, connected: false,
-  source: null,
+  source: null, path: [], pathStep: PATH_STEP, drawnPose: null,
 };
 window.pureConsole = state; // what a test (or a curious operator) can read from the browser
 
@@ -256,8 +259,11 @@ function onLive(s) {
     state.supervisorEvents = false;
     $("events").replaceChildren();
     text("run-name", `${s.scenario} (run ${s.run})`);
+    state.path = [];
+    state.pathStep = PATH_STEP;
   }
   state.series.push(s);
+  trackPath(s);
   const first = s.t - WINDOW;
   while (state.series.length && state.series[0].t < first) state.series.shift();
   if (s.events) {
@@ -332,6 +338,7 @@ function render() {
   renderService();
   renderHealth();
   renderRun();
+  renderPose();
   renderLatch();
   renderActions();
 }
@@ -478,6 +485,7 @@ function requestDraw() {
     chart($("chart-angles"), "deg", [
       ["tilt", "#6a1b9a", [], (s) => s.tilt_deg], ["lean", "#2e7d32", [], (s) => s.lean_deg],
     ], 2);
+    if (state.lastLive) drawPose(state.lastLive.pose);
   });
 }
 
@@ -554,6 +562,103 @@ function chart(canvas, unit, lines, minSpan) {
     ctx.setLineDash([]);
     if (label) { ctx.fillStyle = color; ctx.fillText(label, legend, 14); legend += ctx.measureText(label).width + 16; }
   }
+}
+
+// ----------------------------------------------------------------------------------------------- pose
+// The live sample's pose (hil/live.py pose()): chassis tilt and torso lean (pitch, roll; the lean relative to
+// the chassis, the torso drawn at tilt + lean), heading, the ball on the floor. Side view from the robot's
+// right (forward to the right), the other from behind (the rider's right to the right): in both a positive
+// angle leans the top to the right, as the signs go (pitch + forward, roll + right).
+function trackPath(s) {
+  if (!s.pose) return;
+  const [x, y] = s.pose.position;
+  const path = state.path;
+  const last = path[path.length - 1];
+  if (last && Math.hypot(x - last[0], y - last[1]) < state.pathStep) return;
+  path.push([x, y]);
+  if (path.length > PATH_MAX) { // thinned, never cut: the whole path stays, at half the detail
+    state.path = path.filter((_, i) => i % 2 === 0 || i === path.length - 1);
+    state.pathStep *= 2;
+  }
+}
+
+function setAttrs(id, attrs) {
+  const el = $(id);
+  for (const [name, value] of Object.entries(attrs)) el.setAttribute(name, typeof value === "number" ? value.toFixed(4) : value);
+}
+
+function stick(view, chassisDeg, torsoDeg) {
+  const c = (chassisDeg * Math.PI) / 180, t = (torsoDeg * Math.PI) / 180;
+  const x = CHASSIS * Math.sin(c), y = -CHASSIS * Math.cos(c);
+  setAttrs(`${view}-chassis`, { x2: x, y2: y });
+  setAttrs(`${view}-torso`, { x1: x, y1: y, x2: x + TORSO * Math.sin(t), y2: y - TORSO * Math.cos(t) });
+  $(`${view}-angle`).textContent = `${signed(chassisDeg, 1)}°`;
+}
+
+function drawPose(pose) {
+  if (!pose) return;
+  state.drawnPose = pose;
+  const [pitch, roll] = pose.tilt_deg, [leanPitch, leanRoll] = pose.lean_deg;
+  stick("pose-side", pitch, pitch + leanPitch);
+  stick("pose-rear", roll, roll + leanRoll);
+  // From above: world x to the right, y up (the SVG's y down, so -y); the view holds the path and the robot,
+  // snapped to its grid so it moves only when the robot nears its edge.
+  const [x, y] = pose.position;
+  let x0 = x, x1 = x, y0 = y, y1 = y;
+  for (const [px, py] of state.path) {
+    x0 = Math.min(x0, px); x1 = Math.max(x1, px); y0 = Math.min(y0, py); y1 = Math.max(y1, py);
+  }
+  const want = Math.max(x1 - x0, y1 - y0) + 1.0;
+  const step = niceStep(Math.max(want, 2) / 4);
+  const left = Math.floor((x0 - 0.5) / step) * step, bottom = Math.floor((y0 - 0.5) / step) * step;
+  const span = Math.max(Math.ceil((x1 + 0.5 - left) / step), Math.ceil((y1 + 0.5 - bottom) / step), 2) * step;
+  const box = `${left} ${-(bottom + span)} ${span} ${span}`;
+  const svg = $("pose-top");
+  if (svg.getAttribute("viewBox") !== box) {
+    svg.setAttribute("viewBox", box);
+    const lines = [];
+    for (let k = 0; k <= Math.round(span / step); k++) {
+      const gx = left + k * step, gy = bottom + k * step;
+      lines.push(`<line class="grid${Math.abs(gx) < 1e-9 ? " axis" : ""}" x1="${gx}" y1="${-bottom}" x2="${gx}" y2="${-(bottom + span)}"/>`);
+      lines.push(`<line class="grid${Math.abs(gy) < 1e-9 ? " axis" : ""}" x1="${left}" y1="${-gy}" x2="${left + span}" y2="${-gy}"/>`);
+    }
+    $("pose-grid").innerHTML = lines.join("");
+    text("pose-grid-step", step >= 1 ? `${step} m` : `${Math.round(step * 100)} cm`);
+  }
+  $("pose-path").setAttribute("points", [...state.path, [x, y]].map(([px, py]) => `${px},${-py}`).join(" "));
+  const r = Math.max(0.1145, span * 0.015); // the ball to scale, never smaller than a dot
+  setAttrs("pose-top-ball", { cx: x, cy: -y, r });
+  const h = (pose.heading_deg * Math.PI) / 180, arrow = r + span * 0.12, head = span * 0.035;
+  const tipX = x + arrow * Math.cos(h), tipY = -(y + arrow * Math.sin(h));
+  setAttrs("pose-heading", { x1: x, y1: -y, x2: tipX, y2: tipY });
+  const back = (side) => [tipX - head * Math.cos(h + side * 0.45), tipY + head * Math.sin(h + side * 0.45)];
+  $("pose-heading-head").setAttribute("points", [[tipX, tipY], back(1), back(-1)].map((p) => p.join(",")).join(" "));
+}
+
+function renderPose() {
+  const s = state.lastLive;
+  const panel = $("pose-panel");
+  const pose = s && s.pose;
+  panel.classList.toggle("none", !pose);
+  if (!pose) {
+    panel.classList.remove("stale");
+    text("pose-age", s ? "no pose in the live stream" : "no run");
+    return;
+  }
+  const why = liveStale(s);
+  const old = ageText(age(s.received));
+  panel.classList.toggle("stale", !!why);
+  text("pose-age", !why ? `live, ${old} ago`
+    : why === `run ${s.run} ended` ? `no run (run ${s.run} ended): its last pose, ${old} old`
+      : `stale: ${why}; ${old} old`);
+  const [pitch, roll] = pose.tilt_deg, [leanPitch, leanRoll] = pose.lean_deg;
+  text("p-tilt-pitch", signed(pitch, 1));
+  text("p-tilt-roll", signed(roll, 1));
+  text("p-lean-pitch", signed(leanPitch, 1));
+  text("p-lean-roll", signed(leanRoll, 1));
+  text("p-heading", signed(pose.heading_deg, 1));
+  text("p-x", signed(pose.position[0], 2));
+  text("p-y", signed(pose.position[1], 2));
 }
 
 // -------------------------------------------------------------------------------------------- history
