@@ -1,16 +1,18 @@
 """`pure-hil console`: the rig's screen in a browser.
 
 In a real headless Chromium (Debian's chromium + chromium-driver, driven by Selenium; skipped, saying why,
-where they are missing): `pure-hil serve` and `pure-hil console` as processes, speed_limiting started from
-the page, the live speed seen rising with both caps shown, the e-stop pressed in the page and confirmed by
-the supervisor without the E-STOP moving, the latch held through the end of the run (Start refused until a
-reset), health shown stale once the run ended, the service gone (actions off, E-STOP 502), a different rig on
-the endpoint shown and refused, the run still in the history with its new columns; and login by role on an
-exposed (TLS, accounts) console. Without a browser: the HTTP API's answers to good and bad requests, the role
-rules, the pin checked on every action, the latch's state machine, accounts, sessions and the audit log, the
-history's columns, no file outside the service's output folder, pages that go away leave no thread behind;
-and on the secured bench the router itself refuses a monitor's start and e-stop (the operator's, the positive
-control, get through).
+where they are missing): `pure-hil serve` and `pure-hil console` as processes, speed_limiting started from the
+page, the live speed seen rising with both caps shown, the e-stop pressed in the page and confirmed by the
+supervisor without the E-STOP moving, the latch held through the end of the run (Start refused until a reset),
+health shown stale once the run ended, the service gone (actions off, E-STOP 502), a different rig on the
+endpoint shown and refused, the run still in the history with its new columns; the robot's pose drawn as the
+live sample says it (a run released tilted forward and left shows so), greyed once the service goes; and login
+by role on an exposed (TLS, accounts) console. Without a browser: the HTTP API's answers to good and bad
+requests, the role rules, the pin checked on every action, the latch's state machine, accounts, sessions and
+the audit log, the history's columns, no file outside the service's output folder, pages that go away leave no
+thread behind, the live pose against the 3-D plant's own body frames on a ride (signs included); and on the
+secured bench the router itself refuses a monitor's start and e-stop (the operator's, the positive control,
+get through).
 """
 
 from __future__ import annotations
