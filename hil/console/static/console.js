@@ -307,7 +307,8 @@ function liveStale(s) {
   const st = state.status;
   if (!state.connected) return "the console does not answer";
   if (!statusFresh()) return "the service does not answer";
-  if (st.state !== "running" || st.run !== s.run) return `run ${s.run} ended`;
+  // Only a status heard after the sample says its run ended: one from before it may predate the run's start.
+  if ((st.state !== "running" || st.run !== s.run) && st.received >= s.received) return `run ${s.run} ended`;
   if (age(s.received) > LIVE_STALE) return "not heard lately";
   return "";
 }
