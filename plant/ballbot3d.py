@@ -456,7 +456,7 @@ class Plant3D(PlantCore):
         """Every body of the model by name (ball, chassis, torso, thigh_left, ...), MuJoCo's frames."""
         d, names = self.data, self._body_names
         pos, quat = d.xpos.tolist(), d.xquat.tolist()
-        return {name: (tuple(pos[b]), tuple(quat[b])) for b, name in names}  # type: ignore[misc]
+        return {name: (tuple(pos[b]), tuple(quat[b])) for b, name in names}
 
     def energy(self) -> float:
         """Kinetic + gravitational energy (J), MuJoCo's account at the current state."""

@@ -89,7 +89,9 @@ def turning_plant(seed=2):
         ROBOT,
         RIDER_75,
         SimParams(seed=seed),
-        RiderIntent(pitch=[Hold(duration=0.5), Ramp(to=8.0, duration=1.0)], roll=[Ramp(to=-6.0, duration=2.0)]),
+        RiderIntent(
+            pitch=[Hold(duration=0.5), Ramp(to=8.0, duration=1.0)], roll=[Ramp(to=-6.0, duration=2.0)]
+        ),
     )
     return plant, TruthBalancer(plant)
 
