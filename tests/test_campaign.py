@@ -352,8 +352,9 @@ def test_coverage_classes_what_followed_a_detection_and_a_fall_after_it_fails_th
     assert (c["class"], c["cause"], c["passed"]) == ("DETECTED+FELL", "DRIVES_SILENT", False)
     assert c["reaction"] <= c["bound"]
     after = c["after"]
-    # Beyond the fall criterion the run itself uses, after power was cut in motion with nobody holding.
-    assert after["peak_tilt_deg"] >= SimParams().fall_tilt_deg and after["to_rest"] is None
+    # Fallen after power was cut in motion with nobody holding: on the 3-D plant a foot or the chassis' rim
+    # touches the floor (~15 deg) before the tilt bound, far past the tilt a robot at rest may have.
+    assert after["peak_tilt_deg"] >= 2 * SimParams().rest_tilt_deg and after["to_rest"] is None
     assert after["held_by"] == "nobody" and after["modes"].startswith("NORMAL>ESTOP")
     assert after["peak_speed"] > 0.3, "in motion when the bus went down"
 

@@ -50,7 +50,7 @@ def test_a_fault_that_cannot_act_on_the_rig_exits_2_naming_it(tmp_path, capsys):
     )
     assert main(["run", str(scenario), "--quiet", "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
-    assert "pure-hil run: fault 0 (can.drop message=IMU_RATES): can.drop: no message 'IMU_RATES'" in err
+    assert "pure-hil run: fault 0 (can.drop message=IMU_RATES): no message 'IMU_RATES' in the DBC" in err
     assert "Traceback" not in err
     # The run folder says what failed and where.
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
