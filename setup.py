@@ -52,8 +52,10 @@ COMPILED = [
     # and MotorDrive allow Python subclasses, which benchmarks/lockstep.py and tests/test_failop.py use:
     # @mypyc_attr). Not plant/rider.py: msgspec does not see the class keywords (tag=..., frozen=True)
     # of a Struct compiled by mypyc, and the rider's segments are a tagged union (its per-tick maths is
-    # plant/torso.py).
+    # plant/torso.py). The 3-D plant's tick (plant/ballbot3d.py) too: MuJoCo's step is C, the Python around it
+    # is most of the rest of its tick.
     "plant/ballbot.py",
+    "plant/ballbot3d.py",
     "plant/drives.py",
     "plant/torso.py",
     "plant/plane.py",

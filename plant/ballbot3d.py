@@ -14,6 +14,7 @@ from typing import NamedTuple
 
 import mujoco
 import numpy as np
+from mypy_extensions import mypyc_attr
 
 from plant.ballbot import PITCH, ROLL, PlantCore, Pose, RiderIntent, Truth
 from plant.model3d import (
@@ -93,6 +94,7 @@ def tilt_quaternion(pitch: float, roll: float) -> tuple[float, float, float, flo
     return cp * cr, cp * sr, sp * cr, -sp * sr
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # benchmarks/lockstep.py times its step in a subclass
 class Plant3D(PlantCore):
     """PURE ballbot + rider in 3-D. Per tick: `drives.set_commands(...)`, `step()`, then sample or read
     `truth()`, as the planar plant."""
