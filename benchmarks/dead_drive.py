@@ -1,0 +1,126 @@
+"""A dead drive on the 3-D plant, the supervisor's recovery law alone (docs/safety.md "A dead drive"): the
+truth balancer holds the robot and its rider until the fault, then drive N makes no torque and the recovery
+law, its estimator fed the sensors' samples (the values the wire carries), balances on the other two. No
+rig, no controller, no diagnosis: the law's own physics, case by case, against the same law with its
+coupled plane taken as a plane of its own (no product of inertia, no yaw in its feedback).
+
+    python benchmarks/dead_drive.py            # about a minute (70 s on 2 loaded cores)
+
+Not timings: the figures are the models', the same on every machine and build. The campaign's dead-drive
+cases (configs/campaigns/diagnostics.toml) are the rig's figures: the diagnosis, the controller before it
+and the wire between them.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import msgspec
+import mujoco
+import numpy as np
+
+from drivers.config import load_toml
+from hil.run.truth_balancer import TruthBalancer
+from plant.ballbot import RiderIntent
+from plant.ballbot3d import Plant3D
+from plant.params import RiderParams, RobotParams, SimParams
+from plant.rider import Hold, Ramp
+from safety.config import RecoveryRules, RobotGeometry, SupervisorConfig
+from safety.recovery import IsolatedEstimator, RecoveryLaw
+
+ROOT = Path(__file__).resolve().parents[1]
+G0 = 9.80665
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    rider: str
+    lean: list  # the rider's pitch lean profile (deg), held after its last segment
+    speed: float
+    """m/s the truth balancer rolls at before the fault."""
+    fault: float = 2.0
+    duration: float = 8.0
+
+
+CASES = (
+    Case("standing, the rider upright", "ref_60kg_180", [], 0.0),
+    Case(
+        "rolling at 0.25 m/s, the rider holding 8 deg", "s07_abi_73kg_176", [Ramp(to=8.0, duration=0.5)], 0.25
+    ),
+    Case(
+        "rolling at 0.25 m/s, the rider leaning on to 20 deg",
+        "s07_abi_73kg_176",
+        [Ramp(to=8.0, duration=0.5), Hold(duration=1.5), Ramp(to=20.0, duration=4.0)],
+        0.25,
+    ),
+    Case(
+        "at 1.5 m/s, the rider holding 15 deg", "ref_60kg_180", [Ramp(to=15.0, duration=1.0)], 1.5, fault=3.0
+    ),
+)
+
+
+def run(case: Case, dead: int, rules: RecoveryRules) -> dict[str, float | str | None]:
+    robot = load_toml(ROOT / "configs/robot/pure.toml", RobotParams)
+    rider = load_toml(ROOT / f"configs/riders/{case.rider}.toml", RiderParams)
+    plant = Plant3D(robot, rider, SimParams(), RiderIntent(pitch=list(case.lean)))
+    geometry = load_toml(ROOT / "configs/robot/pure.toml", RobotGeometry)
+    estimate, law = IsolatedEstimator(geometry, rules, plant.sim.dt), RecoveryLaw(geometry, rules)
+    law.design(rider.mass * G0)
+    balancer = TruthBalancer(plant)
+    ball, velocity = plant.model.body("ball").id, np.zeros(6)
+    yaw = spin = tilt = 0.0
+    command = (0.0, 0.0, 0.0)
+    while plant.t < case.duration and not plant.fallen:
+        imu, drives = plant.sample_imu(), plant.sample_drives()
+        estimate.update(
+            plant.t, imu.attitude[:2], imu.rate, [d.velocity for d in drives], frozenset(), imu.accel
+        )
+        if plant.t < case.fault:
+            balancer.set_velocity(case.speed * min(plant.t / 1.5, 1.0))
+            balancer.drive()
+        else:
+            if plant.drives.motors[dead].gain:
+                plant.drives.motors[dead].gain = 0.0
+                estimate.engage()
+            plant.drives.set_commands(command, True, plant.t)
+            command = law.torques(estimate, dead)  # applied the next tick, as on the wire
+            truth = plant.truth()
+            mujoco.mj_objectVelocity(plant.model, plant.data, mujoco.mjtObj.mjOBJ_BODY, ball, velocity, 0)
+            yaw, spin = max(yaw, abs(truth.yaw_rate)), max(spin, abs(velocity[2]))
+            tilt = max(tilt, *(abs(math.degrees(a)) for a in truth.tilt))
+        plant.step()
+    fell = plant.fallen
+    return {
+        "ended": "upright" if fell is None else f"fell {plant.t - case.fault:.1f} s after",
+        "cause": fell,
+        "yaw": yaw,
+        "spin": spin,
+        "tilt": tilt,
+    }
+
+
+def main() -> None:
+    law = SupervisorConfig().recovery
+    alone = msgspec.structs.replace(law, coupled_velocity_share=1.0, rider_roll_yaw_product=0.0)
+    print("peak yaw rate (rad/s), peak ball spin on the floor (rad/s), peak tilt (deg), how it ended")
+    for case in CASES:
+        print(f"{case.name}:")
+        for dead in (0, 1):
+            for label, rules in (("the law", law), ("coupled plane alone", alone)):
+                r = run(case, dead, rules)
+                print(
+                    f"  drive {dead + 1} dead, {label:<20} yaw {r['yaw']:5.1f}  spin {r['spin']:5.1f}  "
+                    f"tilt {r['tilt']:5.1f}  {r['ended']}" + (f" ({r['cause']})" if r["cause"] else "")
+                )
+
+
+if __name__ == "__main__":
+    main()
