@@ -493,10 +493,14 @@ def test_every_rtr_firmware_0_6_10_answers_is_answered_to_odrive_cans_client(ben
             # The other two axes are idle (no torque): the whole bus draws what axis 2 does.
             assert bus["Bus_Current"] == pytest.approx((mechanical + copper) / options.bus_voltage, rel=1e-3)
             assert bus["Bus_Current"] > 0, "the plant's draw, not 0 A"
-            for name in ("Get_Version", "Get_Error", "Heartbeat", "Get_Encoder_Estimates", "Get_Torques"):
+            for name in ("Get_Version", "Get_Error"):
                 assert await client._request(name), name
             address = await client._request("Address")
             assert address == {"Node_ID": NODES[1], "Serial_Number": 0x505552450000 + NODES[1]}
+            # The cyclic ones last: the client's one response slot may keep a cyclic frame of the same id
+            # that came after the answer (docs/devices.md, its quirk), which the next request would read.
+            for name in ("Heartbeat", "Get_Encoder_Estimates", "Get_Torques"):
+                assert await client._request(name), name
             await feeder.stop()
         finally:
             client.stop()
