@@ -229,9 +229,17 @@ def test_a_controller_written_from_the_contract_alone_balances_the_robot(tmp_pat
     assert s["metrics_unavailable"]["pitch.rmse"] == "unavailable (no controller telemetry)"
 
 
-def _scenario(tmp_path: Path, duration: float) -> Path:
+PLANNED_STOP = '[[criteria]]\nmetric = "resting"\nequals = true\n'
+"""A criterion that plans the supervisor's stop a test's own action causes (a flood, a killed process: not
+a fault the scenario schedules): the run is to end at rest (hil/run/judge.py `planned`). Without it the
+stop is unplanned and fails the run, as it should for a stop nobody meant."""
+
+
+def _scenario(tmp_path: Path, duration: float, stop_planned: bool = False) -> Path:
     text = SMOKE.read_text().replace("duration = 2.0", f"duration = {duration}")
     text = text[: text.index("[[criteria]]")] + '[[criteria]]\nmetric = "fallen"\nequals = false\n'
+    if stop_planned:
+        text += PLANNED_STOP
     path = tmp_path / "scenario.toml"
     path.write_text(text)
     return path
@@ -282,7 +290,7 @@ def test_cangen_flood_is_survived_and_the_supervisor_reacts(tmp_path):
         (300, "cangen random ids", lambda p: subprocess.run(random_ids, check=True)),
         (400, "cangen corrupt DRIVE1_FEEDBACK", lambda p: subprocess.run(corrupt_drive1, check=True)),
     ]
-    run = run_bench(tmp_path, _scenario(tmp_path, 2.0), actions, spawn=True)
+    run = run_bench(tmp_path, _scenario(tmp_path, 2.0, stop_planned=True), actions, spawn=True)
     assert len(run.actions) == 2 and run.rig_exit == 0, run.logs["rig"]
     summary = run.summary
     bus = summary["bus"]
@@ -299,7 +307,9 @@ def test_cangen_flood_is_survived_and_the_supervisor_reacts(tmp_path):
 
 def test_controller_killed_is_taken_over_within_the_watchdog_bound(tmp_path):
     run = run_bench(
-        tmp_path, _scenario(tmp_path, 2.0), [(300, "kill -9 controller", lambda p: p["controller"].kill())]
+        tmp_path,
+        _scenario(tmp_path, 2.0, stop_planned=True),
+        [(300, "kill -9 controller", lambda p: p["controller"].kill())],
     )
     assert run.actions and run.rig_exit == 0, run.logs["rig"]
     s = run.summary["safety"]
@@ -329,6 +339,7 @@ def test_a_controller_killed_at_speed_is_caught_by_the_supervisors_recovery_law_
     # braking: the rider leans the robot to ~1.4 m/s; the controller's process is killed at 4.5 s.
     braking = (ROOT / "configs/scenarios/braking.toml").read_text()
     text = braking[: braking.index("[[criteria]]")] + '[[criteria]]\nmetric = "fallen"\nequals = false\n'
+    text += PLANNED_STOP
     scenario = tmp_path / "braking.toml"
     scenario.write_text(text)
     run = run_bench(tmp_path, scenario, [(1800, "kill -9 controller", lambda p: p["controller"].kill())])
