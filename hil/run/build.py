@@ -435,6 +435,7 @@ def start_up(built: Built, bench: Bench) -> None:
         raise ControllerUnavailable(
             f"no supervisor on {built.bus.interface}:{built.bus.channel} reads pure/sc/request"
         )
+    rig.drain_bus()
     rig.apply_permission()
     if rig.recorder is not None:
         rig.recorder.poll()  # the start-up's frames, at t = 0

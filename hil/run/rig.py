@@ -237,9 +237,22 @@ class Rig:
             supervisor.on_put = lambda key, data: self._record(self.plant.tick + 1, key, data)
 
     def wait_for_subscriber(self, key: str, timeout: float = 10.0) -> bool:
-        """Someone subscribes to `key` (the controller: the seat wrench; the supervisor: SC requests)."""
+        """Someone subscribes to `key` (the controller: the seat wrench; the supervisor: SC requests).
+        Reads the bus while it waits: the supervisor announces itself at its frame rate until the first
+        SYNC, and a socket left unread for seconds overflows, which its E2E counter then reports as lost
+        or repeated frames (they alias beyond 8)."""
         link = self.sc_link if key == self.keys.sc_request else self.link
-        return link.wait_for_subscriber(key, timeout)
+        deadline = time.monotonic() + timeout
+        while not link.wait_for_subscriber(key, min(STOP_POLL, max(deadline - time.monotonic(), 0.0))):
+            self.drain_bus()
+            if time.monotonic() >= deadline or self.stopping:
+                return False
+        return True
+
+    def drain_bus(self) -> None:
+        """Take in every frame already on the bus, without waiting."""
+        while (rx := self.can.recv(timeout=0.0)) is not None:
+            self._other_frame(rx)
 
     def await_boot(self, timeout: float) -> str:
         """The start-up handshake, before the first SYNC: wait until the controller's boot-up heartbeat
@@ -307,7 +320,7 @@ class Rig:
         self._collect_commands(k, guard if waiting else time.monotonic(), lockstep, faults.command_delay())
         self._deliver_held(k)
         self._supervise(k, guard, lockstep)
-        self._drain_nowait()
+        self.drain_bus()
         self.apply_permission()
         if self.recorder is not None:
             self.recorder.poll()
@@ -444,10 +457,6 @@ class Rig:
             self._put(k, key, command, self.operator_link)
 
     # ------------------------------------------------------------------------------------- permission
-    def _drain_nowait(self) -> None:
-        while (rx := self.can.recv(timeout=0.0)) is not None:
-            self._other_frame(rx)
-
     def _await_supervisor(self, deadline: float) -> None:
         """Lockstep beside a supervisor elsewhere (another process or thread): its SUPERVISOR_ESTOP frames
         are an output the loop waits for like the controller's commands, once the last one is half the
