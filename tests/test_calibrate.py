@@ -18,17 +18,19 @@ KNOWN = {"rider.lean_rate_deg": 6.0, "rider.lean_amplitude_deg": 20.0}
 
 
 def test_a_fit_recovers_the_riders_lean_rate_and_amplitude_from_a_table_made_with_them(tmp_path):
-    # One trial of idle keeping (the forward lean and sitting up), one rider: cheap evaluations.
+    # One trial of idle keeping (the forward lean and sitting up), one rider: cheap evaluations. The planar
+    # plant makes both the table and the fit: this tests the fit, and its runs cost less than the 3-D's.
     task = msgspec.structs.replace(load_scenario("idle_keeping"), duration=10.5)
     paper = load_paper()
     riders = ["riders/s07_abi_73kg_176.toml"]
+    bench = private_bench(plant="planar")
     world = write_world(KNOWN, riders, task.robot, tmp_path / "truth")
-    truth = compare([task], world.riders, progress=None, bench=private_bench(), paper=paper)
+    truth = compare([task], world.riders, progress=None, bench=bench, paper=paper)
     target = table_from(truth.runs, paper, "generated with " + repr(KNOWN), riders)
     assert target.tasks == ["idle_keeping"] and len(target.metric[0].cells) == 2
 
     unknowns = [Unknown.parse("rider.lean_rate_deg"), Unknown.parse("rider.lean_amplitude_deg=10:35")]
-    result = calibrate(target, unknowns, private_bench(), [task], budget=16, workers=2)
+    result = calibrate(target, unknowns, bench, [task], budget=16, workers=2)
     assert result.start == {"rider.lean_rate_deg": 4.0, "rider.lean_amplitude_deg": 25.0}  # the shipped
     assert result.cost_before > 10 * max(result.cost_after, 0.1)
     for name, value in KNOWN.items():
