@@ -80,8 +80,8 @@ class ScRequest(Payload, frozen=True, kw_only=True):
 class ScCommand(ScRequest, frozen=True, kw_only=True):
     """What the supervisor lets through (pure/sc/command): the only SC input the controller reads."""
 
-    # The one SC request type with why it was changed; its source is the request's, or `supervisor` when
-    # the supervisor imposed it. The supervisor's never is `free`: what it lets through is always capped.
+    # An ScRequest and why the supervisor changed it: its source is the request's, or `supervisor` when the
+    # supervisor imposed it, and its mode is never `free` (what the supervisor lets through is capped).
     reason: Text = ""
     """Why the supervisor changed the request (empty when forwarded as asked)."""
 

@@ -76,7 +76,7 @@ class ScStep:
     request: ScRequest
 
 
-FREE = (ScStep(0, ScRequest(seq=0, stamp=0.0, mode="free", source=SCENARIO_SOURCE)),)
+FREE_SCHEDULE = (ScStep(0, ScRequest(seq=0, stamp=0.0, mode="free", source=SCENARIO_SOURCE)),)
 """The schedule of a run that plans no SC request: the rider in charge throughout."""
 OperatorAction = Literal["estop", "reset", "enable", "disable"]
 
@@ -133,7 +133,7 @@ class Rig:
         plant: PlantCore,
         can: CanNode,
         link: ZenohLink,
-        sc_schedule: list[ScStep] | tuple[ScStep, ...] = FREE,
+        sc_schedule: list[ScStep] | tuple[ScStep, ...] = FREE_SCHEDULE,
         command_guard: float = 1.0,
         supervisor: SupervisorNode | None = None,
         operator: list[OperatorStep] | tuple[OperatorStep, ...] = (),
