@@ -18,6 +18,7 @@ from controller.command import CommandSpeed, YawCommand
 from controller.config import ControllerConfig, RiderInfo, RobotModel
 from controller.estimator import PITCH, ROLL, Estimate, Estimator
 from controller.model import G0, PlaneModel, lqr_gain, motor_jacobian, plane_model, seat_load_height
+from drivers.schemas import ScCommand
 
 PLANES = ("pitch", "roll")
 YAW_RATE_GAIN = 20.0
@@ -50,11 +51,6 @@ class Fault(IntEnum):
 class Wrench:
     def __init__(self, force: tuple[float, float, float], moment: tuple[float, float, float]):
         self.force, self.moment = force, moment
-
-
-class ScInput:
-    def __init__(self, mode: str, speed_cap: float, stamp: float):
-        self.mode, self.speed_cap, self.stamp = mode, speed_cap, stamp
 
 
 class Output:
@@ -126,7 +122,7 @@ class Controller:
         self.enable_requested = True
 
     def step(
-        self, t: float, wrench: Wrench | None, wrench_age: float, sc: ScInput | None, estop: bool
+        self, t: float, wrench: Wrench | None, wrench_age: float, sc: ScCommand | None, estop: bool
     ) -> Output:
         if estop:
             if self.state is State.BALANCING:
@@ -201,10 +197,10 @@ class Controller:
         for c in self.commands:
             c.reset()
 
-    def _cap(self, t: float, sc: ScInput | None) -> float:
-        if sc is None or t - sc.stamp > self._sc_max_age or sc.mode == "idle":
+    def _cap(self, t: float, sc: ScCommand | None) -> float:
+        if sc is None or t - sc.stamp > self._sc_max_age:
             return 0.0
-        return sc.speed_cap if sc.mode == "limit" else math.inf
+        return sc.speed_limit()
 
     # ------------------------------------------------------------------------------------ rider input
     def _rider_moment(self, wrench: Wrench | None, age: float, taring: bool) -> list[float]:

@@ -16,7 +16,7 @@ import threading
 import time
 from typing import Any, Final
 
-from controller.core import Controller, Fault, Output, ScInput, State, Wrench
+from controller.core import Controller, Fault, Output, State, Wrench
 from drivers.can_bus import CanNode, Received
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, PARTS, MessageName
 from drivers.contract import CONTRACT_VERSION
@@ -78,7 +78,6 @@ class ControllerNode:
         self.last_output: Output | None = None
         self._wrench: TesWrench | None = None
         self._sc: ScCommand | None = None
-        self._sc_input: ScInput | None = None
         """The newest SC command as the controller takes it (made again only when a new one arrives)."""
         # What every tick reads, read once.
         self._mode = controller.config.mode
@@ -127,9 +126,10 @@ class ControllerNode:
         if self._wrench is not None and not self.seat_flagged:
             wrench = Wrench(self._wrench.force, self._wrench.moment)
             age = max(t - self._wrench.stamp, 0.0)
-        sc = self._sc_input
+        sc = self._sc
         if self._supervisor_lost(t):
-            sc = ScInput("idle", 0.0, t)  # no supervisor: brake to rest, then off (docs/contract.md)
+            # No supervisor: brake to rest, then off (docs/contract.md).
+            sc = ScCommand(seq=0, stamp=t, mode="idle", source="controller", reason="no supervisor")
         try:
             out = self.controller.step(t, wrench, age, sc, self.estop or self.stopped_alone)
         except Exception:  # a bug in the controller must fail safe (drives off), not kill the node
@@ -199,7 +199,6 @@ class ControllerNode:
         latest_sc = self.sc.latest()
         if latest_sc is not None and latest_sc is not self._sc:
             self._sc = latest_sc
-            self._sc_input = ScInput(latest_sc.mode, latest_sc.speed_cap, latest_sc.stamp)
 
     def _take_wrench(self) -> None:
         samples = self.tes.drain()

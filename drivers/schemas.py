@@ -10,9 +10,12 @@ rig run (TES, supervisor), the wall clock (time.time) for operator tools.
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Any, ClassVar, Literal, TypeVar
 
 import msgspec
+
+from drivers.vocabulary import StateName
 
 VERSION = 1
 
@@ -28,7 +31,7 @@ Source = Annotated[str, msgspec.Meta(min_length=1, max_length=64, description="w
 Text = Annotated[str, msgspec.Meta(max_length=200)]
 
 ScMode = Literal["free", "idle", "limit"]
-SafetyStateName = Literal["NORMAL", "LIMITING", "STOPPING", "ESTOP", "RECOVERY"]
+"""What a shared-controller agent asks for, declared once (tests/test_vocabulary.py looks for another)."""
 
 
 class Payload(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -66,20 +69,25 @@ class ScRequest(Payload, frozen=True, kw_only=True):
     """m/s; used in `limit` mode."""
     source: Source
 
+    def speed_limit(self) -> float:
+        """The cap rule, written only here: how fast the request lets the robot go, m/s (idle 0, limit its
+        speed_cap, free no limit)."""
+        if self.mode == "idle":
+            return 0.0
+        return self.speed_cap if self.mode == "limit" else math.inf
 
-class ScCommand(Payload, frozen=True, kw_only=True):
+
+class ScCommand(ScRequest, frozen=True, kw_only=True):
     """What the supervisor lets through (pure/sc/command): the only SC input the controller reads."""
 
-    mode: ScMode
-    speed_cap: Speed = 0.0
-    source: Source
-    """The request's source, or `supervisor` when the supervisor imposed it."""
+    # An ScRequest and why the supervisor changed it: its source is the request's, or `supervisor` when the
+    # supervisor imposed it, and its mode is never `free` (what the supervisor lets through is capped).
     reason: Text = ""
     """Why the supervisor changed the request (empty when forwarded as asked)."""
 
 
 class SafetyState(Payload, frozen=True, kw_only=True):
-    state: SafetyStateName
+    state: StateName
     reason: Text
     cap: Speed
     """The speed cap in force, m/s."""

@@ -889,7 +889,7 @@ def _parameter(value: str) -> object:
 def _expectation(text: str, within: float | None) -> dict:
     """`--expect` as a fault's `expect` (docs/faults.md): none, STATE, CAUSE or STATE/CAUSE; the fault's
     own check names what is wrong with it."""
-    from safety.machine import State
+    from drivers.vocabulary import State
 
     if text.lower() == "none":
         return {"reaction": "none"}

@@ -27,9 +27,9 @@ import zenoh
 from drivers.can_codec import MessageName
 from drivers.keys import Keys
 from drivers.schemas import ControllerTelemetry, PayloadError, SafetyState, ScCommand, decode
+from drivers.vocabulary import State
 from hil.faults import FaultSet
 from hil.run.build import RunStatus
-from safety.machine import State
 
 PERIOD = 0.05
 """s of wall time between samples (20 Hz; the console's charts want at least 10)."""

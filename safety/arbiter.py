@@ -13,20 +13,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from drivers.schemas import ScRequest
 from safety.config import ScRules
-from safety.machine import Request
-
-
-def cap_of(request: Request) -> float:
-    """How fast the request lets the robot go, m/s (free: no limit)."""
-    if request.mode == "idle":
-        return 0.0
-    return request.cap if request.mode == "limit" else math.inf
 
 
 @dataclass(slots=True)
 class Source:
-    request: Request
+    request: ScRequest
     heard: float
     tokens: float
     accepted: int = 0
@@ -42,9 +35,9 @@ class ScArbiter:
         """Requests from a source beyond `max_sources`."""
         self.conflicts = 0
         """Accepted requests whose cap differed from another source's current one."""
-        self._merged: Request | None = None
+        self._merged: ScRequest | None = None
 
-    def offer(self, request: Request, t: float) -> bool:
+    def offer(self, request: ScRequest, t: float) -> bool:
         """A valid request at time t; False if refused (rate or number of sources)."""
         r = self.rules
         source = self.sources.get(request.source)
@@ -61,14 +54,16 @@ class ScArbiter:
         source.tokens -= 1.0
         source.accepted += 1
         source.request = request
-        cap = cap_of(request)
-        if any(cap_of(s.request) != cap for name, s in self.sources.items() if name != request.source):
+        cap = request.speed_limit()
+        if any(s.request.speed_limit() != cap for name, s in self.sources.items() if name != request.source):
             self.conflicts += 1
-        self._merged = min((s.request for s in self.sources.values()), key=lambda q: (cap_of(q), q.source))
+        self._merged = min(
+            (s.request for s in self.sources.values()), key=lambda q: (q.speed_limit(), q.source)
+        )
         return True
 
     @property
-    def request(self) -> Request | None:
+    def request(self) -> ScRequest | None:
         """The most restrictive request of every source heard (None: no source yet)."""
         return self._merged
 
@@ -83,7 +78,7 @@ class ScArbiter:
                     "accepted": s.accepted,
                     "refused_rate": s.refused,
                     "mode": s.request.mode,
-                    "cap": s.request.cap,
+                    "cap": s.request.speed_cap,
                 }
                 for name, s in self.sources.items()
             },

@@ -28,8 +28,9 @@ from typing import ClassVar
 
 import numpy as np
 
+from drivers.vocabulary import Cause
 from safety.config import RobotGeometry, SeatRules, SensorRules
-from safety.machine import Cause, Finding
+from safety.machine import Finding
 
 
 class Window:

@@ -36,69 +36,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
-from enum import IntEnum
-from typing import Literal
+from dataclasses import dataclass
 
+from drivers.schemas import ScCommand, ScRequest
+from drivers.vocabulary import Cause, Event, State
 from safety.config import SupervisorConfig
-
-
-class State(IntEnum):
-    """SUPERVISOR_ESTOP.State."""
-
-    NORMAL = 0
-    LIMITING = 1
-    STOPPING = 2
-    ESTOP = 3
-    RECOVERY = 4
-    """The supervisor's own recovery law holds the drives (Takeover) and brings the robot to rest; then
-    ESTOP at rest. Latched: the controller gets the drives back only through ESTOP and a reset."""
-
-
-class Cause(IntEnum):
-    """SUPERVISOR_ESTOP.Reason: why the supervisor is in its state."""
-
-    NONE = 0
-    OPERATOR_ESTOP = 1
-    BUTTON_ESTOP = 2
-    """The OPERATOR_ESTOP CAN frame (a wired e-stop button)."""
-    OVER_CAP = 3
-    SC_SILENT = 4
-    OVERPOWERED = 5
-    HARD_SPEED = 6
-    RIDER_ABSENT = 7
-    E2E_ERRORS = 8
-    WRENCH_SILENT = 9
-    TILT = 10
-    TORQUE_RANGE = 11
-    TORQUE_SATURATED = 12
-    HEARTBEAT_LOST = 13
-    CONTROLLER_FAULT = 14
-    DRIVES_SILENT = 15
-    IMU_SILENT = 16
-    STOP_TIMEOUT = 17
-    MOTION_AFTER_STANDSTILL = 18
-    STOP_INEFFECTIVE = 19
-    RESET = 20
-    SENSOR_STUCK = 21
-    """A sensor channel holds one value while other evidence says it must move."""
-    SENSOR_DISAGREE = 22
-    """Two independent measurements of one quantity disagree (encoders vs gyro yaw, position vs velocity,
-    attitude vs integrated rates, speed trend vs accelerometer)."""
-    WRENCH_IMPLAUSIBLE = 23
-    """The seat's wrench is not what a seated rider can produce (weight band, COP, rate of change, frozen)."""
-    DRIVE_FAULT = 24
-    """A drive reports its command watchdog tripped or a fault, or stays disabled while permitted and told
-    to enable."""
-    ACTUATOR_MISMATCH = 25
-    """A drive's measured torque does not follow its command."""
-    DRIVE_NOT_DISABLED = 26
-    """In ESTOP a drive did not confirm it is off: the main contactor opened."""
-    CONTACTOR_FAULT = 27
-    """The main contactor was told to open and a drive still reports its DC bus live."""
-    OPERATOR_CUT = 28
-    """The operator's explicit category-0 request (`cut_power`): power off at once, even in motion."""
-
 
 CONTROLLED = frozenset(
     {
@@ -148,8 +90,6 @@ CUT_POWER = frozenset(
 drives themselves are the fault (power that cannot be switched off), or the operator asked for category 0.
 Drives that cannot be heard (DRIVES_SILENT) are the recovery law's to judge: it balances without one
 encoder, and without two it is not `recoverable`."""
-OPERATOR_STOPS = frozenset({Cause.OPERATOR_ESTOP, Cause.BUTTON_ESTOP, Cause.OPERATOR_CUT})
-"""The causes an operator's e-stop gives (the zenoh e-stop, a wired button, the category-0 request)."""
 TAKEOVER_CAUSES = frozenset(
     {Cause.SENSOR_STUCK, Cause.SENSOR_DISAGREE, Cause.ACTUATOR_MISMATCH, Cause.DRIVE_FAULT}
 )
@@ -168,15 +108,6 @@ makes its cross-checks disagree, a drive fault makes its torque mismatch."""
 STREAMS = ("drives", "imu", "heartbeat", "wrench", "sc")
 BALANCING, FAULT = 3, 4
 """CONTROLLER_HEARTBEAT.State values the supervisor acts on."""
-
-
-@dataclass(frozen=True, slots=True)
-class Request:
-    """The latest valid SC request (pure/sc/request)."""
-
-    mode: str
-    cap: float
-    source: str
 
 
 @dataclass(frozen=True, slots=True)
@@ -230,7 +161,7 @@ class Observation:
         e2e_errors: int = 0,
         seat_load: float | None = None,
         button: bool = False,
-        request: Request | None = None,
+        request: ScRequest | None = None,
         operator: str | None = None,
         operator_source: str = "",
         findings: tuple[Finding, ...] = (),
@@ -268,45 +199,6 @@ class Observation:
         possible."""
 
 
-class Forward:
-    """The SC command the supervisor lets through (pure/sc/command)."""
-
-    def __init__(self, mode: Literal["idle", "limit"], cap: float, source: str, reason: str):
-        self.mode: Literal["idle", "limit"] = mode
-        """Never 'free': what it lets through is always capped (0: idle)."""
-        self.cap = cap
-        self.source = source
-        self.reason = reason
-
-    def __eq__(self, other: object) -> bool:
-        if not isinstance(other, Forward):
-            return NotImplemented
-        return (
-            self.mode == other.mode
-            and self.cap == other.cap
-            and self.source == other.source
-            and self.reason == other.reason
-        )
-
-    def __repr__(self) -> str:
-        return f"Forward({self.mode!r}, {self.cap!r}, {self.source!r}, {self.reason!r})"
-
-
-@dataclass(frozen=True, slots=True)
-class Event:
-    """A transition or a refused reset, with the values that decided it."""
-
-    t: float
-    kind: str
-    """'transition', 'reset_refused' or 'contactor_opened' (the rule for drives that cannot confirm their
-    power stage off; opened by DRIVE_NOT_DISABLED it is a transition)."""
-    from_state: str
-    to_state: str
-    cause: str
-    detail: str = ""
-    values: dict[str, float | None] = field(default_factory=dict)
-
-
 class Decision:
     def __init__(
         self,
@@ -314,7 +206,7 @@ class Decision:
         cause: Cause,
         drives_permitted: bool,
         cap: float,
-        command: Forward,
+        command: ScCommand,
         since: float,
         contactor_closed: bool = True,
         takeover: bool = False,
@@ -758,9 +650,9 @@ class Supervisor:
         if self._sc_silent(obs):
             return speed.reduced_cap
         r = obs.request
-        if r is None or not speed.enforce_requested_cap or r.mode == "free":
+        if r is None or not speed.enforce_requested_cap:
             return speed.absolute_cap
-        return min(speed.absolute_cap, 0.0 if r.mode == "idle" else r.cap)
+        return min(speed.absolute_cap, r.speed_limit())
 
     def _decision(self, obs: Observation) -> Decision:
         cap = self.active_cap()
@@ -783,18 +675,18 @@ class Supervisor:
             return 0
         return 1 if self.state is State.LIMITING else 2
 
-    def forward(self, request: Request | None, cap: float) -> Forward:
-        """The request clamped to `cap`: never above it, `free` becomes `limit` at the cap, 0 is idle."""
+    def forward(self, request: ScRequest | None, cap: float) -> ScCommand:
+        """The request clamped to `cap`: never above it, `free` becomes `limit` at the cap, 0 is idle (never
+        `free`). Its seq and stamp are the node's to set."""
         reason = "" if self.cause is Cause.NONE else self.cause.name
         if request is None or self.cause is Cause.SC_SILENT:  # a silent agent's last request is stale
             want, source = math.inf, "supervisor"
         else:
-            want = 0.0 if request.mode == "idle" else request.cap if request.mode == "limit" else math.inf
-            source = request.source
+            want, source = request.speed_limit(), request.source
         granted = min(want, cap)
         if granted != want:
             source = "supervisor" if request is None else source
             reason = reason or f"capped at {cap:g} m/s"
         if granted <= 0.0:
-            return Forward("idle", 0.0, source, reason)
-        return Forward("limit", granted, source, reason)
+            return ScCommand(seq=0, stamp=0.0, mode="idle", speed_cap=0.0, source=source, reason=reason)
+        return ScCommand(seq=0, stamp=0.0, mode="limit", speed_cap=granted, source=source, reason=reason)

@@ -33,6 +33,7 @@ from drivers.can_codec import (
 )
 from drivers.e2e import COUNTER, COUNTER_MODULO, CRC, E2EStatus
 from drivers.schemas import EstopCommand, ScRequest, TesWrench
+from drivers.vocabulary import Cause
 from safety.arbiter import ScArbiter
 from safety.config import RobotGeometry, SupervisorConfig
 from safety.diagnostics import (
@@ -49,7 +50,7 @@ from safety.diagnostics import (
     motor_jacobian,
     trend_inputs,
 )
-from safety.machine import STREAMS, Cause, DriveReport, Finding, Observation, Request
+from safety.machine import STREAMS, DriveReport, Finding, Observation
 from safety.recovery import IsolatedEstimator, leave_one_out
 
 IMU_CHANNELS: dict[str, tuple[str, str, str]] = {
@@ -375,7 +376,7 @@ class Monitors:
 
     def sc_request(self, r: ScRequest, t: float) -> None:
         if self._trusted(r.source, "sc_request"):
-            self.sc.offer(Request(r.mode, r.speed_cap, r.source), t)
+            self.sc.offer(r, t)
 
     def operator_command(self, cmd: EstopCommand) -> None:
         if cmd.action == "reset" and not self._trusted(cmd.source, "reset"):

@@ -19,8 +19,9 @@ import math
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import cast
+
+import msgspec
 
 from drivers.can_bus import CanNode, Received
 from drivers.can_codec import PARTS, MessageName
@@ -30,36 +31,22 @@ from drivers.schemas import (
     Payload,
     SafetyAlert,
     SafetyState,
-    SafetyStateName,
     ScCommand,
     ScRequest,
     TesWrench,
     encode,
 )
+from drivers.vocabulary import OPERATOR_ACTIONS_KEPT, Cause, Event, OperatorRecord, State, StateName
 from drivers.zenoh_link import Fence, ZenohLink
 from safety.config import RobotGeometry, SupervisorConfig
-from safety.machine import Cause, Decision, Event, Forward, Observation, State, Supervisor
+from safety.machine import Decision, Observation, Supervisor
 from safety.monitors import Monitors
 from safety.recovery import RecoveryLaw
 
 log = logging.getLogger(__name__)
 
-OPERATOR_ACTIONS_KEPT = 1000
-"""Operator actions a run's record keeps (a flood of e-stops is counted beyond it, not kept)."""
 BUTTON = "button"
 """The source of a wired e-stop button's press (the OPERATOR_ESTOP frame carries no source)."""
-
-
-@dataclass(frozen=True, slots=True)
-class OperatorRecord:
-    """An operator's command as the supervisor took it in: when (s), what (`estop`, `cut_power`, `reset`; a
-    wired button's press is an `estop` from `button`), whose (the command's `source`), and the state the
-    supervisor was in when it came (before it acted on it)."""
-
-    t: float
-    action: str
-    source: str
-    supervisor_state: str
 
 
 class SupervisorNode:
@@ -105,7 +92,7 @@ class SupervisorNode:
         self._diagnosis_shown: tuple[frozenset[str], int] | None = None
         """What `_diagnosis_now` shows: (the parts named, the alert)."""
         self._frame_sent = self._sc_sent = self._state_sent = -math.inf
-        self._forwarded: Forward | None = None
+        self._forwarded: ScCommand | None = None
         self._estop_by = ""
         self.operator_actions: list[OperatorRecord] = []
         """Every operator command taken in, whatever the state (the first OPERATOR_ACTIONS_KEPT of them)."""
@@ -207,18 +194,7 @@ class SupervisorNode:
         stamp = self._stamp(t)
         if d.command != self._forwarded or t - self._sc_sent >= out.sc_period - 1e-9:
             self._sc_seq += 1
-            c = d.command
-            self._put(
-                self.keys.sc_command,
-                ScCommand(
-                    seq=self._sc_seq,
-                    stamp=stamp,
-                    mode=c.mode,
-                    speed_cap=c.cap,
-                    source=c.source,
-                    reason=c.reason,
-                ),
-            )
+            self._put(self.keys.sc_command, msgspec.structs.replace(d.command, seq=self._sc_seq, stamp=stamp))
             self._forwarded, self._sc_sent = d.command, t
         latched = d.estop_by != self._estop_by
         self._estop_by = d.estop_by
@@ -229,7 +205,7 @@ class SupervisorNode:
                 SafetyState(
                     seq=self._state_seq,
                     stamp=stamp,
-                    state=cast(SafetyStateName, d.state.name),  # State's names are SafetyStateName
+                    state=cast(StateName, d.state.name),  # State's names are StateName
                     reason=d.cause.name + (f" (reset refused: {refused})" if refused else ""),
                     cap=d.cap,
                     since=max(d.since, 0.0),

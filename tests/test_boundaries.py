@@ -59,6 +59,85 @@ def test_plant_uses_only_numerics():
     assert not bad, "plant/ must stay numpy/scipy/MuJoCo-only with no I/O or clocks:\n" + "\n".join(bad)
 
 
+HIL_FROM_SAFETY = {"safety.config": {"SupervisorConfig"}, "safety.node": {"SupervisorNode"}}
+"""What hil/ may still take from safety/: the reference supervisor itself and its config (a later part of
+issue 38 makes it a plug). The wire's vocabulary it speaks comes from drivers/vocabulary.py."""
+VOCABULARY_HOME = "drivers.vocabulary"
+SOURCES = (*sorted(OURS), "tests", "examples", "benchmarks")
+
+
+def _names_from(source: str, prefix: str) -> list[tuple[int, str, str]]:
+    """(line, module, name) of each name imported from a module under `prefix` (`import m` names '*')."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith(prefix):
+            found += [(node.lineno, node.module, alias.name) for alias in node.names]
+        elif isinstance(node, ast.Import):
+            found += [(node.lineno, a.name, "*") for a in node.names if a.name.startswith(prefix)]
+    return found
+
+
+def hil_safety_imports(path: str, source: str) -> list[str]:
+    return [
+        f"{path}:{line} imports {module}.{name}"
+        for line, module, name in _names_from(source, "safety")
+        if name not in HIL_FROM_SAFETY.get(module, set())
+    ]
+
+
+def test_hil_takes_only_the_supervisor_and_its_config_from_safety():
+    bad = [
+        f
+        for path in modules("hil")
+        for f in hil_safety_imports(str(path.relative_to(ROOT)), path.read_text())
+    ]
+    assert not bad, "hil/ takes the wire's vocabulary from drivers/vocabulary.py:\n" + "\n".join(bad)
+
+
+def vocabulary_imported_elsewhere(path: str, source: str) -> list[str]:
+    """Where `source` imports a name of drivers/vocabulary.py through another of our modules (which has it
+    only because it imported it: controller/core.py's own State, CONTROLLER_HEARTBEAT's, is another name)."""
+    import importlib
+
+    import drivers.vocabulary
+
+    tree = ast.parse(Path(drivers.vocabulary.__file__).read_text())
+    declared = {n.name for n in tree.body if isinstance(n, ast.ClassDef)} | {
+        t.id for n in tree.body if isinstance(n, ast.Assign) for t in n.targets if isinstance(t, ast.Name)
+    }
+    return [
+        f"{path}:{line} imports {name} from {module}: use {VOCABULARY_HOME}"
+        for line, module, name in _names_from(source, "")
+        if name in declared
+        and module != VOCABULARY_HOME
+        and module.split(".")[0] in OURS
+        and getattr(importlib.import_module(module), name, None) is getattr(drivers.vocabulary, name)
+    ]
+
+
+def test_the_wires_vocabulary_is_imported_only_from_drivers():
+    bad = [
+        finding
+        for package in SOURCES
+        for path in modules(package)
+        for finding in vocabulary_imported_elsewhere(str(path.relative_to(ROOT)), path.read_text())
+    ]
+    assert not bad, "\n".join(bad)
+
+
+def test_positive_control_a_vocabulary_import_from_safety_is_seen():
+    # What hil/ and tests did before drivers/vocabulary.py held the vocabulary.
+    source = (
+        "from safety.machine import Cause, State\nfrom safety.node import OperatorRecord, SupervisorNode\n"
+    )
+    assert hil_safety_imports("hil/x.py", source) == [
+        "hil/x.py:1 imports safety.machine.Cause",
+        "hil/x.py:1 imports safety.machine.State",
+        "hil/x.py:2 imports safety.node.OperatorRecord",
+    ]
+    assert len(vocabulary_imported_elsewhere("tests/x.py", source)) == 3
+
+
 def test_checker_sees_a_violation():
     # Test the test: the same parser finds forbidden imports in every import form.
     source = "from plant.ballbot import Plant\nimport hil.cli as c\nfrom . import sibling\n"

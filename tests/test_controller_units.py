@@ -8,10 +8,11 @@ import pytest
 from controller.balance import equilibrium
 from controller.command import CommandSpeed, deadband
 from controller.config import ControllerConfig, Hacs, Lqr, RiderInfo, RiderProfile, RobotModel
-from controller.core import Controller, Fault, ScInput, State, Wrench
+from controller.core import Controller, Fault, State, Wrench
 from controller.estimator import Estimator
 from controller.model import lqr_gain, motor_jacobian, plane_model
 from drivers.config import load_toml
+from drivers.schemas import ScCommand
 from plant.ballbot import Plant, plane_params
 from plant.params import RobotParams
 from tests.helpers import RIDER_75, ROOT, sim
@@ -196,7 +197,9 @@ def run_ticks(c, start, n, wrench=SEATED, sc=("free", 0.0), estop=False, pitch=0
         t = k / 400
         feed(c, t, pitch)
         w = Wrench(wrench.force, (wrench.moment[0], wrench.moment[1] + leaning, wrench.moment[2]))
-        out = c.step(t, w, 0.0, ScInput(sc[0], sc[1], t), estop)
+        out = c.step(
+            t, w, 0.0, ScCommand(seq=0, stamp=t, mode=sc[0], speed_cap=sc[1], source="supervisor"), estop
+        )
     return out
 
 
@@ -209,7 +212,13 @@ def test_stale_sc_command_falls_back_to_idle():
     for k in range(1200, 1300):
         t = k / 400
         feed(c, t)
-        out = c.step(t, Wrench(SEATED.force, (0.0, 40.0, 0.0)), 0.0, ScInput("free", 0.0, t - 1.0), False)
+        out = c.step(
+            t,
+            Wrench(SEATED.force, (0.0, 40.0, 0.0)),
+            0.0,
+            ScCommand(seq=0, stamp=t - 1.0, mode="free", speed_cap=0.0, source="supervisor"),
+            False,
+        )
     assert out.command_speed == (0.0, 0.0)
 
 
@@ -236,7 +245,9 @@ def test_estop_disables_and_reset_does_not_re_enable():
 def test_sensor_silence_faults_and_holds_the_drives_off():
     c = Controller(ControllerConfig(), ROBOT, RiderInfo())
     run_ticks(c, 0, 10)
-    out = c.step(0.1, SEATED, 0.0, ScInput("free", 0.0, 0.1), False)  # no frames for 75 ms
+    out = c.step(
+        0.1, SEATED, 0.0, ScCommand(seq=0, stamp=0.1, mode="free", speed_cap=0.0, source="supervisor"), False
+    )  # no frames for 75 ms
     assert (out.state, out.fault, out.enable) == (State.FAULT, Fault.SENSOR_TIMEOUT, False)
     out = run_ticks(c, 41, 10)  # sensors back: still down until an explicit enable
     assert out.state is State.FAULT and not out.enable

@@ -13,6 +13,7 @@ import pytest
 
 from drivers.can_codec import Catalog, MessageName
 from drivers.config import load_toml
+from drivers.vocabulary import Cause, State
 from hil import pipeline
 from hil.faults import parse_fault
 from hil.run.scenario import Scenario
@@ -22,8 +23,6 @@ from safety.machine import (
     CUT_POWER,
     IMMEDIATE,
     TAKEOVER_CAUSES,
-    Cause,
-    State,
 )
 from safety.recovery import plane_gain
 from tests.helpers import ROOT

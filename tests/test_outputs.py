@@ -14,11 +14,11 @@ import msgspec
 import numpy as np
 from matplotlib.collections import LineCollection
 
+from drivers.vocabulary import State
 from hil.faults import Fault
 from hil.report.folder import commit, summary
 from hil.report.plots import FAULT_COLOR, SHADES, figure
 from hil.run.scenario import Verdict
-from safety.machine import State
 
 UNITS = {
     "t": "s",

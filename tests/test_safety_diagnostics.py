@@ -8,6 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from drivers.config import load_toml
+from drivers.vocabulary import Cause
 from hil.run.truth_balancer import TruthBalancer
 from plant.ballbot import RiderIntent
 from plant.ballbot3d import Plant3D
@@ -30,7 +31,6 @@ from safety.diagnostics import (
     motor_jacobian,
     trend_inputs,
 )
-from safety.machine import Cause
 from tests.helpers import RIDER_75, ROOT
 
 CFG = SupervisorConfig()

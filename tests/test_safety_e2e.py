@@ -13,6 +13,7 @@ from drivers.bus_config import BusConfig
 from drivers.can_bus import CanNode, open_bus, private_channel
 from drivers.can_codec import Catalog, MessageName
 from drivers.config import load_toml
+from drivers.vocabulary import State
 from drivers.zenoh_link import ZenohLink, open_session
 from hil.faults.processes import Kill
 from hil.pipeline import run
@@ -22,7 +23,6 @@ from hil.run.rig import Rig
 from hil.run.scenario import OperatorEntry, Scenario
 from plant.params import RobotParams
 from safety.config import SupervisorConfig
-from safety.machine import State
 from safety.node import SupervisorNode, SupervisorThread
 from tests.helpers import ROOT
 from tests.zenoh_helpers import hub_endpoint, private_bench

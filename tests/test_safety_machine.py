@@ -10,6 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drivers.config import load_toml
+from drivers.schemas import ScRequest
+from drivers.vocabulary import Cause, State
 from safety.config import SupervisorConfig
 from safety.machine import (
     BALANCING,
@@ -20,20 +22,23 @@ from safety.machine import (
     IMMEDIATE,
     STREAMS,
     TAKEOVER_CAUSES,
-    Cause,
     DriveReport,
     Finding,
     Observation,
-    Request,
-    State,
     Supervisor,
 )
+
+
+def sc_request(mode, cap, source):
+    """An SC request as the supervisor takes it in (its seq and stamp do not matter to the machine)."""
+    return ScRequest(seq=0, stamp=0.0, mode=mode, speed_cap=cap, source=source)
+
 
 ROOT = Path(__file__).resolve().parents[1]
 CFG = SupervisorConfig()
 LIMIT = 3.75
 HEALTHY = dict.fromkeys(STREAMS, 0.0)
-FREE = Request("free", 0.0, "agent")
+FREE = sc_request("free", 0.0, "agent")
 DT = 0.0025
 OFF = DriveReport(enabled=False, bus_powered=True)
 """A drive that confirms it is off, on a live bus."""
@@ -105,19 +110,19 @@ def test_starts_normal_and_permits_the_drives():
 @pytest.mark.parametrize(
     "request_, expected",
     [
-        (Request("free", 0.0, "agent"), ("limit", 2.0, "agent")),
-        (Request("limit", 0.5, "agent"), ("limit", 0.5, "agent")),
-        (Request("limit", 3.0, "agent"), ("limit", 2.0, "agent")),
-        (Request("idle", 0.0, "agent"), ("idle", 0.0, "agent")),
-        (Request("limit", 0.0, "agent"), ("idle", 0.0, "agent")),
+        (sc_request("free", 0.0, "agent"), ("limit", 2.0, "agent")),
+        (sc_request("limit", 0.5, "agent"), ("limit", 0.5, "agent")),
+        (sc_request("limit", 3.0, "agent"), ("limit", 2.0, "agent")),
+        (sc_request("idle", 0.0, "agent"), ("idle", 0.0, "agent")),
+        (sc_request("limit", 0.0, "agent"), ("idle", 0.0, "agent")),
         (None, ("limit", 2.0, "supervisor")),
     ],
 )
 def test_requests_are_forwarded_clamped_to_the_cap(request_, expected):
     d = supervisor().update(obs(request=request_))
-    assert (d.command.mode, d.command.cap, d.command.source) == expected
+    assert (d.command.mode, d.command.speed_cap, d.command.source) == expected
     assert bool(d.command.reason) == (
-        expected[1] != (request_.cap if request_ else -1) and expected[0] != "idle"
+        expected[1] != (request_.speed_cap if request_ else -1) and expected[0] != "idle"
     )
 
 
@@ -336,8 +341,8 @@ def test_wrench_not_required_is_not_a_cause():
 
 # ------------------------------------------------------------------------------------------ LIMITING
 def test_over_cap_for_the_window_limits_then_releases_below_the_cap():
-    s = supervisor(request=Request("limit", 0.5, "agent"))
-    over = dict(speed=0.5 + CFG.speed.margin + 0.05, request=Request("limit", 0.5, "agent"))
+    s = supervisor(request=sc_request("limit", 0.5, "agent"))
+    over = dict(speed=0.5 + CFG.speed.margin + 0.05, request=sc_request("limit", 0.5, "agent"))
     d, t = hold(s, 1.0, CFG.speed.window - 0.01, **over)
     assert d.state is State.NORMAL
     d, t = hold(s, t, 0.02, **over)
@@ -345,12 +350,12 @@ def test_over_cap_for_the_window_limits_then_releases_below_the_cap():
     d, t = hold(s, t, CFG.speed.release_window - 0.01, speed=0.4, request=over["request"])
     assert d.state is State.LIMITING
     d, _ = hold(s, t, 0.02, speed=0.4, request=over["request"])
-    assert (d.state, d.cause, d.command.cap) == (State.NORMAL, Cause.NONE, 0.5)
+    assert (d.state, d.cause, d.command.speed_cap) == (State.NORMAL, Cause.NONE, 0.5)
 
 
 def test_within_the_margin_is_not_over_cap():
-    s = supervisor(request=Request("limit", 0.5, "a"))
-    d, _ = hold(s, 1.0, 2.0, speed=0.5 + CFG.speed.margin, request=Request("limit", 0.5, "a"))
+    s = supervisor(request=sc_request("limit", 0.5, "a"))
+    d, _ = hold(s, 1.0, 2.0, speed=0.5 + CFG.speed.margin, request=sc_request("limit", 0.5, "a"))
     assert d.state is State.NORMAL
 
 
@@ -359,22 +364,22 @@ def test_requested_cap_not_enforced_keeps_the_absolute_cap():
         CFG, speed=msgspec.structs.replace(CFG.speed, enforce_requested_cap=False)
     )
     s = supervisor(config)
-    d, t = hold(s, 1.0, 1.0, speed=1.5, request=Request("idle", 0.0, "a"))
+    d, t = hold(s, 1.0, 1.0, speed=1.5, request=sc_request("idle", 0.0, "a"))
     assert d.state is State.NORMAL and d.command.mode == "idle"
     d, _ = hold(s, t, CFG.speed.window + 0.01, speed=CFG.speed.absolute_cap + CFG.speed.margin + 0.01)
     assert (d.state, d.cause) == (State.LIMITING, Cause.OVER_CAP)
 
 
 def test_speed_still_rising_while_limited_stops():
-    s = supervisor(request=Request("limit", 0.5, "a"))
-    d, t = hold(s, 1.0, CFG.speed.window + 0.01, speed=1.0, request=Request("limit", 0.5, "a"))
+    s = supervisor(request=sc_request("limit", 0.5, "a"))
+    d, t = hold(s, 1.0, CFG.speed.window + 0.01, speed=1.0, request=sc_request("limit", 0.5, "a"))
     assert d.state is State.LIMITING
     d = s.update(obs(t=t, speed=1.0 + CFG.speed.rise_margin + 0.01))
     assert (d.state, d.cause) == (State.STOPPING, Cause.OVERPOWERED)
 
 
 def test_limiting_that_never_gets_under_the_cap_stops():
-    req = Request("limit", 0.5, "a")
+    req = sc_request("limit", 0.5, "a")
     s = supervisor(request=req)
     d, t = hold(s, 1.0, CFG.speed.window + 0.01, speed=1.0, request=req)
     d, t = hold(s, t, CFG.speed.limit_timeout - 0.02, speed=0.9, request=req)
@@ -388,11 +393,11 @@ def test_silent_sc_agent_lowers_the_cap_until_it_speaks_again():
     s.update(obs(t=0.0, ages={"sc": math.inf}, request=None))
     assert s.update(obs(ages={"sc": math.inf}, request=None)).state is State.NORMAL, "never heard: no agent"
     s.update(obs(t=1.0, ages={"sc": 0.0}))
-    d = s.update(obs(t=3.0, ages={"sc": CFG.watchdogs.sc + 0.01}, request=Request("limit", 1.5, "a")))
+    d = s.update(obs(t=3.0, ages={"sc": CFG.watchdogs.sc + 0.01}, request=sc_request("limit", 1.5, "a")))
     assert (d.state, d.cause, d.cap) == (State.LIMITING, Cause.SC_SILENT, CFG.speed.reduced_cap)
-    assert (d.command.mode, d.command.cap) == ("limit", CFG.speed.reduced_cap)
-    d = s.update(obs(t=3.1, request=Request("limit", 1.5, "a")))
-    assert (d.state, d.command.cap) == (State.NORMAL, 1.5)
+    assert (d.command.mode, d.command.speed_cap) == ("limit", CFG.speed.reduced_cap)
+    d = s.update(obs(t=3.1, request=sc_request("limit", 1.5, "a")))
+    assert (d.state, d.command.speed_cap) == (State.NORMAL, 1.5)
 
 
 # ------------------------------------------------------------------------------------------ STOPPING
@@ -445,7 +450,7 @@ def test_stop_that_does_not_reach_standstill_times_out():
 def test_stopping_ignores_requests_and_further_stop_causes():
     s = supervisor()
     to_stopping(s)
-    d = s.update(obs(t=1.1, speed=0.8, request=Request("limit", 1.5, "a"), button=True))
+    d = s.update(obs(t=1.1, speed=0.8, request=sc_request("limit", 1.5, "a"), button=True))
     assert (d.state, d.cause, d.command.mode) == (State.STOPPING, Cause.OPERATOR_ESTOP, "idle")
 
 
@@ -491,7 +496,9 @@ def test_reset_is_refused_in_every_unsafe_condition(condition):
 def test_estop_outranks_any_stop_cause_and_request(cause):
     s = supervisor()
     to_estop(s)
-    d = s.update(obs(t=2.0, request=Request("limit", 2.0, "a"), **{"speed": 1.0, **CONTROLLED_CASES[cause]}))
+    d = s.update(
+        obs(t=2.0, request=sc_request("limit", 2.0, "a"), **{"speed": 1.0, **CONTROLLED_CASES[cause]})
+    )
     assert (d.state, d.cause, d.command.mode) == (State.ESTOP, Cause.HEARTBEAT_LOST, "idle")
 
 
@@ -531,7 +538,7 @@ def test_transitions_are_logged_with_time_cause_and_values():
 requests = st.one_of(
     st.none(),
     st.builds(
-        Request,
+        sc_request,
         st.sampled_from(["free", "idle", "limit"]),
         st.floats(0.0, 5.0),
         st.just("agent"),
@@ -598,9 +605,9 @@ def test_properties_over_any_observation_sequence(sequence, stage_read_back):
         closed = d.contactor_closed
         # The forwarded SC command never exceeds the active cap, and is never `free`.
         assert d.command.mode in ("idle", "limit")
-        assert d.command.cap <= d.cap
+        assert d.command.speed_cap <= d.cap
         if d.command.mode == "idle":
-            assert d.command.cap == 0.0
+            assert d.command.speed_cap == 0.0
         # Stopping, the recovery law and e-stop forward idle; only ESTOP takes the drives' permission away.
         if d.state in (State.STOPPING, State.ESTOP, State.RECOVERY):
             assert d.command.mode == "idle"
@@ -627,8 +634,8 @@ def test_properties_over_any_observation_sequence(sequence, stage_read_back):
 
 def test_a_dropped_cap_is_enforced_along_a_braking_ramp():
     s = supervisor()
-    s.update(obs(t=1.0, speed=1.4, request=Request("limit", 1.5, "a")))
-    idle = Request("idle", 0.0, "a")
+    s.update(obs(t=1.0, speed=1.4, request=sc_request("limit", 1.5, "a")))
+    idle = sc_request("idle", 0.0, "a")
     # Braking faster than the ramp: never limited, although far above the new cap for a while.
     t, v = 1.0 + DT, 1.4
     while v > 0.0:
@@ -636,7 +643,7 @@ def test_a_dropped_cap_is_enforced_along_a_braking_ramp():
         t, v = t + DT, v - 1.0 * DT
     # Slower than the ramp: limited once the speed is above the ramp + margin for the window.
     s = supervisor()
-    s.update(obs(t=1.0, speed=1.4, request=Request("limit", 1.5, "a")))
+    s.update(obs(t=1.0, speed=1.4, request=sc_request("limit", 1.5, "a")))
     t, v, d = 1.0 + DT, 1.4, None
     while v > 0.0 and (d is None or d.state is State.NORMAL):
         d = s.update(obs(t=t, speed=v, request=idle))

@@ -9,10 +9,10 @@ import pytest
 from drivers.can_bus import CanNode
 from drivers.config import load_toml
 from drivers.schemas import EstopCommand, ScRequest, TesWrench
+from drivers.vocabulary import Cause
 from plant.ballbot import Plant
 from plant.params import RobotParams, SimParams
 from safety.config import RobotGeometry, SupervisorConfig
-from safety.machine import Cause
 from safety.monitors import Monitors, motor_jacobian
 from tests.helpers import RIDER_75, ROOT
 
@@ -113,7 +113,7 @@ def test_zenoh_inputs_set_ages_and_values():
     m.sc_request(ScRequest(seq=1, stamp=0.0, mode="limit", speed_cap=0.5, source="agent"), 1.0)
     obs = m.observe(1.5)
     assert obs.seat_load == 600.0
-    assert (obs.request.mode, obs.request.cap) == ("limit", 0.5)
+    assert (obs.request.mode, obs.request.speed_cap) == ("limit", 0.5)
     assert obs.ages["wrench"] == obs.ages["sc"] == 0.5
     assert obs.ages["heartbeat"] == math.inf
 

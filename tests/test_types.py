@@ -22,11 +22,10 @@ def test_mypy_finds_no_error(monkeypatch):
 
 # ------------------------------------------------------------------------- what the casts rely on
 def test_the_supervisor_states_are_the_wire_names():
-    # safety/node.py publishes State's name as SafetyState.state (a SafetyStateName).
-    from drivers.schemas import SafetyStateName
-    from safety.machine import State
+    # safety/node.py publishes State's name as SafetyState.state (a StateName).
+    from drivers.vocabulary import State, StateName
 
-    assert {s.name for s in State} == set(typing.get_args(SafetyStateName))
+    assert {s.name for s in State} == set(typing.get_args(StateName))
 
 
 def test_every_fault_kind_is_a_str_tag():

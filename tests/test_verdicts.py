@@ -26,6 +26,7 @@ from mcap.reader import make_reader
 
 from drivers.keys import Keys
 from drivers.schemas import SafetyState
+from drivers.vocabulary import Event, OperatorRecord
 from drivers.zenoh_link import ZenohLink, open_session
 from hil.cli import main
 from hil.faults import parse_fault
@@ -35,8 +36,6 @@ from hil.run.judge import EXPECTED_FALL, NO_FALL, NO_UNPLANNED_STOP, RunResult, 
 from hil.run.scenario import Criterion, OperatorEntry, Scenario
 from hil.run.trace import Trace
 from hil.service import RigService
-from safety.machine import Event
-from safety.node import OperatorRecord
 from tests.helpers import ROOT, wait_for
 from tests.zenoh_helpers import hub_endpoint, private_bench
 

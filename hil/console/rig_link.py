@@ -24,7 +24,8 @@ import msgspec
 import zenoh
 
 from drivers.keys import Keys
-from drivers.schemas import PayloadError, SafetyState, SafetyStateName, decode
+from drivers.schemas import PayloadError, SafetyState, decode
+from drivers.vocabulary import StateName
 from drivers.zenoh_link import ZenohLink
 from hil.bench.operator import Action, command
 from hil.console.events import Broadcast
@@ -89,7 +90,7 @@ class RigLink:
         """The pinned service's run going now (None: idle, or not known)."""
         self.latch = Latch()
         self._lock = threading.Lock()  # the latch: zenoh's threads, the poller and the pages' requests
-        self._safety_sent: tuple[tuple[SafetyStateName, str, float, str] | None, float] = (None, 0.0)
+        self._safety_sent: tuple[tuple[StateName, str, float, str] | None, float] = (None, 0.0)
         """The supervisor's state the pages were last sent (state, reason, cap, estop_by), and when."""
         self._latch_sent: tuple | None = None
         self._closed = threading.Event()

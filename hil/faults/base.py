@@ -19,7 +19,7 @@ import msgspec
 import numpy as np
 
 from drivers.config import MAX_DURATION
-from safety.machine import Cause
+from drivers.vocabulary import Cause, ReactionStateName
 
 if TYPE_CHECKING:
     from drivers.can_bus import CanNode
@@ -144,7 +144,7 @@ class Expect(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=Tr
     stays at or below it (m/s) from the fault's start on."""
 
     reaction: Literal["none", "supervisor"] | None = None
-    state: Literal["LIMITING", "STOPPING", "ESTOP", "RECOVERY"] | None = None
+    state: ReactionStateName | None = None
     cause: str | None = None
     within: Positive = 0.1
     fall: bool | None = None

@@ -12,7 +12,7 @@ from typing import Annotated, ClassVar, Literal
 
 import msgspec
 
-from drivers.schemas import ScRequest, Source, Speed, TesWrench, encode
+from drivers.schemas import ScMode, ScRequest, Source, Speed, TesWrench, encode
 from hil.faults.base import Bound, FaultSpec, FaultState, FaultTarget, Period
 
 ETHERNET_BITRATE = 100e6
@@ -117,7 +117,7 @@ class ScFlood(TopicFault, frozen=True, tag="zenoh.sc_flood"):
             why="an agent's 100 Mbit/s Ethernet, each request a TCP segment of its own",
         ),
     ] = 20
-    mode: Literal["free", "idle", "limit"] = "free"
+    mode: ScMode = "free"
     cap: Cap = 0.0
     source: Source = "flood"
 
@@ -136,7 +136,7 @@ class ScConflict(TopicFault, frozen=True, tag="zenoh.sc_conflict"):
     """A second SC agent (`source`) asks for something else (`mode`, `cap`) every `period` seconds,
     interleaved with the scenario's own requests."""
 
-    mode: Literal["free", "idle", "limit"] = "free"
+    mode: ScMode = "free"
     cap: Cap = 0.0
     period: Period = 0.05
     source: Source = "rogue-agent"

@@ -189,7 +189,7 @@ EVENTS: dict[str, tuple[str, dict, str]] = {
             "kind": {**_TEXT, "description": "transition, reset_refused or contactor_opened"},
             "from_state": _STATE,
             "to_state": _STATE,
-            "cause": {**_TEXT, "description": "safety/machine.py Cause"},
+            "cause": {**_TEXT, "description": "drivers/vocabulary.py Cause"},
             "detail": _TEXT,
         },
         "the supervisor's transition (or refused reset) with its cause (summary.json safety.events)",

@@ -16,7 +16,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from safety.machine import State
+from drivers.vocabulary import State
 
 
 class Column(NamedTuple):
@@ -53,7 +53,7 @@ COLUMNS = (
     Column("tilt_command.roll", "rad", "the controller's tilt command θ_EQ (its telemetry; NaN: none)"),
 )
 SAFETY_STATES = {-1: "no frame yet", **{s.value: s.name for s in State}}
-"""The `safety_state` column's codes (SUPERVISOR_ESTOP.State, safety/machine.py)."""
+"""The `safety_state` column's codes (SUPERVISOR_ESTOP.State, drivers/vocabulary.py)."""
 TELEMETRY = [c.name for c in COLUMNS].index("command_speed.pitch")
 """Columns before this one come from the rig each tick; the rest from the controller's telemetry."""
 BLOCK = 1024

@@ -17,6 +17,7 @@ from pathlib import Path
 import msgspec
 import numpy as np
 
+from drivers.vocabulary import State
 from hil.outputs.mcap_log import FAULT_LOG, FAULT_WINDOWS, OPERATOR, SUPERVISOR
 from hil.outputs.mcap_log import check as check_mcap
 from hil.outputs.trace_log import describe
@@ -24,7 +25,6 @@ from hil.run.judge import RunResult, operator_actions
 from hil.run.measurements import unavailable
 from hil.run.scenario import Scenario
 from hil.run.trace import Trace
-from safety.machine import State
 
 
 def versions() -> dict[str, str]:

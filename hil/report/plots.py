@@ -18,8 +18,8 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
+from drivers.vocabulary import State
 from hil.run.judge import RunResult
-from safety.machine import State
 
 STRETCHES = 2000
 """A longer run is drawn as the min and max of this many stretches of ticks (the 900-pixel-wide figure

@@ -31,6 +31,7 @@ from drivers.dut import DutHandle, DutSpec, start_dut
 from drivers.keys import Keys
 from drivers.plugs import SUPERVISORS, SupervisorSpec, find_plug
 from drivers.resources import find
+from drivers.schemas import ScRequest
 from drivers.zenoh_access import ZenohAccess
 from drivers.zenoh_link import ZenohLink, lend
 from hil.bench.bench import Bench, RealtimePart
@@ -39,7 +40,7 @@ from hil.devices import rig_node
 from hil.faults import FaultError, FaultSet
 from hil.outputs.inputs_log import InputsLog
 from hil.outputs.run_logs import McapSpec, RunLogs, open_logs
-from hil.run.rig import AgentLinks, OperatorStep, Rig, ScStep
+from hil.run.rig import SCENARIO_SOURCE, AgentLinks, OperatorStep, Rig, ScStep
 from hil.run.scenario import Scenario
 from hil.run.trace import ControllerUnavailable
 from plant.ballbot import PlantCore, RiderIntent
@@ -161,7 +162,13 @@ def build(
         plant,
         rig_node(wire.bus, bench.devices, plant.robot.encoder.counts_per_rev, plant.sim.tick_hz),
         wire.link,
-        tuple(ScStep(scenario.tick_of(e.at), e.mode, e.cap) for e in scenario.sc),
+        tuple(
+            ScStep(
+                scenario.tick_of(e.at),
+                ScRequest(seq=0, stamp=0.0, mode=e.mode, speed_cap=e.cap, source=SCENARIO_SOURCE),
+            )
+            for e in scenario.sc
+        ),
         supervisor=parts.supervisor,
         operator=tuple(OperatorStep(scenario.tick_of(e.at), e.action) for e in scenario.operator),
         faults=faults,

@@ -8,13 +8,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from drivers.vocabulary import OPERATOR_STOPS, State
 from hil.run.fault_verdicts import fault_verdicts
 from hil.run.measurements import MEASUREMENTS, measure, summary_metrics, unavailable
 from hil.run.rig import SCENARIO_SOURCE
 from hil.run.scenario import Scenario, Verdict
 from hil.run.trace import Trace
 from safety.config import SupervisorConfig
-from safety.machine import OPERATOR_STOPS, State
 
 LIVE_STOPS = frozenset(c.name for c in OPERATOR_STOPS)
 SCRIPTED_WITHIN = 0.5

@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 
+from drivers.vocabulary import Event, State
 from hil.outputs.bodies import PoseTaker
 from hil.outputs.trace_log import TELEMETRY, TraceLog
 from hil.run.build import Built, RunOptions, RunStatus
@@ -15,7 +16,6 @@ from hil.run.clock import Clock, LockstepClock, RealtimeClock
 from hil.run.rig import Rig
 from hil.run.trace import Failure, Trace, reason
 from plant.ballbot import Truth
-from safety.machine import Event, State
 
 TELEMETRY_EVERY = 64
 """Ticks between takes of the controller's telemetry during a run."""

@@ -30,6 +30,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
+import msgspec
 from mypy_extensions import mypyc_attr
 
 from drivers.can_bus import BusRecorder, CanNode, Received
@@ -42,19 +43,18 @@ from drivers.schemas import (
     EstopCommand,
     Payload,
     SafetyState,
-    ScMode,
     ScRequest,
     TesWrench,
     encode,
 )
+from drivers.vocabulary import OPERATOR_ACTIONS_KEPT, OperatorRecord, State
 from drivers.zenoh_link import Subscription, ZenohLink
 from hil.faults import FaultSet
 from hil.outputs.inputs_log import InputsLog
 from plant.ballbot import PlantCore
 from plant.drives import DriveState, MotorDrive
 from plant.sensors import DriveFeedback, ImuSample, TesSample
-from safety.machine import State
-from safety.node import OPERATOR_ACTIONS_KEPT, OperatorRecord, SupervisorNode
+from safety.node import SupervisorNode
 
 COMMANDS: dict[str, int] = {name: motor for motor, name in enumerate(DRIVE_COMMAND)}
 """Each drive's command frame (keyed by name as frames carry it: Received.name) -> its motor."""
@@ -70,13 +70,14 @@ SCENARIO_SOURCE = "scenario"
 
 @dataclass(frozen=True, slots=True)
 class ScStep:
-    """From `tick` on, the shared controller asks for `mode` (free, idle, limit) with `cap` (m/s)."""
+    """From `tick` on, the shared controller asks for `request` (sent with its own seq and stamp)."""
 
     tick: int
-    mode: ScMode
-    cap: float = 0.0
+    request: ScRequest
 
 
+FREE_SCHEDULE = (ScStep(0, ScRequest(seq=0, stamp=0.0, mode="free", source=SCENARIO_SOURCE)),)
+"""The schedule of a run that plans no SC request: the rider in charge throughout."""
 OperatorAction = Literal["estop", "reset", "enable", "disable"]
 
 
@@ -132,7 +133,7 @@ class Rig:
         plant: PlantCore,
         can: CanNode,
         link: ZenohLink,
-        sc_schedule: list[ScStep] | tuple[ScStep, ...] = (ScStep(0, "free"),),
+        sc_schedule: list[ScStep] | tuple[ScStep, ...] = FREE_SCHEDULE,
         command_guard: float = 1.0,
         supervisor: SupervisorNode | None = None,
         operator: list[OperatorStep] | tuple[OperatorStep, ...] = (),
@@ -428,13 +429,7 @@ class Rig:
         if current is self._sc_last and k - self._sc_sent_tick < SC_REPEAT_EVERY:
             return
         key = self.keys.sc_request
-        request = ScRequest(
-            seq=self._next_seq(key),
-            stamp=self.plant.t,
-            mode=current.mode,
-            speed_cap=current.cap,
-            source=SCENARIO_SOURCE,
-        )
+        request = msgspec.structs.replace(current.request, seq=self._next_seq(key), stamp=self.plant.t)
         self._put(k, key, request, self.sc_link)
         self._sc_last, self._sc_sent_tick = current, k
 

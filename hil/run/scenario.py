@@ -16,11 +16,12 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 import msgspec
 
 from drivers.config import MAX_DURATION
+from drivers.schemas import ScMode, Speed
+from drivers.vocabulary import Cause
 from hil.faults import Fault
 from hil.run.measurements import MEASUREMENTS
 from plant.rider import Segment
 from safety.config import SupervisorConfig
-from safety.machine import Cause
 
 Positive = Annotated[float, msgspec.Meta(gt=0)]
 TickRate = Annotated[float, msgspec.Meta(gt=0, le=100_000)]
@@ -33,11 +34,12 @@ class _Record(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=T
 
 
 class ScEntry(_Record, frozen=True, kw_only=True):
-    """From `at` seconds on, the shared controller asks for `mode` (`cap` m/s in limit mode)."""
+    """From `at` seconds on, the shared controller asks for `mode` (`cap` m/s in limit mode): the scenario
+    file's spelling of an ScRequest (drivers/schemas.py), which the rig sends."""
 
     at: Annotated[float, msgspec.Meta(ge=0)] = 0.0
-    mode: Literal["free", "idle", "limit"]
-    cap: Annotated[float, msgspec.Meta(ge=0, le=5)] = 0.0
+    mode: ScMode
+    cap: Speed = 0.0
 
 
 class OperatorEntry(_Record, frozen=True):
@@ -82,7 +84,7 @@ class Criterion(_Record, frozen=True):
     """Evaluate only the part of the run after this time, s (stop_time, safety_reaction, drives_off_after:
     the time measured from)."""
     cause: str = ""
-    """safety_reaction: the supervisor's cause (safety/machine.py::Cause) whose first transition is timed."""
+    """safety_reaction: the supervisor's cause (drivers.vocabulary.Cause) whose first transition is timed."""
     note: str = ""
 
     def __post_init__(self) -> None:

@@ -10,13 +10,12 @@ import numpy as np
 from drivers.bus_config import BusConfigError
 from drivers.config import ConfigError
 from drivers.plugs import PlugNotFound
+from drivers.vocabulary import Event, OperatorRecord
 from drivers.zenoh_link import ZenohConfigError
 from hil.faults import FaultError, FaultEvent, FaultSpec
 from hil.outputs.bodies import Poses
 from hil.run.clock import TimingStats
 from hil.run.rig import TickStats
-from safety.machine import Event
-from safety.node import OperatorRecord
 
 
 class ControllerUnavailable(RuntimeError):

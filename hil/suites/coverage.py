@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING
 import msgspec
 import numpy as np
 
-from safety.machine import OPERATOR_STOPS, Cause
+from drivers.vocabulary import OPERATOR_STOPS, Cause
 
 if TYPE_CHECKING:
     from hil.run.judge import RunResult

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import math
 
+from drivers.vocabulary import Event
 from hil.run.judge import RunResult
 from hil.run.measurements import measure
-from safety.machine import Event
 
 
 def assert_passed(result: RunResult) -> None:
