@@ -112,6 +112,8 @@ class Plant3D(PlantCore):
         self.model_xml = info.xml
         self.model = m = mujoco.MjModel.from_xml_string(info.xml)
         apply_dof_parameters(m, robot)
+        # No tick reads the energy: `energy()` computes it when asked, and MuJoCo's steps skip it.
+        m.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_ENERGY)
         self.data = d = mujoco.MjData(m)
         self._steps = sim.mujoco.steps_per_tick
 
@@ -482,8 +484,12 @@ class Plant3D(PlantCore):
         return {name: (tuple(pos[b]), tuple(quat[b])) for b, name in names}
 
     def energy(self) -> float:
-        """Kinetic + gravitational energy (J), MuJoCo's account at the current state."""
-        e = self.data.energy
+        """Kinetic + gravitational energy (J), MuJoCo's account at the current state (also left in
+        `data.energy`: potential, kinetic)."""
+        m, d = self.model, self.data
+        mujoco.mj_energyPos(m, d)
+        mujoco.mj_energyVel(m, d)
+        e = d.energy
         return float(e[0] + e[1])
 
     _pushed = False
