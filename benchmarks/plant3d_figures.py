@@ -133,6 +133,7 @@ def floor_swing() -> tuple[float, float]:
     e0, kinetic = plant.energy(), 0.0
     for _ in range(4000):
         plant.step()
+        plant.energy()  # MuJoCo's account, potential and kinetic, into data.energy
         kinetic = max(kinetic, float(plant.data.energy[1]))
     return e0 - plant.energy(), kinetic
 

@@ -112,6 +112,8 @@ class Plant3D(PlantCore):
         self.model_xml = info.xml
         self.model = m = mujoco.MjModel.from_xml_string(info.xml)
         apply_dof_parameters(m, robot)
+        # No tick reads the energy: `energy()` computes it when asked, and MuJoCo's steps skip it.
+        m.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_ENERGY)
         self.data = d = mujoco.MjData(m)
         self._steps = sim.mujoco.steps_per_tick
 
@@ -129,6 +131,18 @@ class Plant3D(PlantCore):
         self._floor = obj(mujoco.mjtObj.mjOBJ_GEOM, FLOOR)
         self._fall_geoms = {obj(mujoco.mjtObj.mjOBJ_GEOM, n): n for n in FALL_GEOMS if n in info.xml}
         self._body_names = [(b, mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b)) for b in range(1, m.nbody)]
+        # Views of MuJoCo's arrays, made once: its buffers never move, and an attribute of MjData builds a
+        # new array object on every access (the tick reads a dozen).
+        self._qpos, self._qvel, self._ctrl = d.qpos, d.qvel, d.ctrl
+        self._sensordata = d.sensordata
+        self._xmat = d.xmat.reshape(-1)  # flat: row b of MuJoCo's (nbody, 9) at 9 b
+        self._actuator_velocity, self._actuator_force = d.actuator_velocity, d.actuator_force
+        self._cfrc_int = d.cfrc_int.reshape(-1)
+        self._site_xpos, self._subtree_com = d.site_xpos.reshape(-1), d.subtree_com.reshape(-1)
+        self._radius = robot.ball.radius
+        self._floor_z = float(m.geom_pos[self._floor][2])
+        motors = self._motors
+        self._motor_1, self._motor_2, self._motor_3 = motors[0], motors[1], motors[2]
         self._torso_body = -1
         self._lean_q: list[int] = []
         self._lean_v: list[int] = []
@@ -141,6 +155,9 @@ class Plant3D(PlantCore):
             self._hips = [obj(mujoco.mjtObj.mjOBJ_ACTUATOR, n) for n in HIPS]
             thighs = [obj(mujoco.mjtObj.mjOBJ_BODY, f"thigh_{s}") for s in ("left", "right")]
             self._rider_bodies = [self._torso_body, *thighs]
+        self._ball_xmat = 9 * self._ball_body
+        self._chassis_xmat = 9 * self._chassis_body
+        self._torso_xmat = 9 * self._torso_body
 
         self._yaw = self._last_yaw = 0.0
         """The heading, unwrapped (MuJoCo's orientation gives it within ±π)."""
@@ -186,9 +203,10 @@ class Plant3D(PlantCore):
         self._update_rest()
         m, d = self.model, self.data
         motor = self.drives.advance(self.dt, self.t + self.dt)
-        ctrl = d.ctrl
-        for i, a in enumerate(self._motors):
-            ctrl[a] = motor[i]
+        ctrl = self._ctrl
+        ctrl[self._motor_1] = motor[0]
+        ctrl[self._motor_2] = motor[1]
+        ctrl[self._motor_3] = motor[2]
         self.ball_torque = self._ball_torque(motor)
         self._set_hip_controls()
         self._apply_external()
@@ -214,7 +232,7 @@ class Plant3D(PlantCore):
 
     def _set_hip_controls(self) -> None:
         """The rider's hip torques for this tick: the engine adds the PD's terms in the lean's state."""
-        m, ctrl = self.model, self.data.ctrl
+        m, ctrl = self.model, self._ctrl
         if self.torso is not None:
             gammas = self._torso_angles()
             for k in (PITCH, ROLL):
@@ -236,8 +254,8 @@ class Plant3D(PlantCore):
 
     def _torso_angles(self) -> tuple[float, float]:
         """The torso's absolute angle from vertical in each plane of the heading frame (pitch, roll), rad."""
-        mat = self.data.xmat[self._torso_body]
-        zx, zy, zz = float(mat[2]), float(mat[5]), float(mat[8])  # the torso's z axis in the world
+        k, xmat = self._torso_xmat, self._xmat
+        zx, zy, zz = xmat.item(k + 2), xmat.item(k + 5), xmat.item(k + 8)  # the torso's z axis in the world
         c, s = math.cos(self._yaw), math.sin(self._yaw)
         forward, left = c * zx + s * zy, -s * zx + c * zy
         return math.atan2(forward, zz), math.atan2(-left, zz)
@@ -306,45 +324,43 @@ class Plant3D(PlantCore):
 
     # ------------------------------------------------------------------------------------------ the state
     def _read_state(self) -> Motion:
-        """Everything a tick's outputs read, from MuJoCo's data once per tick."""
-        d = self.data
-        sens = d.sensordata.tolist()
+        """Everything a tick's outputs read, from MuJoCo's data once per tick: one list per array."""
+        sens = self._sensordata.tolist()
         gyro, accel = (sens[0], sens[1], sens[2]), (sens[3], sens[4], sens[5])
         roll, pitch, yaw = euler_zyx((sens[6], sens[7], sens[8], sens[9]))
         self._yaw += (yaw - self._last_yaw + math.pi) % (2.0 * math.pi) - math.pi
         self._last_yaw = yaw
         droll, dpitch, dyaw = euler_rates(roll, pitch, gyro)
-        qvel = d.qvel
-        v = qvel[0:3].tolist()
+        qpos, qvel = self._qpos.tolist(), self._qvel.tolist()
+        vx, vy = qvel[0], qvel[1]
         c, s = math.cos(self._yaw), math.sin(self._yaw)
         # The ball's angular velocity in the world (its free joint's rates are in its own frame).
-        rb = d.xmat[self._ball_body].tolist()
-        wl = qvel[3:6].tolist()
-        wx = rb[0] * wl[0] + rb[1] * wl[1] + rb[2] * wl[2]
-        wy = rb[3] * wl[0] + rb[4] * wl[1] + rb[5] * wl[2]
+        k = self._ball_xmat
+        rb = self._xmat[k : k + 6].tolist()
+        wl0, wl1, wl2 = qvel[3], qvel[4], qvel[5]
+        wx = rb[0] * wl0 + rb[1] * wl1 + rb[2] * wl2
+        wy = rb[3] * wl0 + rb[4] * wl1 + rb[5] * wl2
         # The contact point's velocity over the floor: v + ω × (−z ẑ) = (vx − z ωy, vy + z ωx). The soft
         # contact lets the ball sink by δ (under a millimetre); MuJoCo's contact point is halfway into it.
-        z = 0.5 * (float(d.qpos[2]) + self.robot.ball.radius)
-        rates = d.actuator_velocity.tolist()
-        self._motor_rates = [rates[a] for a in self._motors]
+        z = 0.5 * (qpos[2] + self._radius)
+        rates = self._actuator_velocity.tolist()
+        self._motor_rates = [rates[self._motor_1], rates[self._motor_2], rates[self._motor_3]]
         lean = lean_rate = (0.0, 0.0)
         if self._lean_q:
-            qpos = d.qpos
-            lean = (float(qpos[self._lean_q[0]]), float(qpos[self._lean_q[1]]))
-            lean_rate = (float(qvel[self._lean_v[0]]), float(qvel[self._lean_v[1]]))
-        pos = d.qpos[0:2].tolist()
+            lean = (qpos[self._lean_q[0]], qpos[self._lean_q[1]])
+            lean_rate = (qvel[self._lean_v[0]], qvel[self._lean_v[1]])
         return Motion(
             attitude=(roll, pitch, yaw),
             tilt_rate=(dpitch, droll),
             yaw_rate=dyaw,
-            velocity=(c * v[0] + s * v[1], -s * v[0] + c * v[1]),
+            velocity=(c * vx + s * vy, -s * vx + c * vy),
             ball_rate=(-s * wx + c * wy, c * wx + s * wy),
-            position=(pos[0], pos[1]),
+            position=(qpos[0], qpos[1]),
             gyro=gyro,
             accel=accel,
             lean=lean,
             lean_rate=lean_rate,
-            slip=math.hypot(v[0] - z * wy, v[1] + z * wx),
+            slip=math.hypot(vx - z * wy, vy + z * wx),
         )
 
     @property
@@ -372,13 +388,18 @@ class Plant3D(PlantCore):
         if self.fallen is not None:
             return
         d = self.data
-        for i in range(d.ncon):
-            g1, g2 = int(d.contact.geom1[i]), int(d.contact.geom2[i])
-            name = self._fall_geoms.get(g2 if g1 == self._floor else g1)
-            if name is not None:
-                self.fallen = f"{name.replace('_', ' ')} touched the floor at t={self.t:.3f} s"
-                return
-        tilt = math.acos(min(1.0, float(d.xmat[self._chassis_body][8])))  # from vertical, any direction
+        ncon = d.ncon
+        # Only the floor collides (model3d's contact bits), and a sphere sunk into a plane always makes one
+        # contact: with the ball sunk, a lone contact is the ball's, and MuJoCo's contact list (dear to
+        # read from Python) needs reading only when there is more.
+        if ncon > 1 or (ncon == 1 and self._qpos.item(2) - self._floor_z >= self._radius):
+            for g1, g2 in d.contact.geom.tolist():
+                name = self._fall_geoms.get(g2 if g1 == self._floor else g1)
+                if name is not None:
+                    self.fallen = f"{name.replace('_', ' ')} touched the floor at t={self.t:.3f} s"
+                    return
+        # The tilt from vertical, any direction.
+        tilt = math.acos(min(1.0, self._xmat.item(self._chassis_xmat + 8)))
         if tilt > sim.fall_tilt:
             self.fallen = f"tilt beyond {sim.fall_tilt_deg:g} deg at t={self.t:.3f} s"
         elif abs(state.position[0]) > sim.floor_half_x or abs(state.position[1]) > sim.floor_half_y:
@@ -399,8 +420,8 @@ class Plant3D(PlantCore):
     def hip_torques(self) -> tuple[float, float]:
         if not self._hips:
             return 0.0, 0.0
-        f = self.data.actuator_force
-        return float(f[self._hips[0]]), float(f[self._hips[1]])
+        f = self._actuator_force
+        return f.item(self._hips[0]), f.item(self._hips[1])
 
     def _compute_seat_wrench(self) -> tuple[float, float, float, float, float, float]:
         """What the torso and the thighs put on the seat at P, body axes: minus the force and moment their
@@ -408,13 +429,14 @@ class Plant3D(PlantCore):
         gravity and inertia included), moved to P. Plus the rider's twisting moment."""
         if self.seated is None:
             return (0.0,) * 6
-        d = self.data
-        px, py, pz = d.site_xpos[self._p_site].tolist()
-        cx, cy, cz = d.subtree_com[self._ball_body].tolist()  # cfrc_int's point: the root's subtree com
+        k, kc = 3 * self._p_site, 3 * self._ball_body
+        px, py, pz = self._site_xpos[k : k + 3].tolist()
+        cx, cy, cz = self._subtree_com[kc : kc + 3].tolist()  # cfrc_int's point: the root's subtree com
         ax, ay, az = cx - px, cy - py, cz - pz
         fx = fy = fz = mx = my = mz = 0.0
+        cfrc = self._cfrc_int
         for b in self._rider_bodies:
-            tx, ty, tz, gx, gy, gz = d.cfrc_int[b].tolist()
+            tx, ty, tz, gx, gy, gz = cfrc[6 * b : 6 * b + 6].tolist()
             # Minus the body's wrench from the chassis, its moment taken about P.
             fx -= gx
             fy -= gy
@@ -422,7 +444,8 @@ class Plant3D(PlantCore):
             mx -= tx + ay * gz - az * gy
             my -= ty + az * gx - ax * gz
             mz -= tz + ax * gy - ay * gx
-        r = d.xmat[self._chassis_body].tolist()  # body axes in the world: columns
+        k = self._chassis_xmat
+        r = self._xmat[k : k + 9].tolist()  # body axes in the world: columns
         twist = self.twist.torque if self.twist else 0.0
         return (
             r[0] * fx + r[3] * fy + r[6] * fz,
@@ -461,8 +484,12 @@ class Plant3D(PlantCore):
         return {name: (tuple(pos[b]), tuple(quat[b])) for b, name in names}
 
     def energy(self) -> float:
-        """Kinetic + gravitational energy (J), MuJoCo's account at the current state."""
-        e = self.data.energy
+        """Kinetic + gravitational energy (J), MuJoCo's account at the current state (also left in
+        `data.energy`: potential, kinetic)."""
+        m, d = self.model, self.data
+        mujoco.mj_energyPos(m, d)
+        mujoco.mj_energyVel(m, d)
+        e = d.energy
         return float(e[0] + e[1])
 
     _pushed = False
