@@ -83,7 +83,7 @@ def write_and_read(layout: Layout, tmp_path) -> tuple[np.ndarray, dict]:
     """Two ticks through the writer, the log (streamed to a file) and the reader the run uses."""
     log = TraceLog(2, tmp_path / "trace.npy", layout=layout)
     for _ in range(2):
-        log.append(loop._row(TRUTH, RIG, layout.order(loop.ROW)))  # type: ignore[arg-type]
+        log.append(loop._row(TRUTH, RIG, layout.order(loop.ROW_GROUPS)))  # type: ignore[arg-type]
     log.telemetry(0, COMMAND_SPEED, TILT_COMMAND)
     log.telemetry(1, COMMAND_SPEED, TILT_COMMAND)
     rows = np.array(log.close())
@@ -111,13 +111,13 @@ def test_the_moved_declaration_moves_every_column():
     shipped = {c.name: i for i, c in enumerate(COLUMNS)}
     assert sorted(c.name for c in moved()) == sorted(shipped)
     assert all(shipped[c.name] != i for i, c in enumerate(moved()))
-    assert Layout(moved()).order(loop.ROW) is not None and Layout(moved()).order(TOLD) is not None
+    assert Layout(moved()).order(loop.ROW_GROUPS) is not None and Layout(moved()).order(TOLD) is not None
 
 
 def test_the_shipped_declaration_is_written_in_order_at_no_cost_to_the_tick():
     """The rig's writer and the telemetry's produce the shipped declaration's order: no reordering per tick,
     and the bytes of trace.npy as before."""
-    assert LAYOUT.order(loop.ROW) is None and LAYOUT.order(TOLD) is None
+    assert LAYOUT.order(loop.ROW_GROUPS) is None and LAYOUT.order(TOLD) is None
 
 
 @pytest.mark.parametrize(
@@ -146,6 +146,8 @@ def test_a_declaration_the_writers_cannot_fill_is_refused_at_once(declaration, e
     assert error in str(refused.value)
 
 
-def test_a_writer_that_leaves_a_gap_is_refused():
-    with pytest.raises(ValueError, match="t, tilt do not fill adjacent columns"):
-        LAYOUT.order(("t", "tilt"))
+def test_a_writer_that_leaves_a_column_unwritten_is_refused():
+    with pytest.raises(ValueError, match="t, velocity fill neither the rig's columns nor the telemetry's"):
+        LAYOUT.order(("t", "velocity"))
+    with pytest.raises(ValueError, match="fill neither"):
+        LAYOUT.order(loop.ROW_GROUPS[:-1])

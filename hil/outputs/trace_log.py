@@ -106,9 +106,11 @@ class Layout:
         columns they fill, the rig's or the telemetry's: None when they are in the declared order already
         (the shipped writers: no cost), else the reordering (a declaration whose columns moved)."""
         indices = self._indices(groups)
-        first = min(indices, default=0)
-        if sorted(indices) != list(range(first, first + len(indices))):
-            raise ValueError(f"trace columns: {', '.join(groups)} do not fill adjacent columns")
+        width = len(self.columns)
+        if sorted(indices) not in (list(range(self.telemetry)), list(range(self.telemetry, width))):
+            raise ValueError(
+                f"trace columns: {', '.join(groups)} fill neither the rig's columns nor the telemetry's"
+            )
         if indices == sorted(indices):
             return None
         # The value written k-th goes to column indices[k]: column j takes the value written at[j]-th.
@@ -119,7 +121,7 @@ class Layout:
 LAYOUT = Layout(COLUMNS)
 """The shipped declaration's layout: what the rig writes and every reader reads by."""
 TELEMETRY = LAYOUT.telemetry
-"""Columns before this one come from the rig each tick; the rest from the controller's telemetry."""
+"""The shipped rows' first telemetry column (Layout.telemetry)."""
 BLOCK = 1024
 """Rows per write (188 kB, 2.6 s of a 400 Hz run; a write costs ~0.2 ms of the tick that makes it)."""
 HEADER = 128

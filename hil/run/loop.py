@@ -144,7 +144,7 @@ def _status(tr: Truth, rig: Rig, clock: Clock, duration: float, began: float) ->
     )
 
 
-ROW = (
+ROW_GROUPS = (
     "t",
     "velocity",
     "tilt",
@@ -159,13 +159,13 @@ ROW = (
     "resting",
 )
 """The trace column groups `_row` writes, in its order (hil/outputs/trace_log.py COLUMNS)."""
-ROW_ORDER = LAYOUT.order(ROW)
-"""None: ROW is the declared order (looked up once, here)."""
+ROW_ORDER = LAYOUT.order(ROW_GROUPS)
+"""None: ROW_GROUPS are in the declared order (looked up once, here)."""
 
 
 def _row(tr: Truth, rig: Rig, order: Reorder | None = ROW_ORDER) -> tuple[float, ...]:
-    """The rig's columns of a tick's row in the declared order: ROW's, so `order` is None and costs the tick
-    nothing unless the declaration moved a column."""
+    """The rig's columns of a tick's row in the declared order: ROW_GROUPS' order, so `order` is None and
+    costs the tick nothing unless the declaration moved a column."""
     row = (
         tr.t,
         *tr.velocity,
