@@ -31,6 +31,7 @@ from hil.outputs.bodies import (
     rotate,
 )
 from hil.outputs.foxglove import FrameTransforms
+from hil.outputs.trace_log import LAYOUT
 from hil.pipeline import run
 from hil.run.build import RunOptions
 from hil.run.scenario import Intent, Scenario
@@ -303,14 +304,15 @@ def test_run_mcap_has_each_bodys_pose_at_100_hz_equal_to_the_plants(ride):
         assert [as_pose(m) for _, m in got[1:]] != [seen[k - 1][name] for k in pose_ticks()]  # control
     # Against the truth trace.npy keeps: the ball's centre is the position, the chassis' orientation the tilt.
     rows = np.load(out / "trace.npy")
+    t, position, tilt, lean = (LAYOUT.span(group) for group in ("t", "position", "tilt", "lean"))
     ball, chassis = read(out / "run.mcap", "/pose/ball")[1:], read(out / "run.mcap", "/pose/chassis")[1:]
     for k, (_, b), (_, c) in zip(pose_ticks(), ball, chassis, strict=True):
         row = rows[k - 1]
-        assert abs(row[0] - k / 400) < 1e-12
-        assert (b["translation"]["x"], b["translation"]["y"]) == (row[7], row[8])
+        assert abs(row[t] - k / 400) < 1e-12
+        assert (b["translation"]["x"], b["translation"]["y"]) == tuple(row[position])
         roll, pitch, _ = euler_zyx(as_pose(c)[1])
-        assert abs(pitch - row[3]) < 1e-9 and abs(roll - row[4]) < 1e-9
-    assert rows[-1, 3] > 0.01 and abs(rows[-1, 5]) > 0.01, "the robot tilted and the rider leaned"
+        assert abs(pitch - row[tilt][0]) < 1e-9 and abs(roll - row[tilt][1]) < 1e-9
+    assert rows[-1, tilt][0] > 0.01 and abs(rows[-1, lean][0]) > 0.01, "the robot tilted and the rider leaned"
 
 
 def schema_mismatch(value, schema: dict, where: str = "") -> str | None:

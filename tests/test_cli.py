@@ -119,8 +119,12 @@ def test_ctrl_c_ends_a_run_at_the_next_tick_and_writes_its_folder(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["stopped_early"] and 0 < summary["simulated"] < 3600
     assert (summary["verdict"], summary["passed"]) == ("STOPPED", False), "stopped early is not passed"
+    from hil.outputs.trace_log import LAYOUT
+
     rows = np.load(out / "trace.npy")
-    assert len(rows) == summary["rig"]["ticks"] and abs(rows[-1, 0] - summary["simulated"]) < 1e-6
+    assert (
+        len(rows) == summary["rig"]["ticks"] and abs(rows[-1, LAYOUT.span("t")] - summary["simulated"]) < 1e-6
+    )
     assert all((out / name).stat().st_size > 0 for name in ("can.log", "recording.rrd", "plots.png"))
 
 

@@ -27,7 +27,7 @@ from drivers.schemas import ControllerCommand, PayloadError, ScCommand, TesWrenc
 from hil.faults import parse_fault
 from hil.outputs.mcap_file import McapFile
 from hil.outputs.mcap_log import McapLog
-from hil.outputs.trace_log import COLUMNS, TELEMETRY
+from hil.outputs.trace_log import COLUMNS, LAYOUT, TELEMETRY
 from hil.pipeline import run
 from hil.run.build import RunOptions
 from hil.run.scenario import Intent, OperatorEntry, Scenario, ScEntry
@@ -216,7 +216,7 @@ def test_one_trace_message_per_tick_equal_to_trace_npy(folder):
 
     values = np.array([flat(m) for _, m in got], dtype=float)  # JSON's null -> NaN
     assert np.array_equal(values, rows, equal_nan=True)
-    assert [t for t, _ in got] == [round(t * 1e9) for t in rows[:, 0]]
+    assert [t for t, _ in got] == [round(t * 1e9) for t in rows[:, LAYOUT.span("t")]]
 
 
 def test_the_events_are_the_summarys_each_at_its_time(folder):

@@ -176,8 +176,11 @@ def test_the_trace_and_the_recording_stream_to_the_run_folder_as_the_run_goes(tm
     rows = np.load(path)
     assert rows.shape == (400, len(trace_log.COLUMNS))
     kept = run(short, private_bench()).trace
-    assert np.array_equal(rows[:, 0], kept.t) and np.array_equal(rows[:, 1:3], kept.velocity)
-    told = rows[:, trace_log.TELEMETRY : trace_log.TELEMETRY + 2]
+    span = trace_log.LAYOUT.span
+    assert np.array_equal(rows[:, span("t")], kept.t) and np.array_equal(
+        rows[:, span("velocity")], kept.velocity
+    )
+    told = rows[:, span("command_speed")]
     assert np.array_equal(told, kept.command_speed, equal_nan=True) and not np.isnan(told).any()
     assert streamed.trace.controller_telemetry_missing == kept.controller_telemetry_missing == 0
     reader = rerun.chunk.RrdReader(str(tmp_path / "run" / "recording.rrd"))

@@ -72,6 +72,8 @@ FAILED = "failed"
 """The metadata record that says why the file's messages stop early."""
 ROW = COLUMNS[:TELEMETRY]
 """A tick's row as the tick ends; the controller's telemetry lands in trace.npy later, not here."""
+STAMP = [column.name for column in ROW].index("t")
+"""The row's simulated time: its message's log time."""
 
 
 class Frame(msgspec.Struct, omit_defaults=True):
@@ -334,7 +336,7 @@ class McapLog(can.Listener):
             # writes them as a JSON array, whose numbers go into the template (none holds a comma).
             numbers = self._json(list(map(float, self._trace_values(row))))[1:-1].split(b",")
             channel = self._channels.get(TRACE) or self._channel(TRACE, "Trace", _trace_schema)
-            self._file.message(channel, round(float(row[0]) * 1e9), self._trace_json % tuple(numbers))
+            self._file.message(channel, round(float(row[STAMP]) * 1e9), self._trace_json % tuple(numbers))
         except Exception as exc:
             self._fail(exc)
 

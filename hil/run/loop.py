@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import math
 import time
+from typing import Any
 
 import numpy as np
 
 from drivers.vocabulary import Event, State
 from hil.outputs.bodies import PoseTaker
-from hil.outputs.trace_log import TELEMETRY, TraceLog
+from hil.outputs.trace_log import LAYOUT, Layout, Reorder, TraceLog
 from hil.run.build import Built, RunOptions, RunStatus
 from hil.run.clock import Clock, LockstepClock, RealtimeClock
 from hil.run.rig import Rig
@@ -92,29 +93,15 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
         take_telemetry()
         if log.last_told() or not rig.telemetry.wait(0.02):
             break
-    rows = log.close()
-    command, tilt_cmd = rows[:, TELEMETRY : TELEMETRY + 2], rows[:, TELEMETRY + 2 : TELEMETRY + 4]
+    series = _series(log.close())
     return Trace(
-        t=rows[:, 0],
-        velocity=rows[:, 1:3],
-        tilt=rows[:, 3:5],
-        lean=rows[:, 5:7],
-        position=rows[:, 7:9],
-        yaw_rate=rows[:, 9],
-        ball_rate=rows[:, 10:12],
-        command_speed=command,
-        tilt_command=tilt_cmd,
+        **series,
         fallen=plant.fallen,
         stats=rig.stats,
-        controller_telemetry_missing=int(np.isnan(command[:, 0]).sum()),
+        controller_telemetry_missing=int(np.isnan(series["command_speed"][:, 0]).sum()),
         timing=timing,
         bus=rig.can.stats.as_dict(),
-        motor_torque=rows[:, 12:15],
         zenoh_inputs=rig.inputs.entries if rig.inputs.path is None else None,
-        safety_state=rows[:, 15].astype(np.int8),
-        safety_speed=rows[:, 16],
-        powered=rows[:, 17].astype(bool),
-        resting=rows[:, 18].astype(bool),
         safety_events=_announced_events(rig) if supervisor is None else list(supervisor.events),
         fence_misses=0 if supervisor is None else supervisor.fence_misses,
         identity_rejected={} if supervisor is None else dict(supervisor.monitors.rejected_identity),
@@ -157,9 +144,29 @@ def _status(tr: Truth, rig: Rig, clock: Clock, duration: float, began: float) ->
     )
 
 
-def _row(tr: Truth, rig: Rig) -> tuple[float, ...]:
-    """The rig's columns of a tick's row (hil/outputs/trace_log.py COLUMNS)."""
-    return (
+ROW_GROUPS = (
+    "t",
+    "velocity",
+    "tilt",
+    "lean",
+    "position",
+    "yaw_rate",
+    "ball_rate",
+    "motor_torque",
+    "safety_state",
+    "safety_speed",
+    "powered",
+    "resting",
+)
+"""The trace column groups `_row` writes, in its order (hil/outputs/trace_log.py COLUMNS)."""
+ROW_ORDER = LAYOUT.order(ROW_GROUPS)
+"""None: ROW_GROUPS are in the declared order (looked up once, here)."""
+
+
+def _row(tr: Truth, rig: Rig, order: Reorder | None = ROW_ORDER) -> tuple[float, ...]:
+    """The rig's columns of a tick's row in the declared order: ROW_GROUPS' order, so `order` is None and
+    costs the tick nothing unless the declaration moved a column."""
+    row = (
         tr.t,
         *tr.velocity,
         *tr.tilt,
@@ -173,6 +180,19 @@ def _row(tr: Truth, rig: Rig) -> tuple[float, ...]:
         tr.powered,
         tr.resting,
     )
+    return row if order is None else order(row)
+
+
+KINDS = {"safety_state": np.int8, "powered": bool, "resting": bool}
+"""The columns a Trace holds as codes or flags (the rows hold every column as f8)."""
+
+
+def _series(rows: np.ndarray, layout: Layout = LAYOUT) -> dict[str, Any]:
+    """The rows' columns as the Trace's fields of the same names (a field per column group), by name."""
+    series = {group: rows[:, span] for group, span in layout.spans.items()}
+    for group, kind in KINDS.items():
+        series[group] = series[group].astype(kind)
+    return series
 
 
 def _announced_events(rig: Rig) -> list[Event]:

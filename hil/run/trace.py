@@ -44,7 +44,9 @@ class Failure:
 
 @dataclass(slots=True)
 class Trace:
-    """Per-tick records of a run (SI units; planes ordered pitch, roll)."""
+    """Per-tick records of a run (SI units; planes ordered pitch, roll). A field per column group of the
+    run's rows, of the same name (hil/outputs/trace_log.py COLUMNS; `velocity` is velocity.forward and
+    velocity.left), read by that name (hil/run/loop.py)."""
 
     t: np.ndarray
     velocity: np.ndarray
