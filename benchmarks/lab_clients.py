@@ -9,7 +9,8 @@ kernel's CAN.
     python benchmarks/lab_clients.py [--repeat 2] [--seconds 1.0] [--quota 0.11] [--json]
 
 Prints, per run (the clients interleaved, so a machine's changing load falls on all of them), the rig's
-loop wall time per simulated second, the rig's end from the start of the three processes, each
+loop wall time per simulated second, the rig's end from the start of the three processes, how long the
+client takes from a SYNC to the heartbeat that closes its answer (from can.log), each
 process's CPU seconds, and what the rig counted (missing commands, expired guards). `--quota F`: every
 process held to F of one CPU (a cgroup v1 `cpu` quota, root only): 0.11 is about the VM's share of this
 2-core host (18x slower per core), to see whether a client's cost grows out of proportion on a slow CPU.
@@ -19,14 +20,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import signal
+import statistics
 import subprocess
 import sys
 import tempfile
 import time
 import tomllib
 from pathlib import Path
+
+import can
 
 from hil.bench.netns import loopback_namespace
 
@@ -35,6 +40,7 @@ BIN = Path(sys.executable).parent
 CLIENTS = ("odrive", "cia402", "xsens")
 CHANNEL = "239.74.163.9"
 CGROUP_V1 = Path("/sys/fs/cgroup/cpu")
+SYNC_ID, HEARTBEAT_ID = 0x080, 0x720
 NO_EXTRA_OUTPUTS = "\n[outputs]\nplots = false\nrecording = false\nmcap = false\n"
 
 
@@ -129,10 +135,12 @@ def run_once(profile: str, seconds: float, netns: str, folder: Path) -> dict:
         proc.returncode = 0  # reaped above
     summary = json.loads((folder / "run" / "summary.json").read_text())
     rig = summary["rig"]
+    median, p90 = answer_ms(folder / "run" / "can.log")
     return {
         "client": profile,
         "wall_per_sim_s": round(summary["timing"]["wall_time"] / summary["simulated"], 2),
         "rig_done_s": round(rig_done, 1),
+        "answer_ms": {"median": median, "p90": p90},
         "cpu_s": cpu,
         "verdict": summary["verdict"],
         "missing_commands": rig["missing_commands"],
@@ -140,10 +148,26 @@ def run_once(profile: str, seconds: float, netns: str, folder: Path) -> dict:
     }
 
 
+def answer_ms(can_log: Path) -> tuple[float, float]:
+    """Median and 90th percentile of the time from each SYNC to the client's CONTROLLER_HEARTBEAT that
+    closes its answer, in the rig's own receive timestamps (can.log): the client's share of a tick."""
+    answers, sync = [], None
+    for msg in can.LogReader(str(can_log)):
+        if msg.arbitration_id == SYNC_ID:
+            sync = msg.timestamp
+        elif msg.arbitration_id == HEARTBEAT_ID and sync is not None:
+            answers.append(1000.0 * (msg.timestamp - sync))
+            sync = None
+    if len(answers) < 2:
+        return math.nan, math.nan
+    return round(statistics.median(answers), 2), round(statistics.quantiles(answers, n=10)[-1], 2)
+
+
 def describe(row: dict) -> str:
     return (
         f"{row['client']:7} {row['wall_per_sim_s']:6.2f} wall s per simulated s, rig done at "
-        f"{row['rig_done_s']:6.1f} s, CPU s {row['cpu_s']}, {row['verdict']}, "
+        f"{row['rig_done_s']:6.1f} s, SYNC to heartbeat {row['answer_ms']} ms, CPU s {row['cpu_s']}, "
+        f"{row['verdict']}, "
         f"missing {row['missing_commands']}, guards expired {row['guards_expired']}"
     )
 
