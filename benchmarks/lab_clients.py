@@ -33,7 +33,7 @@ from pathlib import Path
 
 import can
 
-from hil.bench.netns import loopback_namespace
+from hil.bench.netns import NamespaceRefused, loopback_namespace
 
 ROOT = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
@@ -192,6 +192,8 @@ def main() -> int:
     parser.add_argument("--clients", nargs="+", choices=CLIENTS, default=list(CLIENTS))
     parser.add_argument("--json", action="store_true", help="one JSON object per run")
     args = parser.parse_args()
+    if args.repeat < 1 or not args.seconds > 0.0:
+        parser.error(f"--repeat {args.repeat}, --seconds {args.seconds}: at least one run of more than 0 s")
     if args.quota is not None and not 0.0 < args.quota <= 1.0:
         parser.error(f"--quota {args.quota}: a share of one CPU, 0 < F <= 1")
     group = quota_group(args.quota) if args.quota is not None else None
@@ -206,10 +208,17 @@ def main() -> int:
                         print(json.dumps(row), flush=True)
                     else:
                         print(describe(row), flush=True)
+    except NamespaceRefused as exc:
+        raise SystemExit(
+            f"lab_clients: {exc} (udp_multicast runs only in a namespace whose only interface is lo)"
+        ) from None
     finally:
         if group is not None:
             (CGROUP_V1 / "cgroup.procs").write_text(str(os.getpid()))
-            group.rmdir()
+            try:
+                group.rmdir()
+            except OSError as exc:  # a process of a failed run still in it: say so, keep the run's own error
+                print(f"lab_clients: {group} not removed: {exc}", file=sys.stderr)
     return 0
 
 
