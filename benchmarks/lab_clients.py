@@ -10,9 +10,9 @@ kernel's CAN.
 
 Prints, per run (the clients interleaved, so a machine's changing load falls on all of them), the rig's
 loop wall time per simulated second, the rig's end from the start of the three processes, how long the
-client takes from a SYNC to the heartbeat that closes its answer (from can.log), each
-process's CPU seconds, and what the rig counted (missing commands, expired guards). `--quota F`: every
-process held to F of one CPU (a cgroup v1 `cpu` quota, root only): 0.11 is about the VM's share of this
+client takes from a SYNC to the heartbeat that closes its answer (from can.log), each process's CPU
+seconds, and what the rig counted (missing commands, expired guards). `--quota F`: the three processes
+held together to F of one CPU (a cgroup v1 `cpu` quota, root only): 0.11 is about the VM's share of this
 2-core host (18x slower per core), to see whether a client's cost grows out of proportion on a slow CPU.
 """
 
