@@ -447,10 +447,10 @@ def test_a_device_profile_runs_with_controller_and_supervisor_as_processes(tmp_p
 LAB_CLIENTS = {
     "cia402": "examples/cia402_controller.py",  # python-canopen's Network and BaseNode402, the project's EDS
     "odrive": "examples/odrive_controller.py",  # odrive-can's ODriveCAN, one per axis
+    "xsens": "examples/xsens_controller.py",  # its own reader of the MTi by Xsens' published CAN layout
 }
-"""A lab's controller for each drive profile, on the field's own client library: it imports nothing from
-pure-hil (docs/devices.md). examples/xsens_controller.py (the IMU profile) is not here yet: in the VM its run
-twice outlasted run_bench's 600 s on a host at load 21-27 (docs/bench.md); the test below takes it."""
+"""A lab's controller for each device profile, on the field's own client library or the vendor's published
+layout: it imports nothing from pure-hil (docs/devices.md)."""
 
 
 @pytest.mark.parametrize("profile", LAB_CLIENTS)
