@@ -70,6 +70,73 @@ def test_a_stop_ends_a_ticks_wait_for_a_silent_controller_and_the_start_ups(sess
         bench.close()
 
 
+def test_a_stop_while_the_start_up_waits_for_a_supervisors_subscription_ends_it_without_an_error(monkeypatch):
+    """A supervisor elsewhere that announced itself on CAN but never subscribed to pure/sc/request: the
+    start-up waits up to 10 s for it, then says so (ControllerUnavailable). A stop during that wait is a
+    stop: start_up returns, and the tick loop runs no tick."""
+    from contextlib import ExitStack
+
+    import msgspec
+
+    from drivers.bus_config import BusConfig
+    from drivers.can_bus import CanNode, open_bus, private_channel
+    from drivers.can_codec import MessageName
+    from hil.pipeline import load_scenario
+    from hil.run import build as build_module
+    from hil.run.build import RunOptions, build, start_up
+    from hil.run.rig import Rig
+
+    waited: list[str] = []
+
+    class StoppedWhileWaiting(Rig):  # a subclass: the compiled build's Rig cannot be patched
+        def wait_for_subscriber(self, key, timeout=10.0):
+            if key == self.keys.sc_request:
+                waited.append(key)
+                self.stop = threading.Event()
+                self.stop.set()
+            return super().wait_for_subscriber(key, timeout)
+
+    monkeypatch.setattr(build_module, "Rig", StoppedWhileWaiting)
+    bus_config = BusConfig(channel=private_channel("silent-sc"))
+    bus = open_bus(bus_config)
+    announcer = CanNode(bus, name="supervisor")
+    done = threading.Event()
+
+    def announce() -> None:  # a supervisor's start-up frames, and no zenoh at all
+        while not done.wait(0.01):
+            announcer.send(
+                MessageName.SUPERVISOR_ESTOP,
+                {"Estop": 0, "Contactor": 1, "Takeover": 0, "State": 0, "Reason": 0},
+            )
+
+    thread = threading.Thread(target=announce, daemon=True)
+    thread.start()
+    scenario = msgspec.structs.replace(load_scenario("balance"), duration=0.5)
+    endpoint = hub_endpoint()
+    session = open_session(role="hub", hub_endpoint=endpoint)
+    outcome: list[object] = []
+
+    def start(built, bench) -> None:
+        try:
+            start_up(built, bench)
+            outcome.append("returned")
+        except Exception as exc:  # what the run would have reported instead of a stop
+            outcome.append(exc)
+
+    try:
+        bench = private_bench(can=bus_config, supervisor="external", hub=endpoint)
+        with ExitStack() as stack:
+            built = build(bench, scenario, scenario.seed, RunOptions(session=session), None, None, stack)
+            assert ended(start, built, bench), "the start-up's wait outlasted the stop"
+            assert waited == [built.rig.keys.sc_request], "it stopped in the supervisor's wait"
+            assert outcome == ["returned"] and built.rig.stopping
+    finally:
+        done.set()
+        thread.join()
+        session.close()
+        bus.shutdown()
+
+
 def test_a_flood_the_bus_cannot_carry_is_refused_and_one_it_can_ends_on_rig_stop(tmp_path, capsys):
     endpoint = hub_endpoint()
     hub = open_session(role="hub", hub_endpoint=endpoint)

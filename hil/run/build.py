@@ -439,6 +439,8 @@ def start_up(built: Built, bench: Bench) -> None:
         raise ControllerUnavailable(wrong)
     rig.wait_for_subscriber(rig.keys.tes_wrench, ZENOH_GRACE)
     if rig.supervisor is None and not rig.wait_for_subscriber(rig.keys.sc_request, 10.0):
+        if rig.stopping:
+            return  # asked to end while waiting: a stop, not a missing supervisor
         raise ControllerUnavailable(
             f"no supervisor on {built.bus.interface}:{built.bus.channel} reads pure/sc/request"
         )
