@@ -5,19 +5,24 @@ serialised to JSON, in a child process the rig starts (`pure-hil part KIND PLUGI
 
     start(spec) -> handle      handle.stop(); handle.poll() for a part the rig drives in lockstep
 
+What the rig may use of a supervisor it drives in its own tick is `Supervisor` below: the rig, its loop, the
+faults and the live view use nothing else (hil/ imports no supervisor's code).
+
 The device profiles' emulations are plugs of the same kind on the rig's side (hil/devices/).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from importlib.metadata import entry_points
-from typing import Any
+from typing import Any, Protocol
 
 import msgspec
 
 from drivers.bus_config import BusConfig
 from drivers.devices import Devices
+from drivers.vocabulary import Event, OperatorRecord
 from drivers.zenoh_access import ZenohAccess
 
 SUPERVISORS = "pure_hil.supervisors"
@@ -52,3 +57,51 @@ class SupervisorSpec(msgspec.Struct, frozen=True, kw_only=True):
     driven: bool = False
     """The rig updates it from its own tick (embedded): no thread of its own, and the rig hands it the zenoh
     link whose puts the lockstep fence counts."""
+
+
+@dataclass(frozen=True, slots=True)
+class SupervisorReport:
+    """What a supervisor says of its run at the end, for summary.json (docs/outputs.md)."""
+
+    identity_rejected: dict[str, int] = field(default_factory=dict)
+    """SC requests and resets it ignored for want of an operator's identity, per kind."""
+    diagnostics: dict[str, float] = field(default_factory=dict)
+    """Each check's largest |residual| / bound over the run (1 would trip)."""
+    sc_arbitration: dict[str, object] = field(default_factory=dict)
+    """Its SC sources: accepted and refused requests per source, conflicts."""
+
+
+class Supervisor(Protocol):
+    """A supervisor the rig drives from its tick (`SupervisorSpec.driven`): the handle's `node`."""
+
+    @property
+    def events(self) -> Sequence[Event]:
+        """Its transitions and refused resets so far, in order."""
+        ...
+
+    @property
+    def operator_actions(self) -> Sequence[OperatorRecord]:
+        """The operator's commands it took in (at most OPERATOR_ACTIONS_KEPT)."""
+        ...
+
+    @property
+    def operator_actions_dropped(self) -> int: ...
+
+    @property
+    def fence_misses(self) -> int:
+        """Lockstep updates that went ahead without the rig's fence of their tick."""
+        ...
+
+    on_put: Callable[[str, bytes], None] | None
+    """Called with each zenoh put it makes (the rig records them, and its lockstep fence counts them)."""
+
+    def update(self, t: float, fence: int | None = None) -> object:
+        """Decide at simulated time `t` (s) on the frames and zenoh inputs so far; `fence`: the rig's tick,
+        whose zenoh inputs must all be in first. Sends its frame."""
+        ...
+
+    def observed_speed(self) -> float | None:
+        """The ground speed it judged at its last update, m/s (None before one, or when it cannot tell)."""
+        ...
+
+    def report(self) -> SupervisorReport: ...

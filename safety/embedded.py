@@ -10,7 +10,7 @@ from drivers.can_bus import open_bus
 from drivers.config import load_toml
 from drivers.devices import host_node
 from drivers.keys import Keys
-from drivers.plugs import SupervisorSpec
+from drivers.plugs import Supervisor, SupervisorSpec
 from drivers.zenoh_link import ZenohLink
 from safety.config import RobotGeometry, SupervisorConfig
 from safety.node import SupervisorNode, SupervisorThread
@@ -55,6 +55,10 @@ class EmbeddedSupervisor:
                 self.link.close()
             self.session.close()
         self.bus.shutdown()
+
+
+PLUG_CONTRACT: type[Supervisor] = SupervisorNode
+"""The reference supervisor is what the rig may drive (mypy checks it against drivers.plugs.Supervisor)."""
 
 
 def start(spec: SupervisorSpec, link: ZenohLink | None = None) -> EmbeddedSupervisor:

@@ -25,6 +25,7 @@ import msgspec
 
 from drivers.can_bus import CanNode, Received
 from drivers.can_codec import PARTS, MessageName
+from drivers.plugs import SupervisorReport
 from drivers.schemas import (
     TICK_MODULO,
     EstopCommand,
@@ -140,6 +141,18 @@ class SupervisorNode:
             self.operator_actions_dropped += 1
             return
         self.operator_actions.append(OperatorRecord(t, action, source, self.machine.state.name))
+
+    # ------------------------------------------------------------------------------- as a plug reports
+    def observed_speed(self) -> float | None:
+        """The ground speed judged at the last update, m/s (drivers.plugs.Supervisor)."""
+        return None if self.observation is None else self.observation.speed
+
+    def report(self) -> SupervisorReport:
+        return SupervisorReport(
+            identity_rejected=dict(self.monitors.rejected_identity),
+            diagnostics=self.monitors.margins(),
+            sc_arbitration=self.monitors.sc.summary(),
+        )
 
     # --------------------------------------------------------------------------------------- decide
     def update(self, t: float, fence: int | None = None, take_can: bool = True) -> Decision:

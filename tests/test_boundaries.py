@@ -59,9 +59,10 @@ def test_plant_uses_only_numerics():
     assert not bad, "plant/ must stay numpy/scipy/MuJoCo-only with no I/O or clocks:\n" + "\n".join(bad)
 
 
-HIL_FROM_SAFETY = {"safety.config": {"SupervisorConfig"}, "safety.node": {"SupervisorNode"}}
-"""What hil/ may still take from safety/: the reference supervisor itself and its config (a later part of
-issue 38 makes it a plug). The wire's vocabulary it speaks comes from drivers/vocabulary.py."""
+HIL_FROM_SAFETY = {"safety.config": {"SupervisorConfig"}}
+"""What hil/ may still take from safety/: the reference supervisor's rules schema (the scenario's `[safety]`
+overrides and the judge read it). The supervisor the rig drives is a drivers.plugs.Supervisor, and the wire's
+vocabulary comes from drivers/vocabulary.py."""
 VOCABULARY_HOME = "drivers.vocabulary"
 SOURCES = (*sorted(OURS), "tests", "examples", "benchmarks")
 
@@ -134,6 +135,7 @@ def test_positive_control_a_vocabulary_import_from_safety_is_seen():
         "hil/x.py:1 imports safety.machine.Cause",
         "hil/x.py:1 imports safety.machine.State",
         "hil/x.py:2 imports safety.node.OperatorRecord",
+        "hil/x.py:2 imports safety.node.SupervisorNode",
     ]
     assert len(vocabulary_imported_elsewhere("tests/x.py", source)) == 3
 

@@ -25,8 +25,8 @@ if TYPE_CHECKING:
     from drivers.can_bus import CanNode
     from drivers.dut import DutHandle
     from drivers.keys import Keys
+    from drivers.plugs import Supervisor
     from plant.ballbot import PlantCore
-    from safety.node import SupervisorNode
 
 
 class FaultTarget(Protocol):
@@ -40,7 +40,7 @@ class FaultTarget(Protocol):
     bitrate: int
     dut: DutHandle | None
     """The controller under test when it runs in the rig's process (None elsewhere)."""
-    supervisor: SupervisorNode | None
+    supervisor: Supervisor | None
     """The supervisor when it runs in the rig's process (None elsewhere)."""
 
 

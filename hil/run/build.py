@@ -29,7 +29,7 @@ from drivers.config import load_toml
 from drivers.contract import CONTRACT_VERSION, mismatch
 from drivers.dut import DutHandle, DutSpec, start_dut
 from drivers.keys import Keys
-from drivers.plugs import SUPERVISORS, SupervisorSpec, find_plug
+from drivers.plugs import SUPERVISORS, Supervisor, SupervisorSpec, find_plug
 from drivers.resources import find
 from drivers.schemas import ScRequest
 from drivers.zenoh_access import ZenohAccess
@@ -47,7 +47,6 @@ from plant.ballbot import PlantCore, RiderIntent
 from plant.models import make_plant
 from plant.params import RiderParams, RobotParams, SimParams
 from safety.config import SupervisorConfig
-from safety.node import SupervisorNode
 
 
 @dataclass(frozen=True, slots=True)
@@ -208,7 +207,7 @@ class Wiring:
 
 @dataclass(frozen=True, slots=True)
 class Parts:
-    supervisor: SupervisorNode | None
+    supervisor: Supervisor | None
     """The supervisor the rig updates in its tick (None: in another process)."""
     dut: DutHandle | None
     """The embedded controller's handle (process faults stop or pause it); None: in another process."""

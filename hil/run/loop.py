@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.plugs import SupervisorReport
 from drivers.vocabulary import Event, State
 from hil.outputs.bodies import PoseTaker
 from hil.outputs.trace_log import LAYOUT, Layout, Reorder, TraceLog
@@ -94,6 +95,7 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
         if log.last_told() or not rig.telemetry.wait(0.02):
             break
     series = _series(log.close())
+    report = SupervisorReport() if supervisor is None else supervisor.report()
     return Trace(
         **series,
         fallen=plant.fallen,
@@ -104,9 +106,9 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
         zenoh_inputs=rig.inputs.entries if rig.inputs.path is None else None,
         safety_events=_announced_events(rig) if supervisor is None else list(supervisor.events),
         fence_misses=0 if supervisor is None else supervisor.fence_misses,
-        identity_rejected={} if supervisor is None else dict(supervisor.monitors.rejected_identity),
-        diagnostics={} if supervisor is None else supervisor.monitors.margins(),
-        sc_arbitration={} if supervisor is None else supervisor.monitors.sc.summary(),
+        identity_rejected=report.identity_rejected,
+        diagnostics=report.diagnostics,
+        sc_arbitration=report.sc_arbitration,
         faults=list(rig.faults.specs),
         fault_events=list(rig.faults.events),
         fault_windows=[rig.faults.window(n, plant.t) for n in range(len(rig.faults.specs))],
@@ -206,6 +208,5 @@ def _announced_events(rig: Rig) -> list[Event]:
 
 
 def _supervisor_speed(rig: Rig) -> float:
-    observed = None if rig.supervisor is None else rig.supervisor.observation
-    speed = None if observed is None else observed.speed
+    speed = None if rig.supervisor is None else rig.supervisor.observed_speed()
     return math.nan if speed is None else speed

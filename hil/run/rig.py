@@ -36,6 +36,7 @@ from mypy_extensions import mypyc_attr
 from drivers.can_bus import BusRecorder, CanNode, Received
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MessageName
 from drivers.dut import DutHandle
+from drivers.plugs import Supervisor
 from drivers.schemas import (
     TICK_MODULO,
     ControllerCommand,
@@ -54,7 +55,6 @@ from hil.outputs.inputs_log import InputsLog
 from plant.ballbot import PlantCore
 from plant.drives import DriveState, MotorDrive
 from plant.sensors import DriveFeedback, ImuSample, TesSample
-from safety.node import SupervisorNode
 
 COMMANDS: dict[str, int] = {name: motor for motor, name in enumerate(DRIVE_COMMAND)}
 """Each drive's command frame (keyed by name as frames carry it: Received.name) -> its motor."""
@@ -135,7 +135,7 @@ class Rig:
         link: ZenohLink,
         sc_schedule: list[ScStep] | tuple[ScStep, ...] = FREE_SCHEDULE,
         command_guard: float = 1.0,
-        supervisor: SupervisorNode | None = None,
+        supervisor: Supervisor | None = None,
         operator: list[OperatorStep] | tuple[OperatorStep, ...] = (),
         faults: FaultSet | None = None,
         bitrate: int = 1_000_000,
@@ -223,7 +223,7 @@ class Rig:
             None if supervisor is not None else link.subscribe(keys.safety_estop, EstopCommand, capacity=256)
         )
         """With a supervisor in another process: the operator commands the rig hears it sent (the embedded
-        supervisor records those it takes in itself, `SupervisorNode.operator_actions`)."""
+        supervisor records those it takes in itself, `Supervisor.operator_actions`, drivers/plugs.py)."""
         self.operator_actions: list[OperatorRecord] = []
         """What `operator_heard` brought, with the supervisor's state as its last frame said."""
         self.operator_actions_dropped = 0
