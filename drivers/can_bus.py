@@ -12,7 +12,10 @@ from __future__ import annotations
 
 import errno
 import logging
+import os
 import queue
+import socket
+import sys
 import time
 import uuid
 from collections import Counter
@@ -73,11 +76,57 @@ _WHY = {
 }
 
 
-def open_bus(config: BusConfig) -> can.BusABC:
-    """python-can's bus for `config`; BusUnavailable (one line: the bus, the cause, the fix) when it cannot
-    open here."""
+RECEIVE_BUFFER = 4 * 1024 * 1024
+"""Bytes of kernel receive buffer asked for on a bus with a socket (SocketCAN, udp_multicast). Linux's default
+(net.core.rmem_default, ~208 KiB) holds ~300 CAN frames, under 10 ticks of a bench's traffic: a reader that
+a loaded machine holds back for longer lost a burst of frames, which the 4-bit E2E counter can alias. 4 MiB
+holds ~140 ticks (~0.35 s at 400 Hz)."""
+
+
+_SO_RCVBUFFORCE_LINUX = 33
+"""<asm-generic/socket.h>; Python's socket module does not export it."""
+
+
+def enlarge_receive_buffer(sock: socket.socket, size: int = RECEIVE_BUFFER) -> int:
+    """Ask for `size` bytes of receive buffer on `sock`; the bytes the kernel grants (Linux reports twice the
+    request, its bookkeeping included). SO_RCVBUFFORCE (CAP_NET_ADMIN) passes net.core.rmem_max; without it,
+    SO_RCVBUF is capped there."""
+    force = getattr(socket, "SO_RCVBUFFORCE", _SO_RCVBUFFORCE_LINUX if sys.platform == "linux" else None)
     try:
-        return can.Bus(
+        if force is None:
+            raise PermissionError
+        sock.setsockopt(socket.SOL_SOCKET, force, size)
+    except PermissionError:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)
+    return sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+
+
+def _enlarge_bus_buffer(bus: can.BusABC, where: str) -> None:
+    try:
+        fd = bus.fileno()
+    except NotImplementedError:  # no socket: the in-process bus queues without bound
+        return
+    if fd < 0:
+        return
+    # The bus's own socket, through a duplicate of its descriptor: python-can's public BusABC.fileno(), not
+    # a backend's private attribute.
+    with socket.socket(fileno=os.dup(fd)) as sock:
+        granted = enlarge_receive_buffer(sock)
+    if granted < RECEIVE_BUFFER:
+        log.warning(
+            "CAN bus %s: receive buffer %d bytes, asked for %d; a reader held back longer loses frames "
+            "(raise net.core.rmem_max, or run with CAP_NET_ADMIN)",
+            where,
+            granted,
+            RECEIVE_BUFFER,
+        )
+
+
+def open_bus(config: BusConfig) -> can.BusABC:
+    """python-can's bus for `config`, with a receive buffer of RECEIVE_BUFFER where it has a socket;
+    BusUnavailable (one line: the bus, the cause, the fix) when it cannot open here."""
+    try:
+        bus = can.Bus(
             interface=config.interface, channel=config.channel, bitrate=config.bitrate, **config.kwargs
         )
     except (OSError, can.CanError, ImportError, ValueError) as exc:
@@ -89,6 +138,8 @@ def open_bus(config: BusConfig) -> can.BusABC:
                 f"CAN bus {where} cannot open: {why}; {fix.format(ch=config.channel)}"
             ) from exc
         raise BusUnavailable(f"CAN bus {where} cannot open: {exc}") from exc
+    _enlarge_bus_buffer(bus, f"{config.interface}:{config.channel}")
+    return bus
 
 
 class Received:

@@ -2,6 +2,9 @@
 
 import itertools
 import logging
+import os
+import socket
+from pathlib import Path
 
 import can
 import cantools
@@ -12,7 +15,15 @@ from hypothesis import strategies as st
 
 from drivers.bus_config import BusConfig, BusConfigError, parse_can_spec
 from drivers.bus_load import BusLoadError, bus_load, check_bus_load, frame_bits
-from drivers.can_bus import WARNED_IDS, BusRecorder, CanNode, open_bus, private_channel
+from drivers.can_bus import (
+    RECEIVE_BUFFER,
+    WARNED_IDS,
+    BusRecorder,
+    CanNode,
+    enlarge_receive_buffer,
+    open_bus,
+    private_channel,
+)
 from drivers.can_codec import Catalog, MessageCodec
 from drivers.e2e import E2EChecker, E2EProtector, E2EStatus, counter_of, crc8, is_protected, with_counter
 from drivers.shared_bus import MESSAGE_FIELDS
@@ -287,6 +298,32 @@ def test_a_drain_and_the_recorder_take_the_same_frames_from_either_bus(interface
             recorder.stop(settle=0.0)
         assert seen == [0x080]
         assert c.recv(0) is not None, "every reader has its own queue"
+
+
+def test_a_sockets_receive_buffer_is_enlarged_past_the_kernels_default():
+    """What open_bus does to a SocketCAN or udp_multicast bus's socket (tests/socketcan checks it on vcan0),
+    here on an unbound UDP socket (no traffic): the default holds a few ticks of frames, too few for a
+    reader a loaded machine holds back."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        default = sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+        assert default < RECEIVE_BUFFER, "control: the kernel's default is smaller than what open_bus asks"
+        granted = enlarge_receive_buffer(sock)
+        assert granted == sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) > default
+        limit = int(Path("/proc/sys/net/core/rmem_max").read_text())
+        if os.geteuid() == 0:  # past net.core.rmem_max: SO_RCVBUFFORCE, which Python's socket lacks
+            assert granted >= RECEIVE_BUFFER
+            assert enlarge_receive_buffer(sock, 2 * limit) >= 2 * limit
+        else:
+            assert granted >= min(RECEIVE_BUFFER, limit)
+
+
+def test_an_in_process_bus_has_no_socket_and_opens_as_before():
+    bus = open_bus(BusConfig(channel=private_channel("rcvbuf")))
+    try:
+        with pytest.raises(NotImplementedError):
+            bus.fileno()
+    finally:
+        bus.shutdown()
 
 
 @settings(max_examples=400, deadline=None)

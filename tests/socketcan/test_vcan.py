@@ -12,6 +12,7 @@ import os
 import re
 import shutil
 import signal
+import socket
 import struct
 import subprocess
 import sys
@@ -24,7 +25,8 @@ import can
 import msgspec
 import pytest
 
-from drivers.can_bus import CanNode
+from drivers.bus_config import BusConfig
+from drivers.can_bus import RECEIVE_BUFFER, CanNode, open_bus
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, Catalog
 from drivers.devices import CANOPEN_FUNCTIONS, Devices
 from drivers.e2e import E2EChecker, E2EStatus, is_protected
@@ -166,6 +168,35 @@ def per_id(log: list[tuple[int, bytes]]) -> dict[int, list[bytes]]:
     for fid, data in log:
         out.setdefault(fid, []).append(data)
     return out
+
+
+def _receive_buffer(bus: can.BusABC) -> int:
+    with socket.socket(fileno=os.dup(bus.fileno())) as sock:
+        return sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+
+
+def test_the_products_buses_hold_a_reader_held_back_for_a_third_of_a_second():
+    """Every process of the bench opens its bus through open_bus, which asks for RECEIVE_BUFFER: without it
+    a reader held back under load lost bursts of frames here (docs/bench.md)."""
+    sender = can.Bus(interface="socketcan", channel="vcan0")
+    plain = can.Bus(interface="socketcan", channel="vcan0")
+    ours = open_bus(BusConfig(interface="socketcan", channel="vcan0"))
+    try:
+        assert _receive_buffer(plain) < RECEIVE_BUFFER, "control: python-can leaves the kernel's default"
+        assert _receive_buffer(ours) >= RECEIVE_BUFFER
+        # What the buffers hold, counted: frames sent while nobody reads (25 ticks of a bench's ~40 a tick).
+        burst = 1000
+        for i in range(burst):
+            sender.send(can.Message(arbitration_id=0x7F0, data=i.to_bytes(2, "little"), is_extended_id=False))
+        got = [ours.recv(1.0) for _ in range(burst)]
+        assert None not in got and [int.from_bytes(m.data, "little") for m in got] == list(range(burst))
+        kept = 0
+        while plain.recv(0.0) is not None:
+            kept += 1
+        assert kept < burst, "control: the kernel's default buffer overflows on this burst"
+    finally:
+        for bus in (sender, plain, ours):
+            bus.shutdown()
 
 
 @pytest.fixture(scope="module")
