@@ -15,7 +15,7 @@ from typing import Annotated, Any, ClassVar, Literal, TypeVar
 
 import msgspec
 
-from drivers.vocabulary import StateName
+from drivers.vocabulary import OperatorCommand, StateName
 
 VERSION = 1
 
@@ -103,7 +103,7 @@ class EstopCommand(Payload, frozen=True, kw_only=True):
     `estop` stops without cutting power in motion (category 1: brake, or the recovery law, then power off at
     rest); `cut_power` is the explicit category-0 request: power off at once, even in motion."""
 
-    action: Literal["estop", "cut_power", "reset"]
+    action: OperatorCommand
     source: Source
 
 

@@ -73,6 +73,10 @@ ReactionStateName = Literal["LIMITING", "STOPPING", "ESTOP", "RECOVERY"]
 StateName = Literal["NORMAL", ReactionStateName]
 """State's names, as SafetyState.state carries them (tests/test_vocabulary.py checks they are State's)."""
 
+OperatorCommand = Literal["estop", "cut_power", "reset"]
+"""What an operator asks of the supervisor (pure/safety/estop's `action`): stop, stop with power cut at once
+(category 0), or reset. A wired button's press is an `estop`."""
+
 OPERATOR_STOPS = frozenset({Cause.OPERATOR_ESTOP, Cause.BUTTON_ESTOP, Cause.OPERATOR_CUT})
 """The causes an operator's e-stop gives (the zenoh e-stop, a wired button, the category-0 request)."""
 

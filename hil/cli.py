@@ -681,10 +681,11 @@ def _estop(args: argparse.Namespace) -> int:
     import socket
 
     from drivers.keys import Keys
+    from drivers.vocabulary import OperatorCommand
     from drivers.zenoh_link import ZenohLink
-    from hil.bench.operator import Action, command
+    from hil.bench.operator import command
 
-    action: Action = "reset" if args.reset else "cut_power" if args.cut_power else "estop"
+    action: OperatorCommand = "reset" if args.reset else "cut_power" if args.cut_power else "estop"
     source = args.source or f"{getpass.getuser()}@{socket.gethostname()}"
     bench, session, card = _join_rig(args)
     rig = f"rig {card.describe()}" if card else f"bench {bench.name}"

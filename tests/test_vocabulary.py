@@ -10,7 +10,7 @@ import pytest
 
 from drivers.can_codec import Catalog, MessageName
 from drivers.schemas import ScCommand, ScMode, ScRequest
-from drivers.vocabulary import Cause, ReactionStateName, State, StateName
+from drivers.vocabulary import Cause, OperatorCommand, ReactionStateName, State, StateName
 
 ROOT = Path(__file__).resolve().parents[1]
 SOURCES = ("hil", "plant", "drivers", "safety", "controller", "examples", "benchmarks")
@@ -190,3 +190,29 @@ class ScFlood(TopicFault, frozen=True, tag="zenoh.sc_flood"):
     assert any("cap_of writes the cap rule again" in f for f in found)
     assert any("ScFlood.mode must be drivers.schemas.ScMode" in f for f in found)
     assert sum("a second Literal of SC modes" in f for f in found) == 2
+
+
+def literals_of_operator_commands(path: str, source: str) -> list[str]:
+    """Each `Literal[...]` in `source` that spells "cut_power": the operator's commands, whose one
+    declaration is drivers.vocabulary.OperatorCommand."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        literal = isinstance(node, ast.Subscript) and ast.unparse(node.value).endswith("Literal")
+        spelled = literal and any(isinstance(n, ast.Constant) and n.value == "cut_power" for n in ast.walk(node))
+        if spelled:
+            found.append(f"{path}:{node.lineno}")
+    return found
+
+
+def test_the_operators_commands_are_spelled_once():
+    found = [
+        finding
+        for package in SOURCES
+        for path in sorted((ROOT / package).rglob("*.py"))
+        for finding in literals_of_operator_commands(str(path.relative_to(ROOT)), path.read_text())
+    ]
+    assert len(found) == 1 and found[0].startswith("drivers/vocabulary.py:"), found
+    assert typing.get_args(OperatorCommand) == ("estop", "cut_power", "reset")
+    # Positive control: how hil/bench/operator.py and drivers/schemas.py spelled them before.
+    before = 'Action = Literal["estop", "cut_power", "reset"]\nx: typing.Literal["reset", "cut_power"]\n'
+    assert literals_of_operator_commands("hil/x.py", before) == ["hil/x.py:1", "hil/x.py:2"]

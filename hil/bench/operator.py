@@ -5,12 +5,10 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Literal
 
 from drivers.schemas import EstopCommand, SafetyState
+from drivers.vocabulary import OperatorCommand
 from drivers.zenoh_link import ZenohLink
-
-Action = Literal["estop", "cut_power", "reset"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -26,7 +24,7 @@ class Answer:
         return f"supervisor {self.state.state} ({self.state.reason})" if self.state else "no supervisor state"
 
 
-def command(link: ZenohLink, action: Action, source: str, timeout: float) -> Answer:
+def command(link: ZenohLink, action: OperatorCommand, source: str, timeout: float) -> Answer:
     """Put the operator's command and wait up to `timeout` s for the supervisor's state to confirm it: an
     e-stop by `estop_by` naming `source`, a reset by NORMAL (or its refusal, which is unconfirmed)."""
     states = link.subscribe(link.keys.safety_state, SafetyState)

@@ -25,9 +25,9 @@ import zenoh
 
 from drivers.keys import Keys
 from drivers.schemas import PayloadError, SafetyState, decode
-from drivers.vocabulary import StateName
+from drivers.vocabulary import OperatorCommand, StateName
 from drivers.zenoh_link import ZenohLink
-from hil.bench.operator import Action, command
+from hil.bench.operator import command
 from hil.console.events import Broadcast
 from hil.console.latch import Latch, Word
 from hil.faults import parse_fault
@@ -295,7 +295,7 @@ class RigLink:
         self.check_rig()
         return self.ask("fault/clear", "" if number is None else str(number))
 
-    def estop(self, action: Action, source: str | None = None) -> dict:
+    def estop(self, action: OperatorCommand, source: str | None = None) -> dict:
         """`pure-hil estop` from the page (hil/bench/operator.py): the operator's EstopCommand (estop,
         cut_power or reset) to the pinned rig's supervisor, and the supervisor's word: its `estop_by`
         naming `source` (default: the console's), or NORMAL. A reset with no supervisor listening clears a
@@ -330,7 +330,7 @@ class RigLink:
             f"{answer.seen()}",
         }
 
-    def _no_supervisor(self, action: Action, source: str) -> dict:
+    def _no_supervisor(self, action: OperatorCommand, source: str) -> dict:
         """No supervisor listens on the e-stop key: nothing was sent. A reset then clears a latch held for a
         supervisor that is gone, on this console."""
         where = self.keys.safety_estop
