@@ -198,8 +198,7 @@ def literals_of_operator_commands(path: str, source: str) -> list[str]:
     found = []
     for node in ast.walk(ast.parse(source)):
         literal = isinstance(node, ast.Subscript) and ast.unparse(node.value).endswith("Literal")
-        spelled = literal and any(isinstance(n, ast.Constant) and n.value == "cut_power" for n in ast.walk(node))
-        if spelled:
+        if literal and any(isinstance(n, ast.Constant) and n.value == "cut_power" for n in ast.walk(node)):
             found.append(f"{path}:{node.lineno}")
     return found
 
