@@ -14,10 +14,8 @@ import msgspec
 
 from drivers.bus_config import BusConfig
 from drivers.devices import Devices
-from drivers.plugs import find_plug
+from drivers.registry import CONTROLLERS, find_plug
 from drivers.zenoh_access import ZenohAccess
-
-GROUP = "pure_hil.controllers"
 
 
 class DutSpec(msgspec.Struct, frozen=True, kw_only=True):
@@ -47,5 +45,5 @@ class DutHandle(Protocol):
 
 
 def start_dut(name: str, spec: DutSpec) -> DutHandle:
-    handle: DutHandle = find_plug(GROUP, name, "controller")(spec)
+    handle: DutHandle = find_plug(CONTROLLERS, name, "controller")(spec)
     return handle

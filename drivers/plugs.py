@@ -1,21 +1,21 @@
 """Bench parts as plugs (docs/architecture.md, "Parts"): the controller under test (drivers/dut.py) and the
-supervisor are found by name in an entry-point group, as python-can finds a bus backend, and started from a
-spec that says where everything is. The same plug runs in the rig's process (embedded) or, from its spec
-serialised to JSON, in a child process the rig starts (`pure-hil part KIND PLUGIN SPEC.json`).
+supervisor are found by name in their entry-point groups (drivers/registry.py, the one registry), and
+started from a spec that says where everything is. The same plug runs in the rig's process (embedded) or,
+from its spec serialised to JSON, in a child process the rig starts (`pure-hil part KIND PLUGIN SPEC.json`).
 
     start(spec) -> handle      handle.stop(); handle.poll() for a part the rig drives in lockstep
 
 What the rig may use of a supervisor it drives in its own tick is `Supervisor` below: the rig, its loop, the
 faults and the live view use nothing else (hil/ imports no supervisor's code).
 
-The device profiles' emulations are plugs of the same kind on the rig's side (hil/devices/).
+The device profiles are plugs of the same registry: their emulations on the rig's side (hil/devices/), their
+hosts on the controller's and the supervisor's (drivers/devices/).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from importlib.metadata import entry_points
 from typing import Any, Protocol
 
 import msgspec
@@ -24,21 +24,6 @@ from drivers.bus_config import BusConfig
 from drivers.devices import Devices
 from drivers.vocabulary import Event, OperatorRecord
 from drivers.zenoh_access import ZenohAccess
-
-SUPERVISORS = "pure_hil.supervisors"
-
-
-class PlugNotFound(LookupError):
-    pass
-
-
-def find_plug(group: str, name: str, what: str) -> Callable[..., Any]:
-    """The start function registered as `name` in entry-point group `group` (imported only now)."""
-    found = {ep.name: ep for ep in entry_points(group=group)}
-    if name not in found:
-        raise PlugNotFound(f"no {what} {name!r} in entry points {group!r} (have: {', '.join(sorted(found))})")
-    start: Callable[..., Any] = found[name].load()  # an entry point: whatever it loads is untyped
-    return start
 
 
 class SupervisorSpec(msgspec.Struct, frozen=True, kw_only=True):

@@ -524,7 +524,8 @@ def _supervisor(args: argparse.Namespace) -> int:
     from contextlib import ExitStack
 
     from drivers.keys import Keys
-    from drivers.plugs import SUPERVISORS, SupervisorSpec, find_plug
+    from drivers.plugs import SupervisorSpec
+    from drivers.registry import SUPERVISORS, find_plug
     from drivers.zenoh_link import ZenohLink
     from hil.bench.parts import check
     from hil.bench.rigs import announce
@@ -588,11 +589,12 @@ def _supervisor(args: argparse.Namespace) -> int:
 def _part(args: argparse.Namespace) -> int:
     """A bench part's plug in this process, on a thread of its own, until SIGINT or SIGTERM (the rig
     spawns its parts so: drivers/plugs.py)."""
-    from drivers.dut import GROUP, DutSpec
-    from drivers.plugs import SUPERVISORS, PlugNotFound, SupervisorSpec, find_plug
+    from drivers.dut import DutSpec
+    from drivers.plugs import SupervisorSpec
+    from drivers.registry import CONTROLLERS, SUPERVISORS, PlugNotFound, find_plug
 
     spec_type: type[DutSpec] | type[SupervisorSpec] = DutSpec if args.kind == "controller" else SupervisorSpec
-    group = GROUP if args.kind == "controller" else SUPERVISORS
+    group = CONTROLLERS if args.kind == "controller" else SUPERVISORS
     try:
         spec: DutSpec | SupervisorSpec = msgspec.json.decode(Path(args.spec).read_bytes(), type=spec_type)
         start = find_plug(group, args.plugin, args.kind)

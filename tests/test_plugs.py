@@ -9,7 +9,8 @@ import pytest
 
 from drivers.bus_config import BusConfig
 from drivers.can_bus import private_channel
-from drivers.plugs import SUPERVISORS, PlugNotFound, SupervisorSpec, find_plug
+from drivers.plugs import SupervisorSpec
+from drivers.registry import SUPERVISORS, PlugNotFound, find_plug
 from hil.bench.parts import BenchUnavailable, check
 from hil.cli import main
 from tests.zenoh_helpers import private_bench
@@ -61,13 +62,13 @@ def spy_start(spec, **context):
 def test_the_rig_starts_the_supervisor_the_bench_names_through_its_plug(monkeypatch):
     from importlib.metadata import EntryPoint
 
-    import drivers.plugs
+    import drivers.registry
     from hil.pipeline import load_scenario, run
 
     spy = EntryPoint(name="spy", value=f"{__name__}:spy_start", group=SUPERVISORS)
-    real = drivers.plugs.entry_points
+    real = drivers.registry.entry_points
     monkeypatch.setattr(
-        drivers.plugs,
+        drivers.registry,
         "entry_points",
         lambda group: [*real(group=group), *([spy] if group == SUPERVISORS else [])],
     )
@@ -80,3 +81,17 @@ def test_the_rig_starts_the_supervisor_the_bench_names_through_its_plug(monkeypa
     [spec] = STARTED
     assert spec.driven and spec.lockstep and spec.devices.drives == "odrive" and spec.tick_hz == 400.0
     assert spec.rules["speed"]["absolute_cap"] > 0, "the bench's rules with the scenario's overrides"
+
+
+def test_every_device_profile_has_its_emulation_and_its_host_in_the_one_registry():
+    from drivers.devices import DRIVE_PROFILES, IMU_PROFILES
+    from drivers.registry import DEVICE_EMULATIONS, DEVICE_HOSTS, installed
+
+    profiles = sorted(p for p in (*DRIVE_PROFILES, *IMU_PROFILES) if p != "pure")
+    assert installed(DEVICE_EMULATIONS) == installed(DEVICE_HOSTS) == profiles
+    for profile in profiles:
+        assert callable(find_plug(DEVICE_HOSTS, profile, "device profile host"))
+    with pytest.raises(
+        PlugNotFound, match=r"no device profile host 'nope' in entry points 'pure_hil.device_hosts'"
+    ):
+        find_plug(DEVICE_HOSTS, "nope", "device profile host")

@@ -14,7 +14,6 @@ package) and the device's (the rig's emulated drives: hil/devices/). `pure` has 
 from __future__ import annotations
 
 import functools
-import importlib
 from collections.abc import Callable, Iterable, Mapping
 from typing import Literal
 
@@ -23,6 +22,7 @@ import msgspec
 
 from drivers.can_bus import CanNode, Received
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MOTOR_OF, Catalog, MessageName
+from drivers.registry import DEVICE_HOSTS, find_plug
 
 Role = Literal["controller", "supervisor"]
 DRIVE_PROFILES = ("pure", "odrive", "cia402")
@@ -368,18 +368,10 @@ class ProfileNode(CanNode):
         return rx
 
 
-HOSTS: dict[str, str] = {
-    "odrive": "drivers.devices.odrive:host",
-    "cia402": "drivers.devices.cia402:host",
-    "xsens": "drivers.devices.xsens:host",
-}
-"""Host-side translators by device profile (the drives' and the IMU's), imported only when a bench names one.
-"""
-
-
-def _load(ref: str) -> Callable[..., Translator]:
-    module, _, attr = ref.partition(":")
-    factory: Callable[..., Translator] = getattr(importlib.import_module(module), attr)
+def _host(profile: str) -> Callable[..., Translator]:
+    """A profile's host-side translator (the drives' or the IMU's): entry-point group `pure_hil.device_hosts`
+    (drivers/registry.py), imported only when a bench names it."""
+    factory: Callable[..., Translator] = find_plug(DEVICE_HOSTS, profile, "device profile host")
     return factory
 
 
@@ -387,7 +379,7 @@ def controller_frame_ids(devices: Devices, counts_per_rev: int = 8192) -> frozen
     """The ids a controller sends its drive commands in on these devices (the contract's heartbeat aside)."""
     if devices.drives == "pure":
         return frozenset(Catalog()[name].frame_id for name in DRIVE_COMMAND)
-    return _load(HOSTS[devices.drives])(devices, counts_per_rev, "controller").sends
+    return _host(devices.drives)(devices, counts_per_rev, "controller").sends
 
 
 def host_node(
@@ -397,5 +389,5 @@ def host_node(
     name = name or role
     if devices.pure:
         return CanNode(bus, name=name)
-    translators = [_load(HOSTS[profile])(devices, counts_per_rev, role) for profile in devices.profiles]
+    translators = [_host(profile)(devices, counts_per_rev, role) for profile in devices.profiles]
     return ProfileNode(bus, translators, name=name)

@@ -8,12 +8,10 @@ from __future__ import annotations
 
 import shutil
 import socket
-from importlib.metadata import entry_points
 from pathlib import Path
 
 from drivers.can_bus import open_bus
-from drivers.dut import GROUP
-from drivers.plugs import SUPERVISORS
+from drivers.registry import CONTROLLERS, SUPERVISORS, installed
 from hil.bench.bench import Bench
 
 
@@ -33,7 +31,7 @@ def check(bench: Bench) -> None:
         open_bus(bench.can).shutdown()  # BusUnavailable says which bus, why, and what to do
     controller = bench.controller
     if controller.where != "external" and not controller.command:
-        _check_plug(bench, "controller", GROUP, controller.plugin)
+        _check_plug(bench, "controller", CONTROLLERS, controller.plugin)
     if bench.supervisor.where != "external":
         _check_plug(bench, "supervisor", SUPERVISORS, bench.supervisor.plugin)
     if controller.where == "spawned" and controller.command and shutil.which(controller.command[0]) is None:
@@ -44,7 +42,7 @@ def check(bench: Bench) -> None:
 
 def _check_plug(bench: Bench, part: str, group: str, plugin: str) -> None:
     """The part's plug is installed (drivers/plugs.py), embedded or spawned alike."""
-    known = sorted(e.name for e in entry_points(group=group))
+    known = installed(group)
     if plugin not in known:
         raise BenchUnavailable(
             f"bench {bench.name}: {part}.plugin {plugin!r} is not installed (entry points {group}: "

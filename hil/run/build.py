@@ -29,7 +29,8 @@ from drivers.config import load_toml
 from drivers.contract import CONTRACT_VERSION, mismatch
 from drivers.dut import DutHandle, DutSpec, start_dut
 from drivers.keys import Keys
-from drivers.plugs import SUPERVISORS, Supervisor, SupervisorSpec, find_plug
+from drivers.plugs import Supervisor, SupervisorSpec
+from drivers.registry import SUPERVISORS, find_plug
 from drivers.resources import find
 from drivers.schemas import ScRequest
 from drivers.zenoh_access import ZenohAccess

@@ -9,7 +9,7 @@ import numpy as np
 
 from drivers.bus_config import BusConfigError
 from drivers.config import ConfigError
-from drivers.plugs import PlugNotFound
+from drivers.registry import PlugNotFound
 from drivers.vocabulary import Event, OperatorRecord
 from drivers.zenoh_link import ZenohConfigError
 from hil.faults import FaultError, FaultEvent, FaultSpec

@@ -1,0 +1,43 @@
+"""The one registry of bench parts: each kind of part is an entry-point group, and a part is found by name in
+its group and imported only then, as python-can finds a bus backend. Built-in parts are entry points of this
+package (pyproject.toml); a lab's own are entry points of its package, one line each.
+
+    find_plug(SUPERVISORS, "reference", "supervisor")(spec)     installed(DEVICE_EMULATIONS)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from importlib.metadata import entry_points
+from typing import Any
+
+CONTROLLERS = "pure_hil.controllers"
+"""start(DutSpec) -> handle: the controller under test (drivers/dut.py)."""
+SUPERVISORS = "pure_hil.supervisors"
+"""start(SupervisorSpec, link=None) -> handle: the supervisor (drivers/plugs.py)."""
+DEVICE_EMULATIONS = "pure_hil.devices"
+"""emulate(Devices, counts_per_rev, tick_hz) -> Translator: a device profile on the rig's side
+(hil/devices/)."""
+DEVICE_HOSTS = "pure_hil.device_hosts"
+"""host(Devices, counts_per_rev, role) -> Translator: a device profile as a controller or a supervisor reads
+and writes it (drivers/devices/)."""
+GROUPS = (CONTROLLERS, SUPERVISORS, DEVICE_EMULATIONS, DEVICE_HOSTS)
+
+
+class PlugNotFound(LookupError):
+    pass
+
+
+def installed(group: str) -> list[str]:
+    """The names registered in `group`, sorted."""
+    return sorted(ep.name for ep in entry_points(group=group))
+
+
+def find_plug(group: str, name: str, what: str) -> Callable[..., Any]:
+    """The callable registered as `name` in entry-point group `group` (imported only now); PlugNotFound
+    names `what`, the group and what is installed."""
+    found = {ep.name: ep for ep in entry_points(group=group)}
+    if name not in found:
+        raise PlugNotFound(f"no {what} {name!r} in entry points {group!r} (have: {', '.join(sorted(found))})")
+    plug: Callable[..., Any] = found[name].load()  # an entry point: whatever it loads is untyped
+    return plug
