@@ -168,3 +168,13 @@ def test_the_docs_dead_drive_table_names_each_cases_peak_yaw_rate_and_end():
     assert rows[2] == "| drive 1 |  |  | 2.4 rad/s; at rest |"
     assert rows[3] == "| drive 2 |  | 11.6 rad/s; fell: tilt beyond 30 deg at 4.1 s (unrecoverable) |  |"
     assert len(rows) == 4
+
+
+def test_the_table_command_refuses_a_missing_or_foreign_report_by_name(tmp_path, capsys):
+    from hil.suites.coverage import main
+
+    assert main([str(tmp_path / "nope.json")]) == 2
+    assert "nope.json: cannot read" in capsys.readouterr().err
+    (tmp_path / "other.json").write_text('{"cases": 3}')
+    assert main([str(tmp_path / "other.json")]) == 2
+    assert "other.json: not a coverage campaign's report" in capsys.readouterr().err

@@ -422,11 +422,33 @@ def dead_drives(report: dict, scenarios: tuple[str, ...] = ("speed_limiting", "s
     return "\n".join(lines)
 
 
-if __name__ == "__main__":
+def main(argv: list[str] | None = None) -> int:
+    """`python -m hil.suites.coverage REPORT.json`: the coverage tables of docs/safety.md from a campaign's
+    report."""
+    import argparse
     import json
     import sys
 
-    report = json.loads(Path(sys.argv[1]).read_text())
-    print(table(report))
-    print()
-    print(dead_drives(report))
+    parser = argparse.ArgumentParser(
+        prog="python -m hil.suites.coverage", description="docs/safety.md's coverage tables from a report"
+    )
+    parser.add_argument("report", help="a coverage campaign's REPORT.json")
+    args = parser.parse_args(argv)
+    try:
+        report = json.loads(Path(args.report).read_text())
+        print(table(report))
+        print()
+        print(dead_drives(report))
+    except OSError as exc:
+        print(f"{args.report}: cannot read: {exc.strerror or exc}", file=sys.stderr)
+        return 2
+    except (ValueError, KeyError, TypeError) as exc:
+        print(
+            f"{args.report}: not a coverage campaign's report ({type(exc).__name__}: {exc})", file=sys.stderr
+        )
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
