@@ -135,4 +135,14 @@ def write(docs: Path) -> None:
 
 
 if __name__ == "__main__":
-    write(Path(sys.argv[1] if len(sys.argv) > 1 else "docs"))
+    import argparse
+
+    parser = argparse.ArgumentParser(
+        prog="python -m hil.contract", description="regenerate docs/contract.md's generated sections"
+    )
+    parser.add_argument("docs", nargs="?", default="docs", help="the docs folder (default docs)")
+    folder = Path(parser.parse_args().docs)
+    try:
+        write(folder)
+    except OSError as exc:
+        sys.exit(f"{folder}: cannot rewrite contract.md: {exc.strerror or exc}")
