@@ -135,13 +135,7 @@ def write(docs: Path) -> None:
 
 
 if __name__ == "__main__":
-    import argparse
-
-    parser = argparse.ArgumentParser(
-        prog="python -m hil.contract", description="regenerate docs/contract.md's generated sections"
-    )
-    parser.add_argument("docs", nargs="?", default="docs", help="the docs folder (default docs)")
-    folder = Path(parser.parse_args().docs)
+    folder = Path(sys.argv[1] if len(sys.argv) > 1 else "docs")
     try:
         write(folder)
     except OSError as exc:

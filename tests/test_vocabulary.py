@@ -135,13 +135,18 @@ def _scmode_line(tree: ast.Module) -> int:
     return -1
 
 
-def test_the_sc_request_its_mode_and_the_cap_rule_are_defined_once():
-    found = [
+def search_sources(finder) -> list[str]:
+    """`finder(path, source)`'s findings over every module of the source tree."""
+    return [
         finding
         for package in SOURCES
         for path in sorted((ROOT / package).rglob("*.py"))
-        for finding in second_definitions(str(path.relative_to(ROOT)), path.read_text())
+        for finding in finder(str(path.relative_to(ROOT)), path.read_text())
     ]
+
+
+def test_the_sc_request_its_mode_and_the_cap_rule_are_defined_once():
+    found = search_sources(second_definitions)
     assert not found, "\n".join(found)
 
 
@@ -204,12 +209,7 @@ def literals_of_operator_commands(path: str, source: str) -> list[str]:
 
 
 def test_the_operators_commands_are_spelled_once():
-    found = [
-        finding
-        for package in SOURCES
-        for path in sorted((ROOT / package).rglob("*.py"))
-        for finding in literals_of_operator_commands(str(path.relative_to(ROOT)), path.read_text())
-    ]
+    found = search_sources(literals_of_operator_commands)
     assert len(found) == 1 and found[0].startswith("drivers/vocabulary.py:"), found
     assert typing.get_args(OperatorCommand) == ("estop", "cut_power", "reset")
     # Positive control: how hil/bench/operator.py and drivers/schemas.py spelled them before.

@@ -155,13 +155,7 @@ def render(text: str) -> str:
 
 
 if __name__ == "__main__":
-    import argparse
-
-    parser = argparse.ArgumentParser(
-        prog="python -m hil.faults.bounds", description="regenerate the fault bounds tables of a page"
-    )
-    parser.add_argument("page", nargs="?", default="docs/faults.md", help="default docs/faults.md")
-    page = Path(parser.parse_args().page)
+    page = Path(sys.argv[1] if len(sys.argv) > 1 else "docs/faults.md")
     try:
         page.write_text(render(page.read_text()))
     except OSError as exc:
