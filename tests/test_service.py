@@ -250,7 +250,7 @@ def test_many_runs_in_a_row_keep_the_thread_count_flat(service):
     svc, client = service
     short = SHORT.replace("duration = 60.0", "duration = 0.25")
     counts = []
-    # Ten runs: a leak of one thread a run (rerun's was two) ends 8 over the second run's count.
+    # Ten runs: a leak of one thread a run (rerun's leaked two) ended 6 over the second run's count.
     for _ in range(10):
         assert ask(client, "start", short)["ok"]
         assert svc.wait_idle(30)
