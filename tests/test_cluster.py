@@ -21,6 +21,25 @@ from tests.zenoh_helpers import private_bench
 BIN = Path(sys.executable).parent
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs/campaigns/smoke.toml"
+# What travels to a worker and back (a case, its options, its verdicts and files) is the same for every case:
+# a fault-free case and one with a reaction to expect carry it, at a third of the smoke campaign's cost.
+TWO_CASES = f"""
+name = "two_cases"
+scenarios = ["{ROOT / "configs/scenarios/bench_smoke.toml"}"]
+[[fault]]
+name = "seat_silent"
+[[fault.inject]]
+kind = "zenoh.wrench_dropout"
+at = 1.0
+expect = {{ state = "STOPPING", cause = "WRENCH_SILENT", within = 0.15, fall = false }}
+"""
+
+
+@pytest.fixture
+def two_cases(tmp_path) -> Path:
+    path = tmp_path / "two_cases.toml"
+    path.write_text(TWO_CASES)
+    return path
 
 
 class Cluster:
@@ -78,18 +97,21 @@ def _verdicts(results) -> dict[str, tuple[bool, list[str]]]:
     }
 
 
-def test_the_smoke_campaign_on_two_workers_matches_the_local_run_and_carries_every_option(cluster, tmp_path):
+def test_a_campaign_on_two_workers_matches_the_local_run_and_carries_every_option(
+    cluster, two_cases, tmp_path
+):
     from hil.cli import main
 
     out = tmp_path / "remote"
-    # --law is an option of the command: it must reach the workers.
-    argv = ["campaign", str(SMOKE), "--scheduler", cluster.address, "--law", "hacs", "--out", str(out)]
+    # --law is an option of the command: it must reach the workers (bench_smoke asks for hacs).
+    argv = ["campaign", str(two_cases), "--scheduler", cluster.address, "--law", "ihacs", "--out", str(out)]
     assert main(argv) == 0
-    cases = expand(load_campaign(SMOKE))
-    local = {r.case_id: r for r in run_campaign(cases, bench=private_bench(law="hacs"))}
+    cases = expand(load_campaign(two_cases))
+    assert len(cases) == 2
+    local = {r.case_id: r for r in run_campaign(cases, bench=private_bench(law="ihacs"))}
     for case in cases:  # each case's summary came back from its worker
         summary = json.loads((out / case.id / "summary.json").read_text())
-        assert summary["as_run"]["law"] == "hacs", case.id
+        assert summary["as_run"]["law"] == "ihacs", case.id
         failed = sorted(v["criterion"] for v in summary["verdicts"] if not v["passed"])
         assert (summary["passed"], failed) == _verdicts([local[case.id]])[case.id]
     assert f'tests="{len(cases)}"' in (out / "junit.xml").read_text()
@@ -115,7 +137,9 @@ def test_a_worker_killed_mid_campaign_loses_no_case(cluster):
     assert sum(1 for r in results if not r.error) >= len(cases) - 1
 
 
-def test_a_tls_cluster_runs_a_campaign_for_a_client_with_its_certificate_and_refuses_one_without(tmp_path):
+def test_a_tls_cluster_runs_a_campaign_for_a_client_with_its_certificate_and_refuses_one_without(
+    two_cases, tmp_path
+):
     """docs/campaigns.md's securing recipe, end to end: scheduler and worker started with `--protocol tls`
     and certificates; the client configured through Dask's config (here its environment variables)."""
     from distributed.security import Security
@@ -139,15 +163,14 @@ def test_a_tls_cluster_runs_a_campaign_for_a_client_with_its_certificate_and_ref
         }
 
         def campaign(env: dict, out: Path) -> subprocess.CompletedProcess:
-            argv = ["campaign", str(SMOKE), "--scheduler", cluster.address, "--out", str(out)]
+            argv = ["campaign", str(two_cases), "--scheduler", cluster.address, "--out", str(out)]
             return subprocess.run(
                 [str(BIN / "pure-hil"), *argv], env=env, capture_output=True, text=True, timeout=180
             )
 
         secured = campaign(configured, tmp_path / "secured")
         assert secured.returncode == 0, secured.stderr
-        cases = expand(load_campaign(SMOKE))
-        assert f'tests="{len(cases)}"' in (tmp_path / "secured" / "junit.xml").read_text()
+        assert 'tests="2"' in (tmp_path / "secured" / "junit.xml").read_text()
         # Positive control: the same command without the client's certificate is refused, in one line.
         refused = campaign(cluster.env, tmp_path / "refused")
         assert refused.returncode == 2, refused.stderr

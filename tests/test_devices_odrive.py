@@ -28,6 +28,7 @@ from drivers.devices.odrive import AxisError, AxisState, OdriveWire
 from hil.devices.odrive import OdriveAxes
 from plant.drives import DriveState
 from tests.device_bench import TICK, WATCHDOG, DevicesOnABench
+from tests.device_runs import frames, speed_limiting_on
 from tests.zenoh_helpers import private_bench
 
 odrive_can = pytest.importorskip("odrive_can", reason="the odrive profile needs odrive-can (a dependency)")
@@ -206,31 +207,11 @@ def test_a_node_id_that_owns_a_contract_frame_is_refused_naming_the_field(tmp_pa
 
 
 def test_speed_limiting_on_odrive_passes_deterministically_and_replays_byte_for_byte(tmp_path):
-    from hil.pipeline import load_scenario, run
-    from hil.suites.replay import replay
-
-    scenario = load_scenario("speed_limiting")
-    first, second = tmp_path / "a", tmp_path / "b"
-    a = run(scenario, private_bench("odrive"), out=first)
-    assert a.passed, [v for v in a.verdicts if not v.passed]
-    run(scenario, private_bench("odrive"), out=second)
-    ids = {int(line.split()[2].split("#")[0], 16) for line in (first / "can.log").read_text().splitlines()}
+    replayed = speed_limiting_on("odrive", tmp_path, {"drives": "odrive"}, contract={"drives": "pure"})
+    assert replayed.frames_compared > 4 * replayed.ticks
+    ids = {int(frame.split("#")[0], 16) for frame in frames(tmp_path / "whole")}
     assert {0x020 | 0x09, 0x020 | 0x01, 0x020 | 0x0E, 0x020 | 0x07} <= ids, "CAN Simple on the wire"
     assert not ids & {0x181, 0x201, 0x281}, "no contract drive frame on an odrive bus"
-
-    def payloads(folder):
-        return [line.split()[2] for line in (folder / "can.log").read_text().splitlines()]
-
-    assert payloads(first) == payloads(second)
-    summary = json.loads((first / "summary.json").read_text())
-    assert summary["bench"]["devices"]["drives"] == "odrive"
-    assert summary["bus"]["malformed"] == {}
-    result = replay(first, private_bench())
-    assert result.identical and result.frames_compared > 4 * result.ticks, result.mismatches[:3]
-    # Test the test: the same frames read as another profile's (the contract's own) answer nothing alike.
-    summary["bench"]["devices"] = {"drives": "pure"}
-    (first / "summary.json").write_text(json.dumps(summary))
-    assert not replay(first, private_bench(), limit=50).identical
 
 
 def test_the_supervisors_estop_reaches_the_axes_as_can_simple_estop(tmp_path):

@@ -12,7 +12,6 @@ Benches are loaded by file path, so the tests run whether or not the worktree's 
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -153,32 +152,13 @@ def test_xsens_ids_that_own_a_contract_or_drive_frame_are_refused_naming_the_fie
 # ------------------------------------------------------------------------------------------- the rig
 @needs_entry_point
 def test_speed_limiting_on_xsens_passes_deterministically_and_replays_byte_for_byte(tmp_path):
-    from hil.pipeline import load_scenario, run
-    from hil.suites.replay import replay
-    from tests.zenoh_helpers import private_bench
+    from tests.device_runs import frames, speed_limiting_on
 
-    scenario = load_scenario("speed_limiting")
-    first, second = tmp_path / "a", tmp_path / "b"
-    a = run(scenario, private_bench(BENCH), out=first)
-    assert a.passed, [v for v in a.verdicts if not v.passed]
-    run(scenario, private_bench(BENCH), out=second)
-    ids = {int(line.split()[2].split("#")[0], 16) for line in (first / "can.log").read_text().splitlines()}
+    replayed = speed_limiting_on(BENCH, tmp_path, {"imu": "xsens"}, contract={"imu": "pure"})
+    assert replayed.frames_compared >= 4 * replayed.ticks
+    ids = {int(frame.split("#")[0], 16) for frame in frames(tmp_path / "whole")}
     assert {BASE + x for n, x in XSENS_XCIDS.items() if n != "Error"} <= ids, "the Xsens group on the wire"
     assert not ids & {0x18A, 0x28A, 0x38A}, "no contract IMU frame on an xsens bus"
-
-    def payloads(folder):
-        return [line.split()[2] for line in (folder / "can.log").read_text().splitlines()]
-
-    assert payloads(first) == payloads(second)
-    summary = json.loads((first / "summary.json").read_text())
-    assert summary["bench"]["devices"]["imu"] == "xsens"
-    assert summary["bus"]["malformed"] == {}
-    result = replay(first, private_bench())
-    assert result.identical and result.frames_compared >= 4 * result.ticks, result.mismatches[:3]
-    # Test the test: the same frames read as the contract's own IMU answer nothing alike.
-    summary["bench"]["devices"] = {"imu": "pure"}
-    (first / "summary.json").write_text(json.dumps(summary))
-    assert not replay(first, private_bench(), limit=50).identical
 
 
 def _balance(faults, duration: float = 2.0, bench: str = BENCH, out: Path | None = None):
