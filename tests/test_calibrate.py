@@ -30,7 +30,11 @@ def test_a_fit_recovers_the_riders_lean_rate_and_amplitude_from_a_table_made_wit
     assert target.tasks == ["idle_keeping"] and len(target.metric[0].cells) == 2
 
     unknowns = [Unknown.parse("rider.lean_rate_deg"), Unknown.parse("rider.lean_amplitude_deg=10:35")]
-    result = calibrate(target, unknowns, bench, [task], budget=16, workers=2)
+    # Seven evaluations: the start, and two steps with their finite differences. The fit reaches 5.74 deg/s
+    # and 19.9 deg at the seventh (the sum of squared distances 75.5 -> 0.30); at the fourth it was still
+    # 5.0 deg/s, 17 % off. Unbounded it goes on to within 1 % in 13 (docs/riders.md).
+    budget = 7
+    result = calibrate(target, unknowns, bench, [task], budget=budget, workers=2)
     assert result.start == {"rider.lean_rate_deg": 4.0, "rider.lean_amplitude_deg": 25.0}  # the shipped
     assert result.cost_before > 10 * max(result.cost_after, 0.1)
     for name, value in KNOWN.items():
@@ -44,7 +48,7 @@ def test_a_fit_recovers_the_riders_lean_rate_and_amplitude_from_a_table_made_wit
     assert rider.mass == 73.0  # everything else as shipped
     assert fitted.riders == (str(tmp_path / "out/fitted/s07_abi_73kg_176.toml"),)
     summary = json.loads((tmp_path / "out/calibrate.json").read_text())
-    assert summary["evaluations"] <= 16 and len(summary["before"]) == 8
+    assert summary["evaluations"] <= budget and len(summary["before"]) == 8
 
 
 def test_unknowns_and_their_bounds_are_checked():
@@ -66,10 +70,13 @@ def test_the_sensitivity_table_moves_the_chassis_tilt_as_physics_says(tmp_path):
     rider's torque: tilt ~ torque / (m g l). A heavier chassis needs less tilt, a lighter one more."""
     from hil.suites.calibrate import sensitivity
 
-    task = msgspec.structs.replace(load_scenario("idle_keeping"), duration=10.5)
-    paper, riders = load_paper(), ["riders/s07_abi_73kg_176.toml"]
-    runs = compare([task], riders, progress=None, bench=private_bench(), paper=paper).runs
-    target = table_from(runs, paper, "shipped", riders)
+    # The forward lean only: at 4 deg/s the rider reaches the shipped 25 deg at 7.25 s, so the tilt the
+    # chassis takes against the full lean is in an 8 s run. The target only names the cells (the paper's
+    # idle-keeping cells, one rider): it needs no runs of its own.
+    task = msgspec.structs.replace(load_scenario("idle_keeping"), duration=8.0)
+    paper = load_paper()
+    assert paper.tasks[0] == "idle_keeping"  # its cells come first in each metric's row
+    target = msgspec.structs.replace(paper, riders=["riders/s07_abi_73kg_176.toml"], tasks=["idle_keeping"])
     result = sensitivity(target, ["robot.body.mass"], private_bench(), 0.2, workers=2, scenarios=[task])
 
     def tilt(comparison) -> float:
