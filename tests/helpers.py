@@ -44,3 +44,18 @@ def wait_for(predicate, timeout: float = 5.0, step: float = 0.01):
             return value
         time.sleep(step)
     return predicate()
+
+
+TWO_CASES = f"""
+name = "two_cases"
+scenarios = ["{ROOT / "configs/scenarios/bench_smoke.toml"}"]
+[[fault]]
+name = "seat_silent"
+[[fault.inject]]
+kind = "zenoh.wrench_dropout"
+at = 1.0
+expect = {{ state = "STOPPING", cause = "WRENCH_SILENT", within = 0.15, fall = false }}
+"""
+"""A campaign of two passing cases of bench_smoke, fault-free and with a reaction to expect: what a case
+carries to a worker and back, and enough for a progress bar to count, at a third of the smoke campaign's
+cost."""

@@ -17,7 +17,7 @@ import pytest
 
 from hil.run.measurements import measure, release_end
 from hil.suites.campaign import Campaign, CaseResult, expand, junit_xml, load_campaign, report
-from tests.helpers import ROOT
+from tests.helpers import ROOT, TWO_CASES
 
 SMOKE = ROOT / "configs/campaigns/smoke.toml"
 
@@ -269,19 +269,6 @@ def test_plugin_fixtures_run_a_scenario_with_faults_and_assert_on_events(pyteste
     result.assert_outcomes(passed=1)
 
 
-# Two cases that pass, a third of the smoke campaign: enough for a bar to count.
-TWO_PASSING = """
-name = "two_passing"
-scenarios = ["{root}/configs/scenarios/bench_smoke.toml"]
-[[fault]]
-name = "seat_silent"
-[[fault.inject]]
-kind = "zenoh.wrench_dropout"
-at = 1.0
-expect = {{ state = "STOPPING", cause = "WRENCH_SILENT", within = 0.15, fall = false }}
-"""
-
-
 def test_on_a_terminal_a_campaign_shows_a_progress_bar_with_counts_and_elsewhere_lines(tmp_path):
     """The bar (tqdm, on stderr) only when stderr is a terminal; the lines of the test above otherwise."""
     import fcntl
@@ -292,7 +279,7 @@ def test_on_a_terminal_a_campaign_shows_a_progress_bar_with_counts_and_elsewhere
     import threading
 
     campaign = tmp_path / "two_passing.toml"
-    campaign.write_text(TWO_PASSING.format(root=ROOT))
+    campaign.write_text(TWO_CASES)
     master, slave = pty.openpty()
     fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 40, 120, 0, 0))  # a terminal has a size
     proc = subprocess.Popen(

@@ -16,23 +16,12 @@ import pytest
 pytest.importorskip("distributed")
 
 from hil.suites.campaign import expand, load_campaign, run_campaign
+from tests.helpers import TWO_CASES
 from tests.zenoh_helpers import private_bench
 
 BIN = Path(sys.executable).parent
 ROOT = Path(__file__).resolve().parents[1]
 SMOKE = ROOT / "configs/campaigns/smoke.toml"
-# What travels to a worker and back (a case, its options, its verdicts and files) is the same for every case:
-# a fault-free case and one with a reaction to expect carry it, at a third of the smoke campaign's cost.
-TWO_CASES = f"""
-name = "two_cases"
-scenarios = ["{ROOT / "configs/scenarios/bench_smoke.toml"}"]
-[[fault]]
-name = "seat_silent"
-[[fault.inject]]
-kind = "zenoh.wrench_dropout"
-at = 1.0
-expect = {{ state = "STOPPING", cause = "WRENCH_SILENT", within = 0.15, fall = false }}
-"""
 
 
 @pytest.fixture
