@@ -21,7 +21,6 @@ DEVICE_EMULATIONS = "pure_hil.devices"
 DEVICE_HOSTS = "pure_hil.device_hosts"
 """host(Devices, counts_per_rev, role) -> Translator: a device profile as a controller or a supervisor reads
 and writes it (drivers/devices/)."""
-GROUPS = (CONTROLLERS, SUPERVISORS, DEVICE_EMULATIONS, DEVICE_HOSTS)
 
 
 class PlugNotFound(LookupError):

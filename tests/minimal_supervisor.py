@@ -48,7 +48,7 @@ class MinimalSupervisor:
         self.operator_actions_dropped = 0
         self.fence_misses = 0
         self.on_put: Callable[[str, bytes], None] | None = None
-        self.state, self.cause, self.since = State.NORMAL, Cause.NONE, 0.0
+        self.state, self.cause = State.NORMAL, Cause.NONE
         self.updates = 0
         self._frame_sent = -math.inf
         self._seq = 0
@@ -91,7 +91,7 @@ class MinimalSupervisor:
     # -- its own
     def _enter(self, t: float, state: State, cause: Cause) -> None:
         self.events.append(Event(t, "transition", self.state.name, state.name, cause.name))
-        self.state, self.cause, self.since = state, cause, t
+        self.state, self.cause = state, cause
         cap = 0.0 if state is State.ESTOP else self.rules.max_speed
         self._put(
             self.keys.safety_state,
