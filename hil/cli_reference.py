@@ -34,7 +34,7 @@ def _option(action: argparse.Action) -> str:
 
 
 def render() -> str:
-    parser = build_parser()
+    parser = build_parser(every=True)
     commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     helps = {a.dest: a.help or "" for a in commands._choices_actions}
     lines = [HEADER]

@@ -218,6 +218,7 @@ FLOORS = (
     {"pipeline", "live", "history"},  # build -> tick loop -> judge -> write; the service's stream and history
     {"service", "suites"},  # `pure-hil serve`; many runs
     {"console"},  # the rig's screen: a client of the service
+    {"commands"},  # each `pure-hil` command's options and handler
     {"cli"},
     {"cli_reference"},
 )

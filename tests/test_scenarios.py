@@ -285,7 +285,7 @@ def test_criterion_bounds_hold_within_float_rounding_only():
 
 
 def test_a_running_run_reports_its_status_and_the_cli_shows_it_on_one_line(capsys):
-    from hil.cli import _progress
+    from hil.commands.run import _progress
 
     statuses = []
     scenario = msgspec.structs.replace(load("speed_limiting"), duration=6.0)
