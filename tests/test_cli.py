@@ -217,3 +217,79 @@ def test_the_command_reference_is_the_parser_and_every_option_says_what_it_does(
         if not action.help
     ]
     assert not silent, f"options without help: {silent}"
+
+
+def table_disagreements(commands: dict, parser) -> list[str]:
+    """Where hil/cli.py's COMMANDS and a parser built with every command's options disagree: a sub-command
+    not in the table or out of its order, a summary not the table's, an entry whose module lacks its options
+    or its handler, a command module under hil/commands/ that no entry names."""
+    import argparse
+    import importlib
+    import pkgutil
+
+    import hil.commands
+
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    found = [] if list(sub.choices) == list(commands) else [f"sub-commands {list(sub.choices)}"]
+    helps = {a.dest: a.help for a in sub._choices_actions}
+    for name, command in commands.items():
+        module = importlib.import_module(command.module)
+        if not (
+            callable(getattr(module, "add_arguments", None)) and callable(getattr(module, "handle", None))
+        ):
+            found.append(f"{name}: {command.module} has no add_arguments(parser) and handle(args)")
+        elif name not in sub.choices or sub.choices[name].get_default("func") is not module.handle:
+            found.append(f"{name}: no sub-command that runs {command.module}.handle")
+        if helps.get(name) != command.summary:
+            found.append(f"{name}: --help says {helps.get(name)!r}")
+    named = {command.module for command in commands.values()}
+    on_disk = {f"hil.commands.{m.name}" for m in pkgutil.iter_modules(hil.commands.__path__)}
+    found += [f"{m} is in no entry of COMMANDS" for m in sorted(on_disk - named - {"hil.commands.common"})]
+    return found
+
+
+def test_the_command_table_and_the_parser_agree():
+    from hil.cli import COMMANDS, build_parser
+
+    assert not table_disagreements(COMMANDS, build_parser(every=True))
+    assert "simulate" in COMMANDS and "router" in COMMANDS
+
+
+def test_positive_control_a_command_missing_from_the_table_is_seen(monkeypatch):
+    import hil.cli
+
+    full = hil.cli.build_parser(every=True)
+    fewer = {name: command for name, command in hil.cli.COMMANDS.items() if name != "rig"}
+    assert table_disagreements(fewer, full)[0].startswith("sub-commands [")  # the parser has one more
+    monkeypatch.setattr(hil.cli, "COMMANDS", fewer)
+    assert table_disagreements(fewer, hil.cli.build_parser(every=True)) == [
+        "hil.commands.rig is in no entry of COMMANDS"
+    ]
+    wrong = {**fewer, "rig": hil.cli.Command("hil.commands.common", "talk to a running serve")}
+    assert "rig: hil.commands.common has no add_arguments(parser) and handle(args)" in table_disagreements(
+        wrong, full
+    )
+
+
+def test_a_commands_module_is_imported_only_when_it_runs():
+    """`pure-hil --help` imports no command's module (it stays fast); a command imports its own and what the
+    commands share, no other command's."""
+    script = """
+import sys
+from hil.cli import main
+
+def loaded():
+    return sorted(m for m in sys.modules if m.startswith("hil.commands."))
+
+try:
+    main(["--help"])
+except SystemExit:
+    pass
+print(loaded(), file=sys.stderr)
+main(["fault", "list"])
+print(loaded(), file=sys.stderr)
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stderr.splitlines() == ["[]", "['hil.commands.common', 'hil.commands.fault']"], done.stderr
+    assert "sensor.bias" in done.stdout  # fault list ran: the catalog
