@@ -125,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
     port, a bench part), 1 for a failure; an unexpected error leaves its traceback in a file, named."""
     args = build_parser().parse_args(argv)
 
-    import zenoh
+    import zenoh  # after parsing: `--help` and a usage error need none of these (~1 s of imports)
 
     from hil.bench.parts import BenchUnavailable
     from hil.bench.rigs import WrongRig
