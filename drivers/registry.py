@@ -15,6 +15,9 @@ CONTROLLERS = "pure_hil.controllers"
 """start(DutSpec) -> handle: the controller under test (drivers/dut.py)."""
 SUPERVISORS = "pure_hil.supervisors"
 """start(SupervisorSpec, link=None) -> handle: the supervisor (drivers/plugs.py)."""
+SUPERVISOR_RULES = "pure_hil.supervisor_rules"
+"""The type of a supervisor's rules (a msgspec Struct, by the supervisor's name): the rig checks a bench's
+rules file with a scenario's overrides against it before the run (drivers/rules.py). Optional."""
 DEVICE_EMULATIONS = "pure_hil.devices"
 """emulate(Devices, counts_per_rev, tick_hz) -> Translator: a device profile on the rig's side
 (hil/devices/)."""
