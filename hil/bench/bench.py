@@ -22,6 +22,7 @@ from drivers.config import ConfigError, load_toml
 from drivers.devices import Devices
 from drivers.resources import find
 from drivers.zenoh_access import ZenohAccess
+from plant.params import PlantName
 
 Where = Literal["embedded", "spawned", "external"]
 Positive = Annotated[float, msgspec.Meta(gt=0)]
@@ -101,7 +102,7 @@ class Bench(_Part, frozen=True):
     outputs: OutputsPart = OutputsPart()
     sim: str = "sim/default.toml"
     """The plant's simulation settings (tick rate and seed come from the scenario)."""
-    plant: Literal["sim", "3d", "planar"] = "sim"
+    plant: Literal["sim", PlantName] = "sim"
     """The plant: as the sim file says (`sim`), or the 3-D (MuJoCo) or the planar one whatever it says."""
     clock: Literal["scenario", "lockstep", "realtime"] = "scenario"
     realtime: RealtimePart = RealtimePart()
