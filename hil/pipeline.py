@@ -65,7 +65,7 @@ def run(
     )
     judge(result)
     if out is not None:
-        write_outputs(result, out, bench.outputs.recording, bench.outputs.plots, bench.outputs.mcap)
+        write_outputs(result, out, bench.outputs)
     return result
 
 
