@@ -1,13 +1,14 @@
 """A lab's own supervisor is a plug: tests/minimal_supervisor.py (nothing from safety/), registered through
 an entry point of its own distribution, runs `speed_limiting` under `pure-hil run`, and the rig, its trace,
-the judge and the run folder work with it; the console shows it on the bench and the run's supervisor state
-from its frames (issue 38)."""
+the judge and the run folder work with it; a campaign names it in its reports and its cases carry its report;
+the console shows it on the bench and the run's supervisor state from its frames (issue 38)."""
 
 from __future__ import annotations
 
 import http.client
 import json
 import threading
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,7 @@ import pytest
 from hil.bench.bench import load_bench
 from hil.cli import main
 from hil.outputs.trace_log import LAYOUT
-from tests.helpers import ROOT, wait_for
+from tests.helpers import ROOT, TWO_CASES, wait_for
 from tests.zenoh_helpers import hub_endpoint
 
 DIST = "minimal_supervisor_plug-0.1.dist-info"
@@ -87,6 +88,29 @@ def test_a_labs_own_supervisor_plugged_by_entry_point_runs_speed_limiting(tmp_pa
     rows = np.load(tmp_path / "run/trace.npy")
     forward = rows[:, LAYOUT.span("command_speed")][:, 0]
     assert 0.45 < np.nanmax(np.abs(forward)) <= 0.5 + 1e-9
+
+
+def test_a_campaign_on_a_labs_own_supervisor_names_it_and_its_cases_carry_its_report(minimal, tmp_path):
+    campaign, out = tmp_path / "two_cases.toml", tmp_path / "campaign"
+    campaign.write_text(TWO_CASES)
+    # It completes; the fault-free case passes, and the silent seat, which this supervisor does not watch
+    # (the reference stops for it), fails on the reaction it expects: the minimal supervisor judged both.
+    assert main(["campaign", str(campaign), "--bench", str(minimal), "--out", str(out)]) == 1
+    report = json.loads((out / "report.json").read_text())
+    assert report["supervisor"] == "minimal"
+    cases = {c["case"]: c for c in report["cases"]}
+    assert {c["supervisor"] for c in cases.values()} == {"minimal"}
+    assert cases["bench_smoke-none-seed0"]["passed"], cases["bench_smoke-none-seed0"]["why"]
+    silent = cases["bench_smoke-seat_silent-seed0"]
+    assert not silent["passed"] and "STOPPING/WRENCH_SILENT" in silent["why"], silent
+    assert "Judged by the supervisor minimal." in (out / "report.md").read_text()
+    assert "Judged by the supervisor minimal." in " ".join((out / "report.html").read_text().split())
+    suite = ET.fromstring((out / "junit.xml").read_bytes())
+    assert suite.find("properties/property[@name='supervisor']").get("value") == "minimal"
+    # Each case's run folder carries the minimal supervisor's own report.
+    for case in cases:
+        summary = json.loads((out / case / "summary.json").read_text())
+        assert summary["safety"]["sc_arbitration"]["supervisor"] == "minimal", case
 
 
 def _events(port: int, seen: list[tuple[str, dict]], stop: threading.Event) -> None:
