@@ -60,6 +60,12 @@ class SupervisorPart(_Part, frozen=True):
     config: str = "safety/default.toml"
     """Its rules; a scenario's `[safety]` table overrides them for that scenario's runs."""
 
+    @property
+    def plug(self) -> str | None:
+        """The plug that judges this bench's runs, as reports and the console name it; None for an external
+        supervisor, a process the rig did not start and so cannot name."""
+        return None if self.where == "external" else self.plugin
+
 
 class RealtimePart(_Part, frozen=True):
     """How the rig's loop runs under the real-time clock. Each setting falls back where the machine refuses
