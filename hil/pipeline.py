@@ -119,6 +119,7 @@ def describe(bench: Bench) -> dict:
         "can": f"{bench.can.interface}:{bench.can.channel or '(private)'}",
         "controller": bench.controller.where,
         "supervisor": bench.supervisor.where,
+        "supervisor_plug": bench.supervisor.plug,
         "zenoh": bench.zenoh.mode,
         "devices": msgspec.to_builtins(bench.devices),
         "rider_on_board": bench.rider_on_board,

@@ -80,6 +80,7 @@ def test_a_labs_own_supervisor_plugged_by_entry_point_runs_speed_limiting(tmp_pa
     assert main(args) == 0
     summary = json.loads((tmp_path / "run/summary.json").read_text())
     assert summary["verdict"] == "PASSED", summary
+    assert summary["bench"]["supervisor_plug"] == "minimal"  # the summary says which plug judged the run
     # It was this supervisor that ran, every tick: its own report, and its permission held the drives on.
     safety = summary["safety"]
     assert safety["sc_arbitration"] == {"supervisor": "minimal", "updates": summary["rig"]["ticks"] + 1}
