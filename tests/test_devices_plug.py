@@ -66,3 +66,34 @@ def test_a_drive_profile_installed_by_one_entry_point_line_runs_on_the_bus(tmp_p
         # On the wire: the contract's frames 0x400 up (DRIVE2_COMMAND 0x202, DRIVE3_FEEDBACK 0x183).
         assert [wire.recv(1.0).arbitration_id for _ in range(2)] == [0x602, 0x583]
         assert rig.stats.malformed == controller.stats.malformed == {}
+
+
+def test_a_new_profiles_settings_are_checked_against_its_own_options_type(tmp_path, monkeypatch):
+    monkeypatch.setattr("drivers.devices.profile._found", {})
+    _install_entry_point(tmp_path / "site", monkeypatch)
+    bench = tmp_path / "shifted.toml"
+
+    def devices(settings: str):
+        bench.write_text(f'name = "shifted"\n[devices]\ndrives = "shifted"\n{settings}\n')
+        return load_bench(bench).devices
+
+    assert controller_frame_ids(devices("[devices.settings.shifted]\nshift = 0x500")) == {0x701, 0x702, 0x703}
+    with pytest.raises(
+        ConfigError, match=r"shifted\.toml: settings\.shifted: Expected `int` <= 1404 - at `\$\.shift`"
+    ):
+        devices("[devices.settings.shifted]\nshift = 0x600")
+    with pytest.raises(ConfigError, match=r"settings\.shifted: Object contains unknown field `shfit`"):
+        devices("[devices.settings.shifted]\nshfit = 0x500")
+    # Its own id check: 0x201 + 0x51F is the contract's CONTROLLER_HEARTBEAT, which stays on the bus.
+    with pytest.raises(
+        ConfigError, match=r"shift: puts a drive frame on the contract's CONTROLLER_HEARTBEAT"
+    ):
+        devices("[devices.settings.shifted]\nshift = 0x51F")
+    with pytest.raises(
+        ConfigError, match=r"settings\.odrive: the odrive profile's settings are \[devices\.odrive\]"
+    ):
+        devices("[devices.settings.odrive]\nnode_ids = [1, 2, 3]")
+    with pytest.raises(
+        ConfigError, match=r"settings\.canopen_imu: not a profile this bench's drives or imu speak"
+    ):
+        devices("[devices.settings.canopen_imu]\nrate_hz = 100")

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Iterable, Mapping
-from typing import Literal
+from typing import Any, Literal
 
 import can
 import msgspec
@@ -132,6 +132,9 @@ class Devices(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=T
     odrive: OdriveOptions = OdriveOptions()
     cia402: Cia402Options = Cia402Options()
     xsens: XsensOptions = XsensOptions()
+    settings: dict[str, dict[str, Any]] = {}
+    """`[devices.settings.<profile>]`: the settings of a profile that has no table of its own above (a lab's
+    profile), checked against that profile's options type."""
 
     @property
     def stage_read_back(self) -> bool:
@@ -141,14 +144,26 @@ class Devices(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=T
         return self.drives == PURE
 
     def __post_init__(self) -> None:
-        for profile in (profile_of(self.drives, "drives"), profile_of(self.imu, "imu")):
-            if profile is not None:
-                profile.check(self)
+        profiles = [p for p in (profile_of(self.drives, "drives"), profile_of(self.imu, "imu")) if p]
+        for name in self.settings:
+            if name in self.__struct_fields__:
+                raise ValueError(f"settings.{name}: the {name} profile's settings are [devices.{name}]")
+            if name not in self.profiles:
+                raise ValueError(f"settings.{name}: not a profile this bench's drives or imu speak")
+            self.options(name)
+        for profile in profiles:
+            profile.check(self)
 
     def options(self, profile: str) -> msgspec.Struct:
-        """Profile `profile`'s settings on this bench (its `[devices.<profile>]`, else its defaults)."""
-        own = getattr(self, profile, None)
-        return own if isinstance(own, msgspec.Struct) else find_profile(profile).options()
+        """Profile `profile`'s settings on this bench (its `[devices.<profile>]` or
+        `[devices.settings.<profile>]`, else its defaults); ValueError names the field and the bound."""
+        if profile in self.__struct_fields__:
+            own: msgspec.Struct = getattr(self, profile)
+            return own
+        try:
+            return msgspec.convert(self.settings.get(profile, {}), find_profile(profile).options)
+        except msgspec.ValidationError as exc:
+            raise ValueError(f"settings.{profile}: {exc}") from exc
 
     @property
     def profiles(self) -> tuple[str, ...]:
