@@ -146,7 +146,7 @@ class Devices(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=T
     def __post_init__(self) -> None:
         profiles = [p for p in (profile_of(self.drives, "drives"), profile_of(self.imu, "imu")) if p]
         for name in self.settings:
-            if name in self.__struct_fields__:
+            if isinstance(getattr(self, name, None), msgspec.Struct):
                 raise ValueError(f"settings.{name}: the {name} profile's settings are [devices.{name}]")
             if name not in self.profiles:
                 raise ValueError(f"settings.{name}: not a profile this bench's drives or imu speak")
@@ -157,8 +157,8 @@ class Devices(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=T
     def options(self, profile: str) -> msgspec.Struct:
         """Profile `profile`'s settings on this bench (its `[devices.<profile>]` or
         `[devices.settings.<profile>]`, else its defaults); ValueError names the field and the bound."""
-        if profile in self.__struct_fields__:
-            own: msgspec.Struct = getattr(self, profile)
+        own = getattr(self, profile, None)
+        if isinstance(own, msgspec.Struct):
             return own
         try:
             return msgspec.convert(self.settings.get(profile, {}), find_profile(profile).options)

@@ -90,19 +90,13 @@ class Profile:
     host: Host
     emulation_at: str
     """"module:attr" of its `Emulate` (hil/devices/ for the built-in ones)."""
-    claim: Callable[[Devices], Mapping[int, str]] = field(default=_none)
-    checker: Callable[[Devices], None] = field(default=_fine)
+    claims: Callable[[Devices], Mapping[int, str]] = field(default=_none)
+    check: Callable[[Devices], None] = field(default=_fine)
 
     def emulation(self) -> Emulate:
         module, _, attr = self.emulation_at.partition(":")
         found: Emulate = getattr(importlib.import_module(module), attr)
         return found
-
-    def claims(self, devices: Devices) -> Mapping[int, str]:
-        return self.claim(devices)
-
-    def check(self, devices: Devices) -> None:
-        self.checker(devices)
 
 
 _found: dict[str, DeviceProfile] = {}
