@@ -20,16 +20,14 @@ import threading
 import msgspec
 
 from controller.config import ControllerConfig
-from controller.embedded import build_controller
-from controller.node import ControllerNode
+from controller.embedded import start
 from drivers.bus_config import BusConfigError, parse_can_spec
-from drivers.can_bus import open_bus
 from drivers.config import ConfigError, load_toml
-from drivers.devices import Devices, host_node
+from drivers.devices import Devices
 from drivers.dut import DutSpec
-from drivers.keys import Keys
 from drivers.resources import find
-from drivers.zenoh_link import LOOPBACK, ZenohConfigError, ZenohLink, open_session
+from drivers.zenoh_access import ZenohAccess
+from drivers.zenoh_link import LOOPBACK, ZenohConfigError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -77,12 +75,24 @@ def parse_devices(text: str | None) -> Devices:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
     try:
         config_path = find(args.config, "controller")
         config = load_toml(config_path, ControllerConfig)
         mode = args.mode or config.mode
         spec = DutSpec(
             can=parse_can_spec(args.can),
+            zenoh=ZenohAccess(
+                mode="router" if args.certs else "loopback",
+                endpoint=args.hub,
+                certs=args.certs,
+                config=args.zenoh,
+                network=args.allow_network,
+                prefix=args.prefix,
+            ),
+            identity=args.identity,
             mode=mode,
             robot=str(find(args.robot, "robot")),
             rider=str(find(args.rider, "riders")),
@@ -91,30 +101,18 @@ def main(argv: list[str] | None = None) -> int:
             lockstep=args.lockstep,
             tick_hz=config.timing.tick_hz,
         )
-        controller = build_controller(spec)  # as the rig's embedded plugin builds it: one place
-        bus = open_bus(spec.can)
-        session = open_session(
-            args.zenoh, "member", args.hub, args.allow_network, certs=args.certs, identity=args.identity
-        )
+        handle = start(spec)  # the rig's embedded plug, on a thread of its own: one wiring
     except (ConfigError, BusConfigError, ZenohConfigError) as exc:
         print(f"pure-controller: {exc}", file=sys.stderr)
         return 2
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    link = ZenohLink(session, Keys(args.prefix))
-    can = host_node(bus, spec.devices, controller.robot.encoder.counts_per_rev, "controller")
-    node = ControllerNode(controller, can, link, lockstep=args.lockstep)
     logging.info("pure-controller (%s) on %s, zenoh %s: running", mode, args.can, args.zenoh)
     try:
-        node.run(stop)
+        stop.wait()
     finally:
-        link.close()
-        session.close()
-        bus.shutdown()
+        handle.stop()
     # What it missed on the bus, as `pure-hil supervisor` says it (a reader that falls behind loses frames
     # silently on vcan: docs/bench.md).
-    stats = can.stats.as_dict()
+    stats = handle.node.can.stats.as_dict()
     logging.info(
         "pure-controller: stopped; bus: lost %s, E2E %s, malformed %s, send errors %s",
         stats["lost_frames"],

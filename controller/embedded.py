@@ -31,10 +31,14 @@ class EmbeddedController:
     from the rig's thread through `poll()` after every SYNC."""
 
     def __init__(self, spec: DutSpec):
-        self.bus = open_bus(spec.can)
-        self.session = spec.zenoh.open("controller")
-        self.link = ZenohLink(self.session, Keys(spec.zenoh.prefix))
         controller = build_controller(spec)
+        self.bus = open_bus(spec.can)
+        try:
+            self.session = spec.zenoh.open(spec.identity)
+        except BaseException:
+            self.bus.shutdown()
+            raise
+        self.link = ZenohLink(self.session, Keys(spec.zenoh.prefix))
         can = host_node(self.bus, spec.devices, controller.robot.encoder.counts_per_rev, "controller")
         self.node = ControllerNode(controller, can, self.link, lockstep=spec.lockstep)
         self.thread = None if spec.driven else ControllerThread(self.node).start()

@@ -22,7 +22,7 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import can
 from mypy_extensions import mypyc_attr
@@ -340,13 +340,19 @@ class CanNode:
         )
 
 
+class FrameSink(Protocol):
+    """What takes a recorded frame: a python-can `Listener`, or the run's logs (hil/outputs/run_logs.py)."""
+
+    def on_message_received(self, msg: can.Message) -> None: ...
+
+
 class BusRecorder:
     """Tee everything on a channel into a python-can logger and any further listeners (the run's MCAP), from
     a monitor bus of its own (like candump), written by whoever calls `poll()` (the rig, once per tick: no
     thread woken for every frame). Every listener gets the same frames in the same order. The writer streams
     to disk as the run goes; the further listeners are their owners' to close, after `stop()`."""
 
-    def __init__(self, config: BusConfig, path: Path | str | None, listeners: Iterable[can.Listener] = ()):
+    def __init__(self, config: BusConfig, path: Path | str | None, listeners: Iterable[FrameSink] = ()):
         """path: the log file (None: no file, only the listeners)."""
         self.path = None if path is None else Path(path)
         self.bus = open_bus(config)

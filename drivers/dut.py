@@ -21,7 +21,9 @@ from drivers.zenoh_access import ZenohAccess
 class DutSpec(msgspec.Struct, frozen=True, kw_only=True):
     can: BusConfig
     zenoh: ZenohAccess = ZenohAccess()
-    """How to join the rig's zenoh (open sessions with `zenoh.open("controller")`)."""
+    """How to join the rig's zenoh (open sessions with `zenoh.open(identity)`)."""
+    identity: str = "controller"
+    """Its certificate's role on a secured bench (a router)."""
     mode: Literal["hacs", "ihacs"] = "hacs"
     robot: str
     """Robot TOML the controller builds its model from (may differ from the plant's: model mismatch)."""

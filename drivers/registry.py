@@ -2,7 +2,7 @@
 its group and imported only then, as python-can finds a bus backend. Built-in parts are entry points of this
 package (pyproject.toml); a lab's own are entry points of its package, one line each.
 
-    find_plug(SUPERVISORS, "reference", "supervisor")(spec)     installed(DEVICE_EMULATIONS)
+    find_plug(SUPERVISORS, "reference", "supervisor")(spec)     installed(DEVICE_PROFILES)
 """
 
 from __future__ import annotations
@@ -15,12 +15,12 @@ CONTROLLERS = "pure_hil.controllers"
 """start(DutSpec) -> handle: the controller under test (drivers/dut.py)."""
 SUPERVISORS = "pure_hil.supervisors"
 """start(SupervisorSpec, link=None) -> handle: the supervisor (drivers/plugs.py)."""
-DEVICE_EMULATIONS = "pure_hil.devices"
-"""emulate(Devices, counts_per_rev, tick_hz) -> Translator: a device profile on the rig's side
-(hil/devices/)."""
-DEVICE_HOSTS = "pure_hil.device_hosts"
-"""host(Devices, counts_per_rev, role) -> Translator: a device profile as a controller or a supervisor reads
-and writes it (drivers/devices/)."""
+SUPERVISOR_RULES = "pure_hil.supervisor_rules"
+"""The type of a supervisor's rules (a msgspec Struct, by the supervisor's name): the rig checks a bench's
+rules file with a scenario's overrides against it before the run (drivers/rules.py). Optional."""
+DEVICE_PROFILES = "pure_hil.devices"
+"""A DeviceProfile: a device profile's name, kind, settings, host and emulation, one line each
+(drivers/devices/profile.py)."""
 
 
 class PlugNotFound(LookupError):

@@ -16,6 +16,7 @@ import msgspec
 
 from drivers.config import ConfigError, load_toml
 from drivers.resources import find
+from drivers.rules import JudgedRules
 from hil.bench.bench import Bench, load_bench
 from hil.outputs.run_logs import RunLogs
 from hil.report.folder import events, write_outputs
@@ -23,18 +24,17 @@ from hil.run.build import (
     RunOptions,
     build,
     clock_of,
+    judged_rules,
     law_of,
     run_logs,
     sim_params,
     start_up,
-    supervisor_config,
 )
 from hil.run.judge import RunResult, judge
 from hil.run.loop import tick_loop
 from hil.run.scenario import Scenario
 from hil.run.trace import CONFIG_ERRORS, ControllerUnavailable, Failure, Trace, reason
 from plant.params import RobotParams, SimParams
-from safety.config import SupervisorConfig
 
 
 def run(
@@ -65,7 +65,7 @@ def run(
     )
     judge(result)
     if out is not None:
-        write_outputs(result, out, bench.outputs.recording, bench.outputs.plots, bench.outputs.mcap)
+        write_outputs(result, out, bench.outputs)
     return result
 
 
@@ -119,6 +119,7 @@ def describe(bench: Bench) -> dict:
         "can": f"{bench.can.interface}:{bench.can.channel or '(private)'}",
         "controller": bench.controller.where,
         "supervisor": bench.supervisor.where,
+        "supervisor_plug": bench.supervisor.plug,
         "zenoh": bench.zenoh.mode,
         "devices": msgspec.to_builtins(bench.devices),
         "rider_on_board": bench.rider_on_board,
@@ -145,8 +146,8 @@ def _ball_radius(scenario: Scenario) -> float:
         return float("nan")  # the trace already says why the run failed
 
 
-def _safety(bench: Bench, scenario: Scenario) -> SupervisorConfig:
+def _safety(bench: Bench, scenario: Scenario) -> JudgedRules:
     try:
-        return supervisor_config(bench, scenario)
+        return judged_rules(bench, scenario)
     except CONFIG_ERRORS:
-        return SupervisorConfig()  # the trace already says why the run failed
+        return JudgedRules()  # the trace already says why the run failed

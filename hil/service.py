@@ -137,7 +137,11 @@ class RigService:
             "faults": self._fault_status(),
             "last": self.last,
             "run": self.run_id,
-            "bench": {**describe(self.bench), "description": self.bench.description},
+            "bench": {
+                **describe(self.bench),
+                "description": self.bench.description,
+                "supervisor_plug": self.bench.supervisor.plug,
+            },
             "scenarios": list(self.scenarios),
             "card": asdict(self.card),
         }

@@ -266,10 +266,14 @@ class MujocoParams(_Record, frozen=True):
     """Ratio of frictional to normal constraint impedance: higher holds the rolling contact tighter."""
 
 
+PlantName = Literal["3d", "planar"]
+"""The plants (plant/models.py PLANTS)."""
+
+
 class SimParams(_Record, frozen=True):
     tick_hz: Positive = 400.0
     """Bus tick: rate of sensor frames and SYNC."""
-    plant: Literal["3d", "planar"] = "3d"
+    plant: PlantName = "3d"
     """3d: rigid bodies in MuJoCo (plant/ballbot3d.py); planar: two vertical planes and yaw
     (plant/ballbot.py), kept for regression."""
     mujoco: MujocoParams = MujocoParams()

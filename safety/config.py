@@ -12,8 +12,8 @@ from typing import Annotated
 
 import msgspec
 
-Positive = Annotated[float, msgspec.Meta(gt=0)]
-NonNegative = Annotated[float, msgspec.Meta(ge=0)]
+from drivers.rules import MotionLimits, NonNegative, Positive, SpeedLimits, StopLimits
+
 Fraction = Annotated[float, msgspec.Meta(gt=0, le=1)]
 
 
@@ -78,16 +78,11 @@ class RobotGeometry(_Lenient, frozen=True):
 
 
 # --------------------------------------------------------------------------------------------- rules
-class SpeedRules(_Strict, frozen=True):
-    absolute_cap: Positive = 2.0
-    """m/s: the cap in NORMAL; a `free` SC request is forwarded as `limit` at this cap."""
+class SpeedRules(SpeedLimits, frozen=True, forbid_unknown_fields=True):
+    """`absolute_cap`, `margin`, `enforce_requested_cap`: drivers/rules.py (the rig judges by them too)."""
+
     reduced_cap: NonNegative = 0.3
     """m/s: the cap while the SC agent is silent (LIMITING, SC_SILENT)."""
-    enforce_requested_cap: bool = True
-    """Enforce the SC request's cap too (not just the absolute cap). The paper's tasks turn this off: they
-    measure how well the controller alone keeps the cap, as on the real robot."""
-    margin: NonNegative = 0.15
-    """m/s above the cap before the over-cap window starts."""
     window: Positive = 0.25
     """s above cap + margin before LIMITING (command idle)."""
     release_window: Positive = 0.5
@@ -108,9 +103,9 @@ class SpeedRules(_Strict, frozen=True):
     """m/s: above this, a controlled stop whatever the cap."""
 
 
-class StopRules(_Strict, frozen=True):
-    standstill_speed: Positive = 0.05
-    """m/s at or below which the robot is at standstill."""
+class StopRules(StopLimits, frozen=True, forbid_unknown_fields=True):
+    """`standstill_speed`: drivers/rules.py."""
+
     standstill_tilt_deg: Positive = 3.0
     """deg: a controlled stop turns the drives off only with the chassis this close to upright: the rider's
     feet and the stand catch a robot at rest within 5 deg; tilted further (a rider still leaning) it would
@@ -130,9 +125,9 @@ class StopRules(_Strict, frozen=True):
     motion is motion_after_standstill's)."""
 
 
-class MotionRules(_Strict, frozen=True):
-    tilt_limit_deg: Positive = 20.0
-    """Chassis tilt beyond this in either plane: balance is lost, drives off."""
+class MotionRules(MotionLimits, frozen=True, forbid_unknown_fields=True):
+    """`tilt_limit_deg`: drivers/rules.py."""
+
     torque_range: Positive = 1.05
     """A torque command above this × the drive's limit is garbage: drives off."""
     saturation_fraction: Fraction = 0.97

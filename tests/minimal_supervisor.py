@@ -49,6 +49,8 @@ class MinimalSupervisor:
         self.fence_misses = 0
         self.on_put: Callable[[str, bytes], None] | None = None
         self.state, self.cause = State.NORMAL, Cause.NONE
+        self.estop_by = ""
+        """Whose e-stop is latched: the operator's tools confirm their own e-stop by it (SafetyState)."""
         self.updates = 0
         self._frame_sent = -math.inf
         self._seq = 0
@@ -61,8 +63,10 @@ class MinimalSupervisor:
         for cmd in self.operator.drain():
             self.operator_actions.append(OperatorRecord(t, cmd.action, cmd.source, self.state.name))
             if cmd.action in ("estop", "cut_power") and self.state is State.NORMAL:
+                self.estop_by = cmd.source
                 self._enter(t, State.ESTOP, Cause.OPERATOR_ESTOP)
             elif cmd.action == "reset" and self.state is State.ESTOP:
+                self.estop_by = ""
                 self._enter(t, State.NORMAL, Cause.NONE)
         for request in self.requests.drain():
             cap = min(request.speed_limit(), self.rules.max_speed)
@@ -102,6 +106,7 @@ class MinimalSupervisor:
                 reason=cause.name,
                 cap=cap,
                 since=t,
+                estop_by=self.estop_by,
             ),
         )
 

@@ -9,7 +9,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 OURS = {"hil", "plant", "drivers", "safety", "controller"}
 ALLOWED = {
-    "hil": {"plant", "drivers", "safety"},
+    "hil": {"plant", "drivers"},  # the supervisor and the controller are plugs (drivers/plugs.py, dut.py)
     "controller": {"drivers"},
     "safety": {"drivers"},
     "drivers": set(),
@@ -59,10 +59,6 @@ def test_plant_uses_only_numerics():
     assert not bad, "plant/ must stay numpy/scipy/MuJoCo-only with no I/O or clocks:\n" + "\n".join(bad)
 
 
-HIL_FROM_SAFETY = {"safety.config": {"SupervisorConfig"}}
-"""What hil/ may still take from safety/: the reference supervisor's rules schema (the scenario's `[safety]`
-overrides and the judge read it). The supervisor the rig drives is a drivers.plugs.Supervisor, and the wire's
-vocabulary comes from drivers/vocabulary.py."""
 VOCABULARY_HOME = "drivers.vocabulary"
 SOURCES = (*sorted(OURS), "tests", "examples", "benchmarks")
 
@@ -76,23 +72,6 @@ def _names_from(source: str, prefix: str) -> list[tuple[int, str, str]]:
         elif isinstance(node, ast.Import):
             found += [(node.lineno, a.name, "*") for a in node.names if a.name.startswith(prefix)]
     return found
-
-
-def hil_safety_imports(path: str, source: str) -> list[str]:
-    return [
-        f"{path}:{line} imports {module}.{name}"
-        for line, module, name in _names_from(source, "safety")
-        if name not in HIL_FROM_SAFETY.get(module, set())
-    ]
-
-
-def test_hil_takes_only_the_supervisor_and_its_config_from_safety():
-    bad = [
-        f
-        for path in modules("hil")
-        for f in hil_safety_imports(str(path.relative_to(ROOT)), path.read_text())
-    ]
-    assert not bad, "hil/ takes the wire's vocabulary from drivers/vocabulary.py:\n" + "\n".join(bad)
 
 
 def vocabulary_imported_elsewhere(path: str, source: str) -> list[str]:
@@ -127,16 +106,13 @@ def test_the_wires_vocabulary_is_imported_only_from_drivers():
 
 
 def test_positive_control_a_vocabulary_import_from_safety_is_seen():
-    # What hil/ and tests did before drivers/vocabulary.py held the vocabulary.
+    # What hil/ and tests did before drivers/vocabulary.py held the vocabulary, and drivers/rules.py the
+    # limits the judge reads.
     source = (
         "from safety.machine import Cause, State\nfrom safety.node import OperatorRecord, SupervisorNode\n"
+        "from safety.config import SupervisorConfig\n"
     )
-    assert hil_safety_imports("hil/x.py", source) == [
-        "hil/x.py:1 imports safety.machine.Cause",
-        "hil/x.py:1 imports safety.machine.State",
-        "hil/x.py:2 imports safety.node.OperatorRecord",
-        "hil/x.py:2 imports safety.node.SupervisorNode",
-    ]
+    assert "safety" in imported_roots(source, "hil") - ALLOWED["hil"]
     assert len(vocabulary_imported_elsewhere("tests/x.py", source)) == 3
 
 

@@ -83,15 +83,23 @@ def test_the_rig_starts_the_supervisor_the_bench_names_through_its_plug(monkeypa
     assert spec.rules["speed"]["absolute_cap"] > 0, "the bench's rules with the scenario's overrides"
 
 
-def test_every_device_profile_has_its_emulation_and_its_host_in_the_one_registry():
-    from drivers.devices import DRIVE_PROFILES, IMU_PROFILES
-    from drivers.registry import DEVICE_EMULATIONS, DEVICE_HOSTS, installed
+def test_every_device_profile_is_one_entry_point_with_its_settings_host_and_emulation():
+    from drivers.devices import Devices, Translator
+    from drivers.devices.profile import find_profile
+    from drivers.registry import DEVICE_PROFILES, installed
 
-    profiles = sorted(p for p in (*DRIVE_PROFILES, *IMU_PROFILES) if p != "pure")
-    assert installed(DEVICE_EMULATIONS) == installed(DEVICE_HOSTS) == profiles
-    for profile in profiles:
-        assert callable(find_plug(DEVICE_HOSTS, profile, "device profile host"))
+    kinds = {"odrive": "drives", "cia402": "drives", "xsens": "imu"}
+    assert installed(DEVICE_PROFILES) == sorted(kinds)
+    for name, kind in kinds.items():
+        profile = find_profile(name)
+        assert (profile.name, profile.kind) == (name, kind)
+        devices = Devices(**{kind: name})
+        assert isinstance(devices.options(name), profile.options)
+        assert isinstance(profile.emulation()(devices, 8192, 400.0), Translator)
+        assert isinstance(profile.host(devices, 8192, "supervisor"), Translator)
+    with pytest.raises(PlugNotFound, match=r"no device profile 'nope' in entry points 'pure_hil.devices'"):
+        find_profile("nope")
     with pytest.raises(
-        PlugNotFound, match=r"no device profile host 'nope' in entry points 'pure_hil.device_hosts'"
+        ValueError, match=r"imu: no imu device profile 'odrive' installed \(have: pure, xsens\)"
     ):
-        find_plug(DEVICE_HOSTS, "nope", "device profile host")
+        Devices(imu="odrive")

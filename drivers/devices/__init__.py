@@ -14,21 +14,17 @@ package) and the device's (the rig's emulated drives: hil/devices/). `pure` has 
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Iterable, Mapping
-from typing import Literal
+from collections.abc import Iterable, Mapping
+from typing import Any, Literal
 
 import can
 import msgspec
 
 from drivers.can_bus import CanNode, Received
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MOTOR_OF, Catalog, MessageName
-from drivers.registry import DEVICE_HOSTS, find_plug
+from drivers.devices.profile import PURE, Host, find_profile, profile_of
 
 Role = Literal["controller", "supervisor"]
-DRIVE_PROFILES = ("pure", "odrive", "cia402")
-"""Drive profiles the host side speaks (docs/devices.md)."""
-IMU_PROFILES = ("pure", "xsens")
-"""IMU profiles the host side speaks (docs/devices.md)."""
 
 
 class OdriveOptions(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -128,78 +124,60 @@ CANOPEN_FUNCTIONS = (0x080, 0x180, 0x200, 0x280, 0x300, 0x380, 0x400, 0x480, 0x5
 
 
 class Devices(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
-    """Which device profile the drives and the IMU speak (a bench's `[devices]`)."""
+    """Which device profile the drives and the IMU speak (a bench's `[devices]`): `pure` or a profile
+    installed in the entry-point group `pure_hil.devices` (drivers/devices/profile.py)."""
 
-    drives: Literal["pure", "odrive", "cia402"] = "pure"
-    imu: Literal["pure", "xsens"] = "pure"
+    drives: str = PURE
+    imu: str = PURE
     odrive: OdriveOptions = OdriveOptions()
     cia402: Cia402Options = Cia402Options()
     xsens: XsensOptions = XsensOptions()
+    settings: dict[str, dict[str, Any]] = {}
+    """`[devices.settings.<profile>]`: the settings of a profile that has no table of its own above (a lab's
+    profile), checked against that profile's options type."""
 
     @property
     def stage_read_back(self) -> bool:
         """The drives' Enabled reads back their power stage itself (pure's drives). On ODrive and CiA 402 it
         is the firmware's state, which a power stage that failed on does not change: a supervisor must then
         open the main contactor on every e-stop, not only when a drive does not confirm it is off."""
-        return self.drives == "pure"
+        return self.drives == PURE
 
     def __post_init__(self) -> None:
-        if self.drives == "odrive":
-            kept = _contract_ids(drives=False, imu=self.imu == "pure")
-            for node in self.odrive.node_ids:
-                clash = sorted(name for name, i in kept.items() if i >> 5 == node)
-                if clash:
-                    raise ValueError(
-                        f"odrive.node_ids: node {node} owns ids 0x{node << 5:03X}-0x{(node << 5) + 31:03X}, "
-                        f"which holds the contract's {', '.join(clash)}: pick another node id"
-                    )
-        if self.drives == "cia402":
-            owner = {i: name for name, i in _contract_ids(drives=False, imu=self.imu == "pure").items()}
-            for node in self.cia402.node_ids:
-                clash = sorted(
-                    f"{owner[f + node]} (0x{f + node:03X})" for f in CANOPEN_FUNCTIONS if f + node in owner
-                )
-                if clash:
-                    raise ValueError(
-                        f"cia402.node_ids: node {node}'s CANopen COB-IDs include the contract's "
-                        f"{', '.join(clash)}: pick another node id"
-                    )
-        if self.imu == "xsens":
-            self._check_xsens()
+        profiles = [p for p in (profile_of(self.drives, "drives"), profile_of(self.imu, "imu")) if p]
+        for name in self.settings:
+            if isinstance(getattr(self, name, None), msgspec.Struct):
+                raise ValueError(f"settings.{name}: the {name} profile's settings are [devices.{name}]")
+            if name not in self.profiles:
+                raise ValueError(f"settings.{name}: not a profile this bench's drives or imu speak")
+            self.options(name)
+        for profile in profiles:
+            profile.check(self)
 
-    def _check_xsens(self) -> None:
-        """The Xsens ids own no contract frame that stays on the bus and no frame of the drives' profile."""
-        owner = {i: name for name, i in _contract_ids(drives=self.drives == "pure", imu=False).items()}
-        if self.drives == "odrive":
-            for node in self.odrive.node_ids:
-                owner.update({(node << 5) + c: f"ODrive node {node}'s frames" for c in range(32)})
-        if self.drives == "cia402":
-            for node in self.cia402.node_ids:
-                owner.update({f + node: f"CANopen node {node}'s COB-IDs" for f in CANOPEN_FUNCTIONS})
-        base = self.xsens.base_id
-        clash = sorted(
-            f"{name} 0x{base + xcid:03X} on {owner[base + xcid]}"
-            for name, xcid in XSENS_XCIDS.items()
-            if base + xcid in owner
-        )
-        if clash:
-            raise ValueError(
-                f"xsens.base_id: 0x{base:03X} puts the Xsens {', '.join(clash)}: pick another base_id"
-            )
+    def options(self, profile: str) -> msgspec.Struct:
+        """Profile `profile`'s settings on this bench (its `[devices.<profile>]` or
+        `[devices.settings.<profile>]`, else its defaults); ValueError names the field and the bound."""
+        own = getattr(self, profile, None)
+        if isinstance(own, msgspec.Struct):
+            return own
+        try:
+            return msgspec.convert(self.settings.get(profile, {}), find_profile(profile).options)
+        except msgspec.ValidationError as exc:
+            raise ValueError(f"settings.{profile}: {exc}") from exc
 
     @property
     def profiles(self) -> tuple[str, ...]:
         """The profiles other than `pure` on this bench, the drives' first: each has its translators."""
-        return tuple(p for p in (self.drives, self.imu) if p != "pure")
+        return tuple(p for p in (self.drives, self.imu) if p != PURE)
 
     @property
     def pure(self) -> bool:
         """Every device speaks the contract's own frames: no translation anywhere."""
-        return self.drives == "pure" and self.imu == "pure"
+        return self.drives == PURE and self.imu == PURE
 
 
 @functools.cache
-def _contract_ids(drives: bool, imu: bool) -> dict[str, int]:
+def contract_ids(drives: bool, imu: bool) -> dict[str, int]:
     """The contract frames on the bus whatever the profile, plus the drives' and the IMU's where those are
     `pure`: message -> frame id."""
     devices = {*DRIVE_COMMAND, *DRIVE_FEEDBACK, *DRIVE_TORQUE} if not drives else set()
@@ -368,16 +346,14 @@ class ProfileNode(CanNode):
         return rx
 
 
-def _host(profile: str) -> Callable[..., Translator]:
-    """A profile's host-side translator (the drives' or the IMU's): entry-point group `pure_hil.device_hosts`
-    (drivers/registry.py), imported only when a bench names it."""
-    factory: Callable[..., Translator] = find_plug(DEVICE_HOSTS, profile, "device profile host")
-    return factory
+def _host(profile: str) -> Host:
+    """A profile's host-side translator (the drives' or the IMU's), imported only when a bench names it."""
+    return find_profile(profile).host
 
 
 def controller_frame_ids(devices: Devices, counts_per_rev: int = 8192) -> frozenset[int]:
     """The ids a controller sends its drive commands in on these devices (the contract's heartbeat aside)."""
-    if devices.drives == "pure":
+    if devices.drives == PURE:
         return frozenset(Catalog()[name].frame_id for name in DRIVE_COMMAND)
     return _host(devices.drives)(devices, counts_per_rev, "controller").sends
 

@@ -32,7 +32,8 @@ import can
 
 from drivers.can_bus import Received
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE
-from drivers.devices import DriveHost
+from drivers.devices import CANOPEN_FUNCTIONS, Cia402Options, DriveHost, contract_ids
+from drivers.devices.profile import PURE, Profile
 
 if TYPE_CHECKING:
     from drivers.devices import Devices, Role
@@ -308,3 +309,30 @@ class Cia402Host(DriveHost):
 
 def host(devices: Devices, counts_per_rev: int, role: Role) -> Cia402Host:
     return Cia402Host(devices, counts_per_rev, role)
+
+
+def claims(devices: Devices) -> dict[int, str]:
+    """CiA 301's predefined connection set of each node."""
+    return {
+        f + node: f"CANopen node {node}'s COB-IDs"
+        for node in devices.cia402.node_ids
+        for f in CANOPEN_FUNCTIONS
+    }
+
+
+def check(devices: Devices) -> None:
+    """No node's COB-ID is a contract frame that stays on the bus."""
+    owner = {i: name for name, i in contract_ids(drives=False, imu=devices.imu == PURE).items()}
+    for node in devices.cia402.node_ids:
+        clash = sorted(
+            f"{owner[f + node]} (0x{f + node:03X})" for f in CANOPEN_FUNCTIONS if f + node in owner
+        )
+        if clash:
+            raise ValueError(
+                f"cia402.node_ids: node {node}'s CANopen COB-IDs include the contract's "
+                f"{', '.join(clash)}: pick another node id"
+            )
+
+
+PROFILE = Profile("cia402", "drives", Cia402Options, host, "hil.devices.cia402:emulate", claims, check)
+"""The `cia402` device profile (entry point `pure_hil.devices`)."""

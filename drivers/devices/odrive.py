@@ -23,7 +23,8 @@ import cantools
 
 from drivers.can_bus import Received
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE
-from drivers.devices import DriveHost
+from drivers.devices import DriveHost, OdriveOptions, contract_ids
+from drivers.devices.profile import PURE, Profile
 
 if TYPE_CHECKING:
     from drivers.devices import Devices, Role
@@ -259,3 +260,26 @@ class OdriveHost(DriveHost):
 
 def host(devices: Devices, counts_per_rev: int, role: Role) -> OdriveHost:
     return OdriveHost(devices, counts_per_rev, role)
+
+
+def claims(devices: Devices) -> dict[int, str]:
+    """Each axis owns the 32 ids from node_id << 5."""
+    return {
+        (node << 5) + c: f"ODrive node {node}'s frames" for node in devices.odrive.node_ids for c in range(32)
+    }
+
+
+def check(devices: Devices) -> None:
+    """No axis owns a contract frame that stays on the bus."""
+    kept = contract_ids(drives=False, imu=devices.imu == PURE)
+    for node in devices.odrive.node_ids:
+        clash = sorted(name for name, i in kept.items() if i >> 5 == node)
+        if clash:
+            raise ValueError(
+                f"odrive.node_ids: node {node} owns ids 0x{node << 5:03X}-0x{(node << 5) + 31:03X}, "
+                f"which holds the contract's {', '.join(clash)}: pick another node id"
+            )
+
+
+PROFILE = Profile("odrive", "drives", OdriveOptions, host, "hil.devices.odrive:emulate", claims, check)
+"""The `odrive` device profile (entry point `pure_hil.devices`)."""

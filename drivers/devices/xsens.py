@@ -30,7 +30,8 @@ import cantools
 
 from drivers.can_bus import Received
 from drivers.can_codec import MessageName
-from drivers.devices import XSENS_XCIDS, Translator
+from drivers.devices import XSENS_XCIDS, Translator, XsensOptions, contract_ids
+from drivers.devices.profile import PURE, Profile, find_profile
 
 if TYPE_CHECKING:
     from drivers.devices import Devices, Role
@@ -202,3 +203,29 @@ class XsensHost(Translator):
 
 def host(devices: Devices, counts_per_rev: int, role: Role) -> XsensHost:
     return XsensHost(devices, counts_per_rev, role)
+
+
+def claims(devices: Devices) -> dict[int, str]:
+    base = devices.xsens.base_id
+    return {base + xcid: f"Xsens {name}" for name, xcid in XSENS_XCIDS.items()}
+
+
+def check(devices: Devices) -> None:
+    """The Xsens ids own no contract frame that stays on the bus and no frame of the drives' profile."""
+    owner = {i: name for name, i in contract_ids(drives=devices.drives == PURE, imu=False).items()}
+    if devices.drives != PURE:
+        owner.update(find_profile(devices.drives).claims(devices))
+    base = devices.xsens.base_id
+    clash = sorted(
+        f"{name} 0x{base + xcid:03X} on {owner[base + xcid]}"
+        for name, xcid in XSENS_XCIDS.items()
+        if base + xcid in owner
+    )
+    if clash:
+        raise ValueError(
+            f"xsens.base_id: 0x{base:03X} puts the Xsens {', '.join(clash)}: pick another base_id"
+        )
+
+
+PROFILE = Profile("xsens", "imu", XsensOptions, host, "hil.devices.xsens:emulate", claims, check)
+"""The `xsens` device profile (entry point `pure_hil.devices`)."""

@@ -22,6 +22,7 @@ from drivers.config import ConfigError, load_toml
 from drivers.devices import Devices
 from drivers.resources import find
 from drivers.zenoh_access import ZenohAccess
+from plant.params import PlantName
 
 Where = Literal["embedded", "spawned", "external"]
 Positive = Annotated[float, msgspec.Meta(gt=0)]
@@ -58,6 +59,12 @@ class SupervisorPart(_Part, frozen=True):
     """The entry point in `pure_hil.supervisors` (drivers/plugs.py)."""
     config: str = "safety/default.toml"
     """Its rules; a scenario's `[safety]` table overrides them for that scenario's runs."""
+
+    @property
+    def plug(self) -> str | None:
+        """The plug that judges this bench's runs, as reports and the console name it; None for an external
+        supervisor, a process the rig did not start and so cannot name."""
+        return None if self.where == "external" else self.plugin
 
 
 class RealtimePart(_Part, frozen=True):
@@ -101,7 +108,7 @@ class Bench(_Part, frozen=True):
     outputs: OutputsPart = OutputsPart()
     sim: str = "sim/default.toml"
     """The plant's simulation settings (tick rate and seed come from the scenario)."""
-    plant: Literal["sim", "3d", "planar"] = "sim"
+    plant: Literal["sim", PlantName] = "sim"
     """The plant: as the sim file says (`sim`), or the 3-D (MuJoCo) or the planar one whatever it says."""
     clock: Literal["scenario", "lockstep", "realtime"] = "scenario"
     realtime: RealtimePart = RealtimePart()

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 from typing import Annotated, ClassVar, Protocol, cast
 
-from drivers.devices import IMU_PROFILES, ProfileNode
+from drivers.devices import ProfileNode
+from drivers.devices.profile import find_profile
 from hil.faults.base import Bound, FaultError, FaultSpec, FaultState, FaultTarget, Motor
 
 
@@ -52,7 +53,7 @@ class DeviceFault(FaultSpec, frozen=True, kw_only=True):
         for translator in translators:
             if translator.profile == self.profile:
                 return translator
-        device = "IMU" if self.profile in IMU_PROFILES else "drives"
+        device = "IMU" if find_profile(self.profile).kind == "imu" else "drives"
         key = "imu" if device == "IMU" else "drives"
         raise FaultError(
             f"{self.kind}: needs a bench whose {device} speak {self.profile!r} ([devices] {key} = "

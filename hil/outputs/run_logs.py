@@ -37,7 +37,7 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any, Protocol
 
 import can
 
@@ -249,8 +249,37 @@ class LogProcess(can.Listener):
             log.warning("the run's log writer process is gone (%s): can.log and run.mcap stop here", exc)
 
 
-RunLogs = LocalLogs | LogProcess
-"""What a run feeds its logs through, on whichever side of the pipe they are written."""
+class RunLogs(Protocol):
+    """What a run feeds the outputs it streams (can.log, run.mcap), on whichever side of the pipe they are
+    written (`LocalLogs`, `LogProcess`): the calls, in the run's order, then `stop()`, after which `failed`
+    names each output that stopped and why."""
+
+    clock: Callable[[], float]
+    """Simulated time now, s: when the recorder took a frame (set by the run once its plant exists)."""
+    failed: dict[str, str]
+
+    @property
+    def takes_poses(self) -> bool:
+        """run.mcap is written: it wants the bodies and their poses."""
+        ...
+
+    def on_message_received(self, msg: can.Message) -> None: ...
+
+    def zenoh(self, tick: int, key: str, data: bytes) -> None: ...
+
+    def trace(self, row: tuple[float, ...]) -> None: ...
+
+    def event(self, topic: str, t: float, message: dict) -> None: ...
+
+    def bodies(self, bodies: tuple[Body, ...]) -> None: ...
+
+    def poses(self, t: float, row: list[float]) -> None: ...
+
+    def stop(self) -> None: ...
+
+
+if TYPE_CHECKING:
+    _CHECKED: tuple[type[RunLogs], ...] = (LocalLogs, LogProcess)
 
 
 def open_logs(can_log: Path | None, mcap: McapSpec | None, in_process: bool = False) -> RunLogs | None:

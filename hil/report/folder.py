@@ -18,6 +18,7 @@ import msgspec
 import numpy as np
 
 from drivers.vocabulary import State
+from hil.bench.bench import OutputsPart
 from hil.outputs.mcap_log import FAULT_LOG, FAULT_WINDOWS, OPERATOR, SUPERVISOR
 from hil.outputs.mcap_log import check as check_mcap
 from hil.outputs.trace_log import describe
@@ -210,11 +211,10 @@ def _drives_off_at(tr: Trace) -> float | None:
     return round(float(tr.t[on[-1] + 1 if len(on) else 0]), 6)
 
 
-def write_outputs(
-    result: RunResult, out: Path, recording: bool = True, plots: bool = True, mcap: bool = False
-) -> dict[str, str]:
-    """The run folder: summary.json first and always, then each other output on its own (one that fails
-    is named in the summary, and the rest are still written). Returns the failed outputs and why."""
+def write_outputs(result: RunResult, out: Path, outputs: OutputsPart) -> dict[str, str]:
+    """The run folder: summary.json first and always, then each other output the bench's `[outputs]` asks
+    for on its own (one that fails is named in the summary, and the rest are still written). Returns the
+    failed outputs and why."""
     summary_file = out / "summary.json"
 
     trace = describe(len(result.trace.t)) if (out / "trace.npy").exists() else None
@@ -225,7 +225,7 @@ def write_outputs(
 
     write_summary({})
     failed: dict[str, str] = {}
-    for name, write in _outputs(result, out, recording, plots, mcap):
+    for name, write in _outputs(result, out, outputs):
         try:
             write()
         except Exception as exc:  # one output failing must not lose the others or the summary
@@ -236,11 +236,11 @@ def write_outputs(
     return failed
 
 
-def _outputs(result: RunResult, out: Path, recording: bool, plots: bool, mcap: bool):
+def _outputs(result: RunResult, out: Path, outputs: OutputsPart):
     """(file, writer) of the run folder besides summary.json and can.log (the recorder writes that one);
     run.mcap was written during the run: its writer here checks that it is complete."""
     tr = result.trace
-    if mcap:
+    if outputs.mcap:
         yield "run.mcap", lambda: check_mcap(out / "run.mcap")
     if tr.zenoh_inputs is not None:  # None: the run streamed it there already
         yield (
@@ -254,9 +254,9 @@ def _outputs(result: RunResult, out: Path, recording: bool, plots: bool, mcap: b
     from hil.outputs.recording import write_rrd
     from hil.report.plots import write_plots
 
-    if recording:
+    if outputs.recording:
         yield "recording.rrd", lambda: write_rrd(out / "recording.rrd", tr, result.scenario.name)
-    if plots:
+    if outputs.plots:
         yield "plots.png", lambda: write_plots(out / "plots.png", result)
 
 

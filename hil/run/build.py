@@ -16,7 +16,7 @@ from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import can
 import msgspec
@@ -25,13 +25,14 @@ import zenoh
 from drivers.bus_config import BusConfig
 from drivers.can_bus import BusRecorder, open_bus, private_channel
 from drivers.can_codec import MessageName
-from drivers.config import load_toml
+from drivers.config import ConfigError, load_toml
 from drivers.contract import CONTRACT_VERSION, mismatch
 from drivers.dut import DutHandle, DutSpec, start_dut
 from drivers.keys import Keys
 from drivers.plugs import Supervisor, SupervisorSpec
-from drivers.registry import SUPERVISORS, find_plug
+from drivers.registry import SUPERVISOR_RULES, SUPERVISORS, find_plug, installed
 from drivers.resources import find
+from drivers.rules import JudgedRules
 from drivers.schemas import ScRequest
 from drivers.zenoh_access import ZenohAccess
 from drivers.zenoh_link import ZenohLink, lend
@@ -47,7 +48,6 @@ from hil.run.trace import ControllerUnavailable
 from plant.ballbot import PlantCore, RiderIntent
 from plant.models import make_plant
 from plant.params import RiderParams, RobotParams, SimParams
-from safety.config import SupervisorConfig
 
 
 @dataclass(frozen=True, slots=True)
@@ -130,9 +130,51 @@ def clock_of(bench: Bench, scenario: Scenario) -> str:
     return scenario.clock if bench.clock == "scenario" else bench.clock
 
 
-def supervisor_config(bench: Bench, scenario: Scenario) -> SupervisorConfig:
-    """The bench's supervisor rules with the scenario's `[safety]` overrides."""
-    return scenario.supervisor_config(load_toml(find(bench.supervisor.config, "safety"), SupervisorConfig))
+def supervisor_rules(bench: Bench, scenario: Scenario) -> dict[str, Any]:
+    """The bench's supervisor rules file with the scenario's `[safety]` overrides, as its plug is handed
+    them, checked against the type the plug registers (drivers/rules.py): ConfigError names the file."""
+    path = find(bench.supervisor.config, "safety")
+    try:
+        rules = scenario.rules_over(load_toml(path, dict[str, Any]))
+    except ValueError as exc:
+        raise ConfigError(path, f"with the scenario's {exc}") from None
+    if bench.supervisor.plugin in installed(SUPERVISOR_RULES):
+        schema = find_plug(SUPERVISOR_RULES, bench.supervisor.plugin, "supervisor rules")
+        try:
+            msgspec.convert(rules, schema)
+        except msgspec.ValidationError as exc:
+            overridden = " with the scenario's [safety]" if scenario.safety else ""
+            raise ConfigError(path, f"{exc}{overridden}") from None
+    return rules
+
+
+def judged_rules(bench: Bench, scenario: Scenario) -> JudgedRules:
+    """The limits the run is judged by (drivers/rules.py), from the supervisor's rules."""
+    return msgspec.convert(supervisor_rules(bench, scenario), JudgedRules)
+
+
+def supervisor_spec(
+    bench: Bench,
+    scenario: Scenario,
+    *,
+    can: BusConfig,
+    zenoh: ZenohAccess,
+    tick_hz: float,
+    lockstep: bool,
+    driven: bool = False,
+) -> SupervisorSpec:
+    """The bench's supervisor for this scenario on this bus and zenoh: what a run and `pure-hil supervisor`
+    start the plug from."""
+    return SupervisorSpec(
+        can=can,
+        zenoh=zenoh,
+        devices=bench.devices,
+        robot=str(find(scenario.robot, "robot")),
+        rules=supervisor_rules(bench, scenario),
+        tick_hz=tick_hz,
+        lockstep=lockstep,
+        driven=driven,
+    )
 
 
 def build(
@@ -290,13 +332,11 @@ def _start_parts(
     supervisor = None
     part = bench.supervisor
     if part.where != "external":
-        rules = msgspec.to_builtins(supervisor_config(bench, scenario))
-        spec = SupervisorSpec(
+        spec = supervisor_spec(
+            bench,
+            scenario,
             can=wire.bus_config,
             zenoh=wire.access,
-            devices=bench.devices,
-            robot=robot,
-            rules=rules,
             tick_hz=plant.sim.tick_hz,
             lockstep=lockstep,
             driven=part.where == "embedded",

@@ -8,13 +8,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from drivers.rules import JudgedRules
 from drivers.vocabulary import OPERATOR_STOPS, State
 from hil.run.fault_verdicts import fault_verdicts
 from hil.run.measurements import MEASUREMENTS, measure, summary_metrics, unavailable
 from hil.run.rig import SCENARIO_SOURCE
 from hil.run.scenario import Scenario, Verdict
 from hil.run.trace import Trace
-from safety.config import SupervisorConfig
 
 LIVE_STOPS = frozenset(c.name for c in OPERATOR_STOPS)
 SCRIPTED_WITHIN = 0.5
@@ -45,8 +45,8 @@ class RunResult:
     verdicts: list[Verdict] = field(default_factory=list)
     ball_radius: float = math.nan
     """Of the plant's robot (measurements in rad/s need it)."""
-    safety: SupervisorConfig = field(default_factory=SupervisorConfig)
-    """The supervisor's rules the run had (the bench's config with the scenario's overrides)."""
+    safety: JudgedRules = field(default_factory=JudgedRules)
+    """The limits it is judged by (drivers/rules.py), from the supervisor's rules the run had."""
     bench: dict = field(default_factory=dict)
     """Where each part ran (the bench's name and parts, as the summary reports them)."""
 

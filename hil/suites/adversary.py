@@ -21,7 +21,7 @@ import numpy as np
 from drivers.config import dump_toml, load_toml
 from drivers.resources import find
 from hil.bench.bench import Bench, load_bench
-from hil.run.build import supervisor_config
+from hil.run.build import judged_rules
 from hil.run.scenario import Intent, Scenario
 from hil.suites.campaign import distributable, run_pool
 from plant.params import RiderParams
@@ -89,7 +89,7 @@ def requirement(objective: Objective, scenario: Scenario, bench: Bench) -> Requi
             raise ValueError(f'scenario {scenario.name} has no speed cap ([[sc]] mode = "limit") to exceed')
         return Requirement(objective, f"always (|v| <= {min(caps):g} m/s)", min(caps), "m/s")
     if objective == "tilt":
-        limit = supervisor_config(bench, scenario).motion.tilt_limit_deg
+        limit = judged_rules(bench, scenario).motion.tilt_limit_deg
         return Requirement(objective, f"always (|tilt| <= {limit:g} deg)", limit, "deg")
     return Requirement(objective, "rmse <= 0 rad/s (smaller is better)", 0.0, "rad/s")
 

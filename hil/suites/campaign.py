@@ -272,6 +272,9 @@ class CaseResult:
     """A faulty case: the wall time of its fault-free twin, run on the same worker right before it (0: the
     twin could not run there). Its wall time is judged against this one, not the twin's own run, which may
     have met a quieter or a busier machine."""
+    supervisor: str = ""
+    """The supervisor plug that judged it (`reference`, a lab's own), `external` for one the rig did not
+    start; '' when the case never ran."""
 
     @classmethod
     def errored(cls, case: Case, why: str, wall: float = 0.0) -> CaseResult:
@@ -341,6 +344,7 @@ def run_case(case: Case, out: Path | None = None, bench: Bench | None = None) ->
         twin=case.twin_id,
         outcome=outcome(result) if judged else None,
         twin_wall=twin_wall,
+        supervisor=bench.supervisor.plug or "external",
     )
     if res.outcome is not None:  # every role but plain (judged)
         res.outcome.unrecoverable = case.unrecoverable
@@ -492,6 +496,11 @@ def provenance() -> str:
     return f"pure-hil {versions()['pure-hil']}" + (f", commit {where}" if where else " (not a git checkout)")
 
 
+def supervisors(results: list[CaseResult]) -> str:
+    """The supervisor plug(s) that judged the cases, for a report's head (a campaign runs on one bench)."""
+    return ", ".join(sorted({r.supervisor for r in results if r.supervisor})) or "none (no case ran)"
+
+
 def peak_tilt(r: CaseResult) -> str:
     """A case's peak tilt after the release for a table, deg."""
     return f"{r.peak_tilt_after_release_deg:.2f}" + (" (never upright)" if r.release_end is None else "")
@@ -586,7 +595,8 @@ def report(campaign: str, results: list[CaseResult]) -> str:
     lines = [
         f"# Campaign {campaign}: {sum(r.passed for r in results)}/{len(results)} passed",
         "",
-        f"{provenance()}. Worst first: errors, failures, then passes by {PEAK_TILT}.",
+        f"{provenance()}. Judged by the supervisor {supervisors(results)}. Worst first: errors, failures, "
+        f"then passes by {PEAK_TILT}.",
         "",
         "| " + " | ".join(head) + " |",
         "|" + "---|" * len(head),
@@ -632,6 +642,7 @@ def report_json(campaign: str, results: list[CaseResult]) -> bytes:
             "twin_wall": r.twin_wall,
             "coverage": coverage(r),
             "false_trip": r.false_trip,
+            "supervisor": r.supervisor,
         }
         for r in worst_first(results)
     ]
@@ -641,6 +652,7 @@ def report_json(campaign: str, results: list[CaseResult]) -> bytes:
         "campaign": campaign,
         "version": versions()["pure-hil"],
         "commit": commit(),
+        "supervisor": supervisors(results),
         "passed": sum(r.passed for r in results),
         "total": len(results),
     }
@@ -656,6 +668,8 @@ def junit_xml(campaign: str, results: list[CaseResult]) -> bytes:
         errors=str(sum(bool(r.error) for r in results)),
         time=f"{sum(r.wall for r in results):.3f}",
     )
+    judged_by = ET.SubElement(suite, "properties")
+    ET.SubElement(judged_by, "property", name="supervisor", value=supervisors(results))
     for r in results:
         case = ET.SubElement(
             suite,

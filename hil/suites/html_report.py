@@ -10,7 +10,15 @@ import html
 import time
 from pathlib import Path
 
-from hil.suites.campaign import PEAK_TILT, CaseResult, coverage_report, peak_tilt, provenance, worst_first
+from hil.suites.campaign import (
+    PEAK_TILT,
+    CaseResult,
+    coverage_report,
+    peak_tilt,
+    provenance,
+    supervisors,
+    worst_first,
+)
 
 STYLE = """
 body { font: 14px system-ui, sans-serif; margin: 1.5em; }
@@ -33,8 +41,9 @@ def html_report(campaign: str, results: list[CaseResult], folder: Path) -> str:
 <style>{STYLE}</style></head>
 <body>
 <h1>Campaign {html.escape(campaign)}: {passed}/{len(results)} passed</h1>
-<p>Written {time.strftime("%Y-%m-%d %H:%M:%S")} by {html.escape(provenance())}. Worst first: errors,
-failures, then passes closest to a fall by {html.escape(PEAK_TILT)}.</p>
+<p>Written {time.strftime("%Y-%m-%d %H:%M:%S")} by {html.escape(provenance())}. Judged by the supervisor
+{html.escape(supervisors(results))}. Worst first: errors, failures, then passes closest to a fall by
+{html.escape(PEAK_TILT)}.</p>
 <table>
 <tr><th>verdict</th><th>case</th><th>peak tilt after release</th><th>supervisor</th><th>wall</th>
 <th>verdicts</th><th>plot</th></tr>

@@ -217,7 +217,8 @@ function onStatus(status) {
   if (!status.reachable) { render(); return; }
   const bench = status.bench || {};
   const rows = [["bench", bench.name], ["", bench.description], ["CAN", bench.can], ["controller", bench.controller],
-    ["supervisor", bench.supervisor], ["zenoh", bench.zenoh],
+    // where it runs, and which plug judges the runs (a lab's own, or the reference); external: not named
+    ["supervisor", [bench.supervisor, bench.supervisor_plug].filter(Boolean).join(" ")], ["zenoh", bench.zenoh],
     ["rider on board", bench.rider_on_board ? "yes: no faults" : "no"]];
   const table = $("bench-parts");
   table.replaceChildren(...rows.map(([k, v]) => {
