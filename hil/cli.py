@@ -47,7 +47,7 @@ COMMANDS: dict[str, Command] = {
         "hil.commands.supervisor", "the safety supervisor as its own process, on the bench's bus"
     ),
     "controller": Command(
-        "hil.commands.controller", "the reference controller as its own process on the bench"
+        "hil.commands.controller", "the bench's controller plug as its own process, from the spec a run uses"
     ),
     "part": Command(
         "hil.commands.part",

@@ -64,29 +64,36 @@ def _children(pid: int) -> list[int]:
     return kids
 
 
-def test_pure_hil_controller_becomes_the_controller_so_a_signal_stops_it():
+def test_pure_hil_controller_is_the_controller_so_a_signal_stops_it():
     # The rig stops a spawned controller with SIGINT to the process it started: a wrapper that ran the
-    # controller as its child would exit and leave the controller running on the bus.
+    # controller as its child would exit and leave the controller running on the bus. `pure-hil controller`
+    # starts the bench's plug in its own process, from the spec a run uses (hil.run.build.controller_spec).
     endpoint = hub_endpoint()
     hub = open_session(role="hub", hub_endpoint=endpoint)
     argv = [str(Path(sys.executable).with_name("pure-hil")), "controller", "--can", "virtual:exec-check"]
     proc = subprocess.Popen(
-        [*argv, "--hub", endpoint, "--rider", RIDER],
+        [*argv, "--hub", endpoint, "--rider", RIDER, "--law", "ihacs"],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
     )
     try:
         assert wait_matching(ZenohLink(hub).publisher(Keys().tes_wrench), timeout=30.0)
-        cmdline = Path(f"/proc/{proc.pid}/cmdline").read_bytes().split(b"\0")
-        assert Path(cmdline[0].decode()).name == "pure-controller" or b"pure-controller" in cmdline[1], (
-            cmdline
-        )
         assert _children(proc.pid) == [], "no controller process under a wrapper"
         proc.send_signal(signal.SIGINT)
         out, _ = proc.communicate(timeout=15)
-        assert proc.returncode == 0 and "stopped" in out, out
+        assert proc.returncode == 0, out
+        assert "reference (ihacs)" in out and "stopped" in out, out
     finally:
         if proc.poll() is None:
             proc.kill()
         hub.close()
+
+
+def test_pure_hil_controller_refuses_a_plug_that_is_not_installed(tmp_path):
+    bench = tmp_path / "bench.toml"
+    bench.write_text('name = "x"\n[controller]\nplugin = "nobody"\n')
+    argv = [str(Path(sys.executable).with_name("pure-hil")), "controller", "--bench", str(bench)]
+    proc = subprocess.run([*argv, "--rider", RIDER], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    assert "'nobody'" in proc.stderr and "reference" in proc.stderr

@@ -3,33 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import os
-import sys
-from pathlib import Path
 
 import msgspec
 
-from drivers.resources import find
-from hil.commands.common import add_bench_options, bench_from
-
-
-def controller_command(bench, rider: str, robot: str, law: str, lockstep: bool) -> list[str]:
-    """`pure-controller` on this bench: its bus, its zenoh (with the controller's certificate on a router)."""
-    script = Path(sys.executable).with_name("pure-controller")
-    zenoh = bench.zenoh
-    command = [str(script) if script.exists() else "pure-controller"]
-    command += ["--can", f"{bench.can.interface}:{bench.can.channel}", "--prefix", zenoh.prefix]
-    command += ["--zenoh", str(zenoh.config_path)]
-    if zenoh.endpoint:
-        command += ["--hub", zenoh.endpoint]
-    if zenoh.mode == "router":
-        command += ["--certs", str(zenoh.certs), "--identity", "controller"]
-        command += ["--allow-network"] if zenoh.network else []
-    command += ["--rider", str(find(rider, "riders")), "--robot", str(find(robot, "robot"))]
-    command += ["--config", str(find(bench.controller.config, "controller")), "--law", law]
-    if not bench.devices.pure:
-        command += ["--devices", msgspec.json.encode(bench.devices).decode()]
-    return command + (["--lockstep"] if lockstep else [])
+from hil.commands.common import add_bench_options, bench_from, until_interrupted
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -42,13 +19,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def handle(args: argparse.Namespace) -> int:
-    """The reference controller as its own process on this bench (the rig never imports a controller).
-    This process becomes pure-controller (exec), so a signal to it (the rig stopping what it spawned)
-    reaches the controller itself: a wrapper would exit and leave the controller running on the bus."""
+    """The bench's controller plug as its own process (what runs beside a rig on a shared bus), started from
+    the spec a run starts it from (hil.run.build.controller_spec). It runs in this process, so a signal to
+    it (the rig stopping what it spawned) stops the controller itself, never a wrapper around it."""
+    from drivers.dut import start_dut
+    from hil.bench.parts import check
+    from hil.run.build import controller_spec
+    from hil.run.scenario import Scenario
+
     bench = bench_from(args)
-    law = args.law or (bench.controller.law if bench.controller.law != "scenario" else "hacs")
-    command = controller_command(
-        bench, args.rider, args.robot or bench.controller.robot or "pure", law, args.lockstep
+    if args.robot:  # its model, over the bench's: a model mismatch on purpose
+        bench = msgspec.structs.replace(
+            bench, controller=msgspec.structs.replace(bench.controller, robot=args.robot)
+        )
+    scenario = Scenario(name="controller", rider=args.rider)
+    spec = controller_spec(
+        bench, scenario, can=bench.can, zenoh=bench.zenoh, tick_hz=scenario.tick_hz, lockstep=args.lockstep
     )
-    sys.stdout.flush()
-    os.execvp(command[0], command)
+    check(bench)  # the bus and the plug, before any session: a missing vcan0 is one line and exit 2
+    handle = start_dut(bench.controller.plugin, spec)
+    try:
+        until_interrupted(
+            f"pure-hil controller: {bench.controller.plugin} ({spec.mode}) on {bench.can.interface}:"
+            f"{bench.can.channel}, zenoh {bench.zenoh.mode}; Ctrl-C to stop"
+        )
+    finally:
+        handle.stop()
+    print("pure-hil controller: stopped", flush=True)
+    return 0

@@ -322,13 +322,38 @@ def _plant(bench: Bench, scenario: Scenario, seed: int) -> PlantCore:
     return plant
 
 
+def controller_spec(
+    bench: Bench,
+    scenario: Scenario,
+    *,
+    can: BusConfig,
+    zenoh: ZenohAccess,
+    tick_hz: float,
+    lockstep: bool,
+    driven: bool = False,
+) -> DutSpec:
+    """The bench's controller for this scenario on this bus and zenoh: what a run and `pure-hil controller`
+    start the plug from (its model is the bench's robot if it names one: a model mismatch on purpose)."""
+    return DutSpec(
+        can=can,
+        zenoh=zenoh,
+        mode=reference_law(bench, scenario),
+        robot=str(find(bench.controller.robot or scenario.robot, "robot")),
+        rider=str(find(scenario.rider, "riders")),
+        devices=bench.devices,
+        controller_config=str(find(bench.controller.config, "controller")),
+        lockstep=lockstep,
+        tick_hz=tick_hz,
+        driven=driven,
+    )
+
+
 def _start_parts(
     bench: Bench, scenario: Scenario, plant: PlantCore, wire: Wiring, lockstep: bool, stack: ExitStack
 ) -> Parts:
     """The supervisor and the controller as the bench places them (drivers/plugs.py): a plug in this
     process (embedded), the same plug in a child process from its spec (spawned), or nobody (external)."""
     work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="pure-hil-run-")))
-    robot = str(find(scenario.robot, "robot"))
     supervisor = None
     part = bench.supervisor
     if part.where != "external":
@@ -352,16 +377,13 @@ def _start_parts(
     dut = None
     controller = bench.controller
     if controller.where != "external":
-        dut_spec = DutSpec(
+        dut_spec = controller_spec(
+            bench,
+            scenario,
             can=wire.bus_config,
             zenoh=wire.access,
-            mode=reference_law(bench, scenario),
-            robot=str(find(controller.robot or robot, "robot")),
-            rider=str(find(scenario.rider, "riders")),
-            devices=bench.devices,
-            controller_config=str(find(controller.config, "controller")),
-            lockstep=lockstep,
             tick_hz=plant.sim.tick_hz,
+            lockstep=lockstep,
             driven=lockstep and controller.where == "embedded",
         )
         if controller.where == "embedded":
