@@ -24,7 +24,7 @@ def handle(args: argparse.Namespace) -> int:
     it (the rig stopping what it spawned) stops the controller itself, never a wrapper around it."""
     from drivers.dut import start_dut
     from hil.bench.parts import check
-    from hil.run.build import controller_spec
+    from hil.run.build import Placement, controller_spec
     from hil.run.scenario import Scenario
 
     bench = bench_from(args)
@@ -33,9 +33,8 @@ def handle(args: argparse.Namespace) -> int:
             bench, controller=msgspec.structs.replace(bench.controller, robot=args.robot)
         )
     scenario = Scenario(name="controller", rider=args.rider)
-    spec = controller_spec(
-        bench, scenario, can=bench.can, zenoh=bench.zenoh, tick_hz=scenario.tick_hz, lockstep=args.lockstep
-    )
+    at = Placement(bench.can, bench.zenoh, scenario.tick_hz, args.lockstep)
+    spec = controller_spec(bench, scenario, at)
     check(bench)  # the bus and the plug, before any session: a missing vcan0 is one line and exit 2
     handle = start_dut(bench.controller.plugin, spec)
     try:

@@ -38,7 +38,7 @@ def handle(args: argparse.Namespace) -> int:
     from drivers.zenoh_link import ZenohLink
     from hil.bench.parts import check
     from hil.bench.rigs import announce
-    from hil.run.build import supervisor_spec
+    from hil.run.build import Placement, supervisor_spec
     from hil.run.scenario import Scenario
 
     bench = bench_from(args)
@@ -53,14 +53,8 @@ def handle(args: argparse.Namespace) -> int:
     except (ValueError, msgspec.ValidationError) as exc:
         print(f"pure-hil supervisor: --safety: {exc}", file=sys.stderr)
         return 2
-    spec = supervisor_spec(
-        bench,
-        scenario,
-        can=bench.can,
-        zenoh=bench.zenoh,
-        tick_hz=args.tick_hz,
-        lockstep=args.clock == "lockstep",
-    )
+    at = Placement(bench.can, bench.zenoh, args.tick_hz, lockstep=args.clock == "lockstep")
+    spec = supervisor_spec(bench, scenario, at)
     check(bench)  # the bus and the plug, before any session: a missing vcan0 is one line and exit 2
     start = find_plug(SUPERVISORS, bench.supervisor.plugin, "supervisor")
     hub = bench.zenoh.mode == "loopback" and args.role == "hub"

@@ -14,7 +14,7 @@ import threading
 from collections import Counter
 from collections.abc import Callable
 from contextlib import ExitStack
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -153,27 +153,31 @@ def judged_rules(bench: Bench, scenario: Scenario) -> JudgedRules:
     return msgspec.convert(supervisor_rules(bench, scenario), JudgedRules)
 
 
-def supervisor_spec(
-    bench: Bench,
-    scenario: Scenario,
-    *,
-    can: BusConfig,
-    zenoh: ZenohAccess,
-    tick_hz: float,
-    lockstep: bool,
-    driven: bool = False,
-) -> SupervisorSpec:
+@dataclass(frozen=True, slots=True)
+class Placement:
+    """Where a part runs: its bus and zenoh, the rig's tick rate, and how it keeps time."""
+
+    can: BusConfig
+    zenoh: ZenohAccess
+    tick_hz: float
+    lockstep: bool
+    """It decides once per SYNC (lockstep) or on its own timer (real time)."""
+    driven: bool = False
+    """The rig updates it from its own tick (drivers/plugs.py, drivers/dut.py)."""
+
+
+def supervisor_spec(bench: Bench, scenario: Scenario, at: Placement) -> SupervisorSpec:
     """The bench's supervisor for this scenario on this bus and zenoh: what a run and `pure-hil supervisor`
     start the plug from."""
     return SupervisorSpec(
-        can=can,
-        zenoh=zenoh,
+        can=at.can,
+        zenoh=at.zenoh,
         devices=bench.devices,
         robot=str(find(scenario.robot, "robot")),
         rules=supervisor_rules(bench, scenario),
-        tick_hz=tick_hz,
-        lockstep=lockstep,
-        driven=driven,
+        tick_hz=at.tick_hz,
+        lockstep=at.lockstep,
+        driven=at.driven,
     )
 
 
@@ -322,29 +326,20 @@ def _plant(bench: Bench, scenario: Scenario, seed: int) -> PlantCore:
     return plant
 
 
-def controller_spec(
-    bench: Bench,
-    scenario: Scenario,
-    *,
-    can: BusConfig,
-    zenoh: ZenohAccess,
-    tick_hz: float,
-    lockstep: bool,
-    driven: bool = False,
-) -> DutSpec:
+def controller_spec(bench: Bench, scenario: Scenario, at: Placement) -> DutSpec:
     """The bench's controller for this scenario on this bus and zenoh: what a run and `pure-hil controller`
     start the plug from (its model is the bench's robot if it names one: a model mismatch on purpose)."""
     return DutSpec(
-        can=can,
-        zenoh=zenoh,
+        can=at.can,
+        zenoh=at.zenoh,
         mode=reference_law(bench, scenario),
         robot=str(find(bench.controller.robot or scenario.robot, "robot")),
         rider=str(find(scenario.rider, "riders")),
         devices=bench.devices,
         controller_config=str(find(bench.controller.config, "controller")),
-        lockstep=lockstep,
-        tick_hz=tick_hz,
-        driven=driven,
+        lockstep=at.lockstep,
+        tick_hz=at.tick_hz,
+        driven=at.driven,
     )
 
 
@@ -354,18 +349,11 @@ def _start_parts(
     """The supervisor and the controller as the bench places them (drivers/plugs.py): a plug in this
     process (embedded), the same plug in a child process from its spec (spawned), or nobody (external)."""
     work = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="pure-hil-run-")))
+    at = Placement(wire.bus_config, wire.access, plant.sim.tick_hz, lockstep)
     supervisor = None
     part = bench.supervisor
     if part.where != "external":
-        spec = supervisor_spec(
-            bench,
-            scenario,
-            can=wire.bus_config,
-            zenoh=wire.access,
-            tick_hz=plant.sim.tick_hz,
-            lockstep=lockstep,
-            driven=part.where == "embedded",
-        )
+        spec = supervisor_spec(bench, scenario, replace(at, driven=part.where == "embedded"))
         if part.where == "embedded":
             handle = find_plug(SUPERVISORS, part.plugin, "supervisor")(
                 spec, link=_supervisor_link(wire, lockstep, stack)
@@ -378,13 +366,7 @@ def _start_parts(
     controller = bench.controller
     if controller.where != "external":
         dut_spec = controller_spec(
-            bench,
-            scenario,
-            can=wire.bus_config,
-            zenoh=wire.access,
-            tick_hz=plant.sim.tick_hz,
-            lockstep=lockstep,
-            driven=lockstep and controller.where == "embedded",
+            bench, scenario, replace(at, driven=lockstep and controller.where == "embedded")
         )
         if controller.where == "embedded":
             dut = start_dut(controller.plugin, dut_spec)
