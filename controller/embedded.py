@@ -12,7 +12,7 @@ from controller.node import ControllerNode, ControllerThread
 from drivers.can_bus import open_bus
 from drivers.config import load_toml
 from drivers.devices import host_node
-from drivers.dut import DutSpec
+from drivers.dut import DrivenDut, DutSpec, PausableDut
 from drivers.keys import Keys
 from drivers.zenoh_link import ZenohLink
 
@@ -72,3 +72,7 @@ class EmbeddedController:
 
 def start(spec: DutSpec) -> EmbeddedController:
     return EmbeddedController(spec)
+
+
+PLUG_CONTRACT: tuple[type[DrivenDut], type[PausableDut]] = (EmbeddedController, EmbeddedController)
+"""mypy checks the reference controller against what the rig drives and the hang fault pauses."""

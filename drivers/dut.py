@@ -8,7 +8,7 @@ robot and rider files describe the world. The rig never imports a controller.
 
 from __future__ import annotations
 
-from typing import Literal, Protocol
+from typing import Literal, Protocol, runtime_checkable
 
 import msgspec
 
@@ -41,9 +41,30 @@ class DutSpec(msgspec.Struct, frozen=True, kw_only=True):
 
 
 class DutHandle(Protocol):
+    """What a controller plug's `start(spec)` returns: the rig stops it at the end of the run. A handle may
+    offer more, which the rig and the faults look for: `DrivenDut`, `PausableDut`."""
+
     def stop(self) -> None: ...
 
-    # Optional: pause() / resume() (a hang fault), poll() (driven, see DutSpec.driven).
+
+@runtime_checkable
+class DrivenDut(DutHandle, Protocol):
+    """A controller the rig can drive from its own tick (`DutSpec.driven`)."""
+
+    def poll(self) -> None:
+        """Take in what is queued and answer any SYNC among it, before returning."""
+        ...
+
+
+@runtime_checkable
+class PausableDut(DutHandle, Protocol):
+    """A controller that can hang and go on (the `process.hang` fault)."""
+
+    def pause(self) -> None:
+        """Stop handling frames (they queue up on the bus) until `resume()`."""
+        ...
+
+    def resume(self) -> None: ...
 
 
 def start_dut(name: str, spec: DutSpec) -> DutHandle:

@@ -103,3 +103,42 @@ def test_every_device_profile_is_one_entry_point_with_its_settings_host_and_emul
         ValueError, match=r"imu: no imu device profile 'odrive' installed \(have: pure, xsens\)"
     ):
         Devices(imu="odrive")
+
+
+class _BareController:
+    """A lab's controller handle that only stops: not driven from the rig's tick, and it cannot hang."""
+
+    def stop(self) -> None:
+        pass
+
+
+class _FullController(_BareController):
+    def __init__(self) -> None:
+        self.calls: list[str] = []
+
+    def poll(self) -> None:
+        self.calls.append("poll")
+
+    def pause(self) -> None:
+        self.calls.append("pause")
+
+    def resume(self) -> None:
+        self.calls.append("resume")
+
+
+def test_the_rig_and_the_hang_fault_use_only_what_a_controller_handle_offers():
+    from types import SimpleNamespace
+
+    from drivers.dut import DrivenDut, PausableDut
+    from hil.faults import parse_fault
+
+    bare, full = _BareController(), _FullController()
+    assert not isinstance(bare, DrivenDut) and not isinstance(bare, PausableDut)
+    assert isinstance(full, DrivenDut) and isinstance(full, PausableDut)
+    hang = parse_fault({"kind": "process.hang", "at": 1.0, "duration": 0.5})
+    with pytest.raises(ValueError, match=r"handle has no pause\(\)/resume\(\)"):
+        hang.validate(SimpleNamespace(dut=bare))
+    hang.validate(SimpleNamespace(dut=full))
+    hang.start(SimpleNamespace(dut=full), None)
+    hang.stop(SimpleNamespace(dut=full), None)
+    assert full.calls == ["pause", "resume"]

@@ -10,16 +10,10 @@ they mean the same in lockstep and in real time.
 from __future__ import annotations
 
 import math
-from typing import ClassVar, Literal, Protocol, cast
+from typing import ClassVar, Literal
 
+from drivers.dut import PausableDut
 from hil.faults.base import FaultSpec, FaultState, FaultTarget, Hold
-
-
-class Pausable(Protocol):
-    """A controller handle that can hang and go on (the embedded controller's; not every DutHandle's)."""
-
-    def pause(self) -> None: ...
-    def resume(self) -> None: ...
 
 
 class ProcessFault(FaultSpec, frozen=True, kw_only=True):
@@ -56,15 +50,19 @@ class Hang(ProcessFault, frozen=True, tag="process.hang"):
     target: Literal["controller"] = "controller"
 
     def validate(self, rig: FaultTarget) -> None:
-        if rig.dut is None or not hasattr(rig.dut, "pause"):
-            raise ValueError("process.hang: the controller's handle has no pause()/resume()")
+        _pausable(rig)
 
-    # validate() refused a handle without pause(): the cast takes the rest of Pausable on trust.
     def start(self, rig: FaultTarget, state: FaultState) -> None:
-        cast(Pausable, rig.dut).pause()
+        _pausable(rig).pause()
 
     def stop(self, rig: FaultTarget, state: FaultState) -> None:
-        cast(Pausable, rig.dut).resume()
+        _pausable(rig).resume()
+
+
+def _pausable(rig: FaultTarget) -> PausableDut:
+    if not isinstance(rig.dut, PausableDut):
+        raise ValueError("process.hang: the controller's handle has no pause()/resume() (drivers/dut.py)")
+    return rig.dut
 
 
 class LoopDelay(ProcessFault, frozen=True, tag="process.loop_delay"):

@@ -35,7 +35,7 @@ from mypy_extensions import mypyc_attr
 
 from drivers.can_bus import BusRecorder, CanNode, Received
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MessageName
-from drivers.dut import DutHandle
+from drivers.dut import DrivenDut, DutHandle
 from drivers.plugs import Supervisor
 from drivers.schemas import (
     TICK_MODULO,
@@ -170,7 +170,7 @@ class Rig:
         """CONTROLLER_HEARTBEAT.Contract of the controller's boot-up (docs/contract.md, Versions)."""
         self.recorder = recorder
         """The CAN log, written at the end of every tick (polled: no thread woken for every frame)."""
-        self.poll_dut: Callable[[], None] | None = getattr(dut, "poll", None) if driven else None
+        self.poll_dut: Callable[[], None] | None = dut.poll if driven and isinstance(dut, DrivenDut) else None
         """A driven in-process controller (drivers/dut.py, DutSpec.driven): called right after SYNC, it
         answers from this thread."""
         self.faults = faults if faults is not None else FaultSet()
