@@ -12,10 +12,11 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, get_args
 
 from drivers.config import MAX_DURATION
 from drivers.resources import shipped
+from plant.params import PlantName
 
 if TYPE_CHECKING:
     from hil.bench.bench import Bench
@@ -56,7 +57,7 @@ def add_bench_options(parser: argparse.ArgumentParser, clock: bool = False, plan
     if clock or plant:
         group.add_argument(
             "--plant",
-            choices=("3d", "planar"),
+            choices=get_args(PlantName),
             default=None,
             help="the plant: 3d (MuJoCo rigid bodies) or planar (two planes and yaw, for regression; "
             "default: the bench's sim settings, 3d)",
