@@ -6,7 +6,7 @@ keeps the shipped rider alone (tests/test_paper.py); this is the evidence docs/r
 
     python benchmarks/paper_table.py [--workers 2] [--out DIR]
 
-24 lockstep runs (the 16 of the paper's riders: 1:55 on 2 cores at load ~3); exit 1 when a check fails,
+24 lockstep runs: 3:28 with --workers 2 on 2 cores at load ~4 (2026-11-29); exit 1 when a check fails,
 each failure named.
 """
 
