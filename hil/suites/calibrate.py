@@ -28,7 +28,7 @@ from hil.bench.bench import Bench, load_bench
 from hil.run.scenario import Scenario
 from hil.suites.campaign import distributable, run_pool
 from hil.suites.compare import Comparison, compare
-from hil.suites.paper import PaperTable
+from hil.suites.paper import LAWS, PaperTable
 from plant.params import RiderParams, RobotParams
 
 UNKNOWNS: dict[str, tuple[float, float]] = {
@@ -137,10 +137,12 @@ class Evaluations:
         bench: Bench | None = None,
         scenarios: list[Scenario] | None = None,
         workers: int = 1,
+        laws: tuple[str, ...] = LAWS,
     ):
         from hil.pipeline import load_scenario
 
         self.target = target
+        self.laws = laws
         self.scenarios = scenarios or [load_scenario(t) for t in target.tasks]
         self.robot = self.scenarios[0].robot
         bench = bench or load_bench()
@@ -166,7 +168,9 @@ class Evaluations:
         self.count += 1
         runs = [msgspec.structs.replace(s, robot=world.robot) for s in self.scenarios]
         bench = world.on(self.bench)
-        return compare(runs, world.riders, progress=None, bench=bench, paper=self.target, pool=self._pool)
+        return compare(
+            runs, world.riders, progress=None, bench=bench, paper=self.target, pool=self._pool, laws=self.laws
+        )
 
     def write(self, values: dict[str, float], folder: Path) -> World:
         return write_world(values, self.target.riders, self.robot, folder, self.controller)
@@ -373,9 +377,11 @@ def sensitivity(
     step: float = 0.2,
     workers: int = 1,
     scenarios: list[Scenario] | None = None,
+    laws: tuple[str, ...] = LAWS,
 ) -> Sensitivity:
-    """How each cell moves with each named parameter, one at a time, by ±`step` of its shipped value."""
-    with Evaluations(target, bench, scenarios, workers) as evaluations:
+    """How each cell moves with each named parameter, one at a time, by ±`step` of its shipped value, under
+    each of `laws` (default both)."""
+    with Evaluations(target, bench, scenarios, workers, laws) as evaluations:
         shipped = evaluations.shipped()
         base = evaluations({})
         moved = {

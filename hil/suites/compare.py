@@ -111,10 +111,11 @@ def compare(
     workers: int = 1,
     paper: PaperTable | None = None,
     pool: ProcessPoolExecutor | None = None,
+    laws: tuple[str, ...] = LAWS,
 ) -> Comparison:
-    """Every scenario x rider x trial (default: the paper's four riders) under both laws on `bench`
-    (default embedded), in lockstep, `workers` runs at a time in fresh processes when the bench allows
-    (or on `pool`, a caller's run_pool kept across comparisons)."""
+    """Every scenario x rider x trial (default: the paper's four riders) under each of `laws` (default
+    both) on `bench` (default embedded), in lockstep, `workers` runs at a time in fresh processes when the
+    bench allows (or on `pool`, a caller's run_pool kept across comparisons)."""
     paper = paper or load_paper()
     riders = riders or tuple(str(find(r)) for r in paper.riders)
     bench = (bench or load_bench()).with_overrides(clock="lockstep", law="scenario")
@@ -123,7 +124,7 @@ def compare(
         for scenario in scenarios
         for rider in riders
         for trial in range(trials)
-        for law in LAWS
+        for law in laws
     ]
     rows: list[dict | None] = [None] * len(jobs)
 
