@@ -74,5 +74,5 @@ def test_survives_heavy_stiction(tmp_path):
     assert np.abs(np.degrees(tr.tilt[tr.t > 4.5])).max() < 1.0
 
 
-# The paper's headline (HACS against iHACS in idle-keeping and speed-limiting with an adversarial rider) runs
-# on the shipped scenarios: tests/test_scenarios.py::test_paper_comparison_ihacs_below_hacs.
+# The paper's headline (HACS against iHACS in idle-keeping and speed-limiting, Table II) runs on the shipped
+# rider in tests/test_paper.py, and on the paper's riders in benchmarks/paper_table.py.
