@@ -107,7 +107,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     logging.info("pure-controller (%s) on %s, zenoh %s: running", mode, args.can, args.zenoh)
     try:
-        stop.wait()
+        while not stop.wait(0.25):
+            if not handle.alive():  # its thread ended on an error (on stderr): not a process left idle
+                logging.error("pure-controller: the controller's thread ended on its own")
+                return 1
     finally:
         handle.stop()
     # What it missed on the bus, as `pure-hil supervisor` says it (a reader that falls behind loses frames

@@ -47,6 +47,10 @@ class EmbeddedController:
         if spec.driven:
             self.node.boot()  # the rig's start-up handshake waits for it before the first SYNC
 
+    def alive(self) -> bool:
+        """Its thread still runs (an error that ended it is on stderr); driven: the rig's thread is its."""
+        return self.thread is None or self.thread.thread.is_alive()
+
     def poll(self) -> None:
         """Driven: take in what is queued and answer any SYNC among it (nothing while hung or stopped)."""
         if self.thread is None and not self._stopped and not self.paused.is_set():

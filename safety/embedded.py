@@ -41,6 +41,10 @@ class EmbeddedSupervisor:
         self.thread = None if spec.driven else SupervisorThread(self.node, sync=spec.lockstep).start()
         self._stopped = False
 
+    def alive(self) -> bool:
+        """Its thread still runs (an error that ended it is on stderr); driven: the rig's thread is its."""
+        return self.thread is None or self.thread.thread.is_alive()
+
     def stop(self) -> None:
         if self._stopped:
             return

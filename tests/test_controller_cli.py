@@ -97,3 +97,37 @@ def test_pure_hil_controller_refuses_a_plug_that_is_not_installed(tmp_path):
     proc = subprocess.run([*argv, "--rider", RIDER], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2, proc.stderr
     assert "'nobody'" in proc.stderr and "reference" in proc.stderr
+
+
+def test_a_part_whose_thread_ends_ends_its_command_instead_of_idling():
+    """`pure-hil controller|supervisor|part` and `pure-controller` wait for a signal or for the part's thread
+    to end (an error in it), whichever comes first: never a process left idle with its part dead."""
+    from controller.embedded import start
+    from drivers.bus_config import BusConfig
+    from drivers.dut import DutSpec
+    from drivers.zenoh_access import ZenohAccess
+    from hil.commands.common import until_interrupted
+
+    looks = []
+    assert until_interrupted("waiting", alive=lambda: looks.append(1) or len(looks) < 3) is False
+    assert len(looks) == 3
+
+    endpoint = hub_endpoint()
+    hub = open_session(role="hub", hub_endpoint=endpoint)
+    spec = DutSpec(
+        can=BusConfig(interface="virtual", channel="alive-check"),
+        zenoh=ZenohAccess(endpoint=endpoint),
+        robot=str(ROOT / "configs/robot/pure.toml"),
+        rider=RIDER,
+        lockstep=False,
+    )
+    handle = start(spec)
+    try:
+        assert handle.alive()
+        assert handle.thread is not None
+        handle.thread.stop_event.set()  # its loop returns, as it does when an error ends it
+        handle.thread.thread.join(5.0)
+        assert not handle.alive()
+    finally:
+        handle.stop()
+        hub.close()

@@ -16,9 +16,12 @@ from hil.run.scenario import Scenario
 from safety.config import SupervisorConfig
 
 
+def _supervised(bench, **changes):
+    return msgspec.structs.replace(bench, supervisor=msgspec.structs.replace(bench.supervisor, **changes))
+
+
 def _with_plugin(plugin: str):
-    bench = load_bench("embedded")
-    return msgspec.structs.replace(bench, supervisor=msgspec.structs.replace(bench.supervisor, plugin=plugin))
+    return _supervised(load_bench("embedded"), plugin=plugin)
 
 
 def test_the_judge_reads_the_scenarios_overrides_of_the_benches_rules():
@@ -37,12 +40,47 @@ def test_the_plug_gets_the_file_with_the_overrides_key_by_key():
     assert config.speed.absolute_cap == SupervisorConfig().speed.absolute_cap  # the section's other keys kept
 
 
-def test_a_misspelt_rule_is_refused_naming_the_file_and_the_field_before_a_run():
+def test_a_misspelt_rule_is_refused_naming_where_it_is_and_the_field_before_a_run(tmp_path):
     bench = load_bench("embedded")
-    with pytest.raises(ConfigError, match=r"default\.toml.*absolut_cap.*\$\.speed.*\[safety\]"):
+    with pytest.raises(ConfigError, match=r"^scenario s \[safety\]: .*absolut_cap.*\$\.speed"):
         supervisor_rules(bench, Scenario(name="s", safety={"speed": {"absolut_cap": 1.0}}))
     with pytest.raises(ConfigError, match=r"unknown field `sped`"):
         supervisor_rules(bench, Scenario(name="s", safety={"sped": {"absolute_cap": 1.0}}))
+    with pytest.raises(ConfigError, match=r"^--safety: \[safety\.minimal\]: minimal is not a section"):
+        not_a_table = Scenario(name="s", safety={"minimal": 5})  # type: ignore[dict-item]
+        supervisor_rules(bench, not_a_table, overrides="--safety")
+    # A bad rules file is the file's fault, whatever the scenario says.
+    rules = tmp_path / "rules.toml"
+    rules.write_text("[speed]\nabsolute_cap = -1.0\n")
+    bad = msgspec.structs.replace(
+        bench, supervisor=msgspec.structs.replace(bench.supervisor, config=str(rules))
+    )
+    with pytest.raises(ConfigError, match=rf"^{rules}: .*\$\.speed\.absolute_cap"):
+        supervisor_rules(bad, Scenario(name="s", safety={"speed": {"margin": 0.1}}))
+
+
+def test_a_lab_supervisors_limits_the_rig_judges_by_are_checked_too(tmp_path):
+    """No rules type registered: still, a limit the judge reads must be a number (else the run's verdict
+    would end in a traceback)."""
+    rules = tmp_path / "lab.toml"
+    rules.write_text('[speed]\nabsolute_cap = "fast"\n')
+    lab = _supervised(load_bench("embedded"), plugin="minimal", config=str(rules))
+    with pytest.raises(ConfigError, match=rf"^{rules}: Expected `float`"):
+        judged_rules(lab, Scenario(name="s"))
+
+
+def test_an_external_supervisors_rules_are_checked_when_the_run_is_built(tmp_path):
+    """Nobody the rig starts is handed them, but the run is judged by them: a misspelt override fails the
+    run by name instead of being judged by the defaults."""
+    from hil.pipeline import run
+
+    bench = load_bench("embedded")
+    bench = msgspec.structs.replace(
+        bench, supervisor=msgspec.structs.replace(bench.supervisor, where="external")
+    )
+    scenario = Scenario(name="s", duration=0.1, safety={"speed": {"absolut_cap": 1.2}})
+    failure = run(scenario, bench).trace.failure
+    assert failure is not None and failure.config and "absolut_cap" in failure.error, failure
 
 
 def test_a_limit_the_rig_reads_is_checked_when_the_scenario_loads():
@@ -78,3 +116,7 @@ def test_pure_hil_supervisor_refuses_bad_overrides_by_flag(capsys):
     assert "--safety" in capsys.readouterr().err
     assert main([*argv, "--safety", '{"speed": {"absolute_cap": "fast"}}']) == 2
     assert "absolute_cap" in capsys.readouterr().err
+    assert main([*argv, "--safety", '{"minimal": 5}']) == 2  # a section that is not a table
+    assert "--safety: Expected `object`" in capsys.readouterr().err
+    assert main([*argv, "--safety", '{"speed": {"absolut_cap": 1}}']) == 2
+    assert "--safety: Object contains unknown field `absolut_cap`" in capsys.readouterr().err

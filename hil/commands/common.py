@@ -11,6 +11,7 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, get_args
 
@@ -140,14 +141,25 @@ def stop_on_signals() -> threading.Event:
     return stop
 
 
-def until_interrupted(message: str) -> None:
-    """Print `message`, then block until SIGINT or SIGTERM; from then on a second one ends the process at
-    once (what the first started, e.g. writing a run's folder, is left unfinished)."""
+def until_interrupted(message: str, alive: Callable[[], bool] | None = None) -> bool:
+    """Print `message`, then block until SIGINT or SIGTERM (True), or until `alive()` says the part it
+    started has ended on its own (False: its thread's error is already on stderr); from then on a second
+    signal ends the process at once (what the first started, e.g. writing a run's folder, is left
+    unfinished)."""
     stop = stop_on_signals()
     print(message, flush=True)
-    stop.wait()
+    interrupted = True
+    while not stop.wait(ALIVE_CHECK if alive is not None else None):
+        if alive is not None and not alive():
+            interrupted = False
+            break
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, signal.SIG_DFL)
+    return interrupted
+
+
+ALIVE_CHECK = 0.25
+"""s between looks at whether a part a command runs is still alive."""
 
 
 def join_rig(args: argparse.Namespace):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 import msgspec
 
@@ -38,11 +39,20 @@ def handle(args: argparse.Namespace) -> int:
     check(bench)  # the bus and the plug, before any session: a missing vcan0 is one line and exit 2
     handle = start_dut(bench.controller.plugin, spec)
     try:
-        until_interrupted(
+        interrupted = until_interrupted(
             f"pure-hil controller: {bench.controller.plugin} ({spec.mode}) on {bench.can.interface}:"
-            f"{bench.can.channel}, zenoh {bench.zenoh.mode}; Ctrl-C to stop"
+            f"{bench.can.channel}, zenoh {bench.zenoh.mode}; Ctrl-C to stop",
+            alive=getattr(handle, "alive", None),
         )
     finally:
         handle.stop()
+    # What it missed on the bus, where the plug keeps the reference's counters (as `pure-hil supervisor`).
+    can_node = getattr(getattr(handle, "node", None), "can", None)
+    if can_node is not None:
+        stats = can_node.stats.as_dict()
+        print(f"  bus: lost {stats['lost_frames']}, E2E {stats['e2e']}, malformed {stats['malformed']}")
+    if not interrupted:
+        print("pure-hil controller: the controller ended on its own (its error is above)", file=sys.stderr)
+        return 1
     print("pure-hil controller: stopped", flush=True)
     return 0

@@ -49,7 +49,13 @@ def handle(args: argparse.Namespace) -> int:
     handle = start(spec)
     try:
         bus = f"{spec.can.interface}:{spec.can.channel}"
-        until_interrupted(f"pure-hil part: {args.kind} {args.plugin} on {bus}; Ctrl-C to stop")
+        interrupted = until_interrupted(
+            f"pure-hil part: {args.kind} {args.plugin} on {bus}; Ctrl-C to stop",
+            alive=getattr(handle, "alive", None),
+        )
     finally:
         handle.stop()
+    if not interrupted:
+        print(f"pure-hil part: the {args.kind} ended on its own (its error is above)", file=sys.stderr)
+        return 1
     return 0

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
+from typing import Any
 
 import msgspec
 
@@ -49,12 +49,13 @@ def handle(args: argparse.Namespace) -> int:
         )
         return 2
     try:  # the rules as a run would hand them over: the bench's, with a scenario's overrides
-        scenario = Scenario(name="overrides", robot=args.robot, safety=json.loads(args.safety or "{}"))
-    except (ValueError, msgspec.ValidationError) as exc:
+        overrides = msgspec.json.decode(args.safety or "{}", type=dict[str, dict[str, Any]])
+        scenario = Scenario(name="overrides", robot=args.robot, safety=overrides)
+    except (ValueError, msgspec.DecodeError) as exc:
         print(f"pure-hil supervisor: --safety: {exc}", file=sys.stderr)
         return 2
     at = Placement(bench.can, bench.zenoh, args.tick_hz, lockstep=args.clock == "lockstep")
-    spec = supervisor_spec(bench, scenario, at)
+    spec = supervisor_spec(bench, scenario, at, overrides="--safety")
     check(bench)  # the bus and the plug, before any session: a missing vcan0 is one line and exit 2
     start = find_plug(SUPERVISORS, bench.supervisor.plugin, "supervisor")
     hub = bench.zenoh.mode == "loopback" and args.role == "hub"
@@ -71,8 +72,9 @@ def handle(args: argparse.Namespace) -> int:
                     announce(session, bench.zenoh.prefix, bench.name, endpoint, "supervisor")
                 )
                 where = f"zenoh hub {endpoint}"
-            until_interrupted(
-                f"pure-hil supervisor: on {bench.can.interface}:{bench.can.channel}, {where}; Ctrl-C to stop"
+            interrupted = until_interrupted(
+                f"pure-hil supervisor: on {bench.can.interface}:{bench.can.channel}, {where}; Ctrl-C to stop",
+                alive=getattr(handle, "alive", None),
             )
         handle.stop()
     finally:
@@ -87,4 +89,7 @@ def handle(args: argparse.Namespace) -> int:
     if can_node is not None:
         stats = can_node.stats.as_dict()
         print(f"  bus: lost {stats['lost_frames']}, E2E {stats['e2e']}, malformed {stats['malformed']}")
+    if not interrupted:
+        print("pure-hil supervisor: the supervisor ended on its own (its error is above)", file=sys.stderr)
+        return 1
     return 0

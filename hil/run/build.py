@@ -130,21 +130,30 @@ def clock_of(bench: Bench, scenario: Scenario) -> str:
     return scenario.clock if bench.clock == "scenario" else bench.clock
 
 
-def supervisor_rules(bench: Bench, scenario: Scenario) -> dict[str, Any]:
+def supervisor_rules(bench: Bench, scenario: Scenario, overrides: str = "") -> dict[str, Any]:
     """The bench's supervisor rules file with the scenario's `[safety]` overrides, as its plug is handed
-    them, checked against the type the plug registers (drivers/rules.py): ConfigError names the file."""
+    them, checked against the type the plug registers (drivers/rules.py) and against the limits the rig
+    judges by: ConfigError names the file, or the overrides (`overrides`: where they came from; default the
+    scenario's [safety]) when the file alone is fine."""
     path = find(bench.supervisor.config, "safety")
-    try:
-        rules = scenario.rules_over(load_toml(path, dict[str, Any]))
-    except ValueError as exc:
-        raise ConfigError(path, f"with the scenario's {exc}") from None
+    schemas: list[Any] = [JudgedRules]
     if bench.supervisor.plugin in installed(SUPERVISOR_RULES):
-        schema = find_plug(SUPERVISOR_RULES, bench.supervisor.plugin, "supervisor rules")
+        schemas.append(find_plug(SUPERVISOR_RULES, bench.supervisor.plugin, "supervisor rules"))
+    base = _checked(load_toml(path, dict[str, Any]), schemas, str(path))
+    origin = overrides or f"scenario {scenario.name} [safety]"
+    try:
+        rules = scenario.rules_over(base)
+    except ValueError as exc:
+        raise ConfigError(origin, str(exc)) from None
+    return _checked(rules, schemas, origin)
+
+
+def _checked(rules: dict[str, Any], schemas: list[Any], origin: str) -> dict[str, Any]:
+    for schema in schemas:
         try:
             msgspec.convert(rules, schema)
         except msgspec.ValidationError as exc:
-            overridden = " with the scenario's [safety]" if scenario.safety else ""
-            raise ConfigError(path, f"{exc}{overridden}") from None
+            raise ConfigError(origin, str(exc)) from None
     return rules
 
 
@@ -166,7 +175,7 @@ class Placement:
     """The rig updates it from its own tick (drivers/plugs.py, drivers/dut.py)."""
 
 
-def supervisor_spec(bench: Bench, scenario: Scenario, at: Placement) -> SupervisorSpec:
+def supervisor_spec(bench: Bench, scenario: Scenario, at: Placement, overrides: str = "") -> SupervisorSpec:
     """The bench's supervisor for this scenario on this bus and zenoh: what a run and `pure-hil supervisor`
     start the plug from."""
     return SupervisorSpec(
@@ -174,7 +183,7 @@ def supervisor_spec(bench: Bench, scenario: Scenario, at: Placement) -> Supervis
         zenoh=at.zenoh,
         devices=bench.devices,
         robot=str(find(scenario.robot, "robot")),
-        rules=supervisor_rules(bench, scenario),
+        rules=supervisor_rules(bench, scenario, overrides),
         tick_hz=at.tick_hz,
         lockstep=at.lockstep,
         driven=at.driven,
@@ -362,6 +371,8 @@ def _start_parts(
             supervisor = handle.node
         else:
             _spawn_part("supervisor", part.plugin, msgspec.json.encode(spec), work, stack)
+    else:  # its rules are its starter's to hand it, but the run is judged by them: a bad one fails it here
+        supervisor_rules(bench, scenario)
     dut = None
     controller = bench.controller
     if controller.where != "external":

@@ -196,7 +196,7 @@ class Scenario(_Record, frozen=True):
         key by key."""
         merged = dict(base)
         for section, values in self.safety.items():
-            if not isinstance(merged.get(section, {}), dict):
+            if not isinstance(values, dict) or not isinstance(merged.get(section, {}), dict):
                 raise ValueError(f"[safety.{section}]: {section} is not a section of the supervisor's rules")
             merged[section] = {**merged.get(section, {}), **values}
         return merged
