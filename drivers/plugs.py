@@ -35,7 +35,8 @@ class SupervisorSpec(msgspec.Struct, frozen=True, kw_only=True):
     robot: str
     """Robot TOML of its geometry (drive limits, encoders, wheels)."""
     rules: dict[str, Any] = {}
-    """Its rules as a SupervisorConfig's fields (the bench's file with the scenario's `[safety]`)."""
+    """Its rules file's content with the scenario's `[safety]` overrides merged key by key (hil.run.build
+    supervisor_rules), as written: the plug applies its own defaults (drivers/rules.py)."""
     tick_hz: float = 400.0
     lockstep: bool = True
     """It decides once per SYNC (lockstep) or on its own timer (real time)."""

@@ -27,6 +27,10 @@ class PlugNotFound(LookupError):
     pass
 
 
+class BrokenPlug(PlugNotFound):
+    """An entry point that is installed but does not load, or is not the kind of part its group holds."""
+
+
 def installed(group: str) -> list[str]:
     """The names registered in `group`, sorted."""
     return sorted(ep.name for ep in entry_points(group=group))
@@ -38,5 +42,8 @@ def find_plug(group: str, name: str, what: str) -> Callable[..., Any]:
     found = {ep.name: ep for ep in entry_points(group=group)}
     if name not in found:
         raise PlugNotFound(f"no {what} {name!r} in entry points {group!r} (have: {', '.join(sorted(found))})")
-    plug: Callable[..., Any] = found[name].load()  # an entry point: whatever it loads is untyped
+    try:
+        plug: Callable[..., Any] = found[name].load()  # an entry point: whatever it loads is untyped
+    except (ImportError, AttributeError) as exc:  # the lab's package is there, its line is wrong
+        raise BrokenPlug(f"{what} {name!r}: entry point {found[name].value!r} does not load: {exc}") from None
     return plug

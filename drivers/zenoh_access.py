@@ -35,7 +35,7 @@ class ZenohAccess(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     config: str | None = None
     """A zenoh config file instead of the shipped loopback.json5 / bench-client.json5."""
     network: bool = False
-    """router: the router is on another host (its endpoint is not on loopback)."""
+    """The hub (loopback mode) or the router is on another host: its endpoint is not on loopback."""
     prefix: str = "pure"
 
     @property
@@ -49,7 +49,7 @@ class ZenohAccess(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
             lent = lent_session(self.endpoint)
             if lent is not None:
                 return lent
-            return open_session(self.config_path, "member", self.endpoint)
+            return open_session(self.config_path, "member", self.endpoint, self.network)
         if self.certs is None:
             raise ZenohConfigError("zenoh mode router needs the certificate folder (--certs DIR)")
         return open_session(

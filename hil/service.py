@@ -140,7 +140,6 @@ class RigService:
             "bench": {
                 **describe(self.bench),
                 "description": self.bench.description,
-                "supervisor_plug": self.bench.supervisor.plug,
             },
             "scenarios": list(self.scenarios),
             "card": asdict(self.card),

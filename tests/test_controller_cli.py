@@ -65,9 +65,10 @@ def _children(pid: int) -> list[int]:
 
 
 def test_pure_hil_controller_is_the_controller_so_a_signal_stops_it():
-    # The rig stops a spawned controller with SIGINT to the process it started: a wrapper that ran the
-    # controller as its child would exit and leave the controller running on the bus. `pure-hil controller`
-    # starts the bench's plug in its own process, from the spec a run uses (hil.run.build.controller_spec).
+    # Whoever started it (a lab's script, a bench's controller.command) stops it with SIGINT to the process
+    # it started: a wrapper that ran the controller as its child would exit and leave it running on the bus.
+    # `pure-hil controller` starts the bench's plug in its own process, from the spec a run uses
+    # (hil.run.build.controller_spec).
     endpoint = hub_endpoint()
     hub = open_session(role="hub", hub_endpoint=endpoint)
     argv = [str(Path(sys.executable).with_name("pure-hil")), "controller", "--can", "virtual:exec-check"]

@@ -97,3 +97,25 @@ def test_a_new_profiles_settings_are_checked_against_its_own_options_type(tmp_pa
         ConfigError, match=r"settings\.canopen_imu: not a profile this bench's drives or imu speak"
     ):
         devices("[devices.settings.canopen_imu]\nrate_hz = 100")
+
+
+@pytest.mark.parametrize(
+    ("target", "error"),
+    [
+        ("tests.shifted_profile:shift_of", r"is not a DeviceProfile .*has no name, kind, options, host"),
+        ("tests.shifted_profile:nothing", r"entry point 'tests\.shifted_profile:nothing' does not load"),
+    ],
+)
+def test_an_entry_point_that_is_not_a_profile_is_named_broken_not_missing(
+    tmp_path, monkeypatch, target, error
+):
+    monkeypatch.setattr("drivers.devices.profile._found", {})
+    info = tmp_path / "site" / "broken_profile-0.1.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: broken-profile\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text(f"[pure_hil.devices]\nbroken = {target}\n")
+    monkeypatch.syspath_prepend(str(tmp_path / "site"))
+    bench = tmp_path / "broken.toml"
+    bench.write_text('name = "broken"\n[devices]\ndrives = "broken"\n')
+    with pytest.raises(ConfigError, match=rf"broken\.toml: drives: device profile 'broken': .*{error}"):
+        load_bench(bench)

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any, Literal, Protocol
 
 import msgspec
 
-from drivers.registry import DEVICE_PROFILES, PlugNotFound, find_plug, installed
+from drivers.registry import DEVICE_PROFILES, BrokenPlug, PlugNotFound, find_plug, installed
 
 if TYPE_CHECKING:
     from drivers.devices import Devices, Role, Translator
@@ -63,8 +63,8 @@ class DeviceProfile(Protocol):
         ...
 
     def claims(self, devices: Devices) -> Mapping[int, str]:
-        """The standard frame ids its devices own on this bench -> whose they are (for the other profile's
-        check)."""
+        """A drive profile: the standard frame ids its drives own on this bench -> whose they are (the IMU
+        profile's check refuses them). An IMU profile's are not read (it checks against the drives')."""
         ...
 
     def check(self, devices: Devices) -> None:
@@ -99,6 +99,10 @@ class Profile:
         return found
 
 
+PROFILE_PARTS = ("name", "kind", "options", "host", "emulation", "claims", "check")
+"""What a DeviceProfile has (`Profile` gives `claims` and `check` that claim and refuse nothing)."""
+
+
 _found: dict[str, DeviceProfile] = {}
 """Profiles loaded so far (only found ones: one installed later is found then)."""
 
@@ -107,9 +111,11 @@ def find_profile(name: str) -> DeviceProfile:
     """The installed profile `name`; PlugNotFound lists the installed ones."""
     if name not in _found:
         profile: Any = find_plug(DEVICE_PROFILES, name, "device profile")
-        if not all(hasattr(profile, a) for a in ("name", "kind", "options", "host", "emulation")):
-            raise PlugNotFound(
-                f"device profile {name!r}: its entry point is not a DeviceProfile ({profile!r})"
+        missing = [a for a in PROFILE_PARTS if not hasattr(profile, a)]
+        if missing:
+            raise BrokenPlug(
+                f"device profile {name!r}: its entry point is not a DeviceProfile ({profile!r} has no "
+                f"{', '.join(missing)}; drivers.devices.profile.Profile makes one from plain parts)"
             )
         _found[name] = profile
     return _found[name]
@@ -122,6 +128,8 @@ def profile_of(name: str, kind: Kind) -> DeviceProfile | None:
         return None
     try:
         profile = find_profile(name)
+    except BrokenPlug as exc:
+        raise ValueError(f"{kind}: {exc}") from None
     except PlugNotFound:
         profile = None
     if profile is None or profile.kind != kind:

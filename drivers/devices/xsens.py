@@ -205,11 +205,6 @@ def host(devices: Devices, counts_per_rev: int, role: Role) -> XsensHost:
     return XsensHost(devices, counts_per_rev, role)
 
 
-def claims(devices: Devices) -> dict[int, str]:
-    base = devices.xsens.base_id
-    return {base + xcid: f"Xsens {name}" for name, xcid in XSENS_XCIDS.items()}
-
-
 def check(devices: Devices) -> None:
     """The Xsens ids own no contract frame that stays on the bus and no frame of the drives' profile."""
     owner = {i: name for name, i in contract_ids(drives=devices.drives == PURE, imu=False).items()}
@@ -227,5 +222,5 @@ def check(devices: Devices) -> None:
         )
 
 
-PROFILE = Profile("xsens", "imu", XsensOptions, host, "hil.devices.xsens:emulate", claims, check)
+PROFILE = Profile("xsens", "imu", XsensOptions, host, "hil.devices.xsens:emulate", check=check)
 """The `xsens` device profile (entry point `pure_hil.devices`)."""

@@ -121,7 +121,7 @@ def run_bench(
         )
         if not spawn:
             reference = [str(BIN / "pure-controller"), "--can", "socketcan:vcan0", "--rider", RIDER]
-            if tables:  # the bench's devices reach pure-controller as --devices JSON
+            if tables:  # the bench's devices reach the controller in the spec `pure-hil controller` makes
                 reference = [str(BIN / "pure-hil"), "controller", "--bench", str(bench), "--rider", RIDER]
             start("controller", controller or [*reference, "--law", "hacs", "--lockstep"])
         watcher = threading.Thread(target=watch, daemon=True)
@@ -284,7 +284,8 @@ def test_cansend_estop_trips_the_supervisor_and_the_drives(tmp_path):
     # A button the scenario did not schedule ended the run: ESTOPPED (exit 3), never PASSED.
     assert run.actions and run.rig_exit == 3, run.logs["rig"]
     assert run.summary["verdict"] == "ESTOPPED"
-    assert not _running("pure-controller"), "the controller the rig spawned is gone after the run"
+    # The rig spawns its parts as `pure-hil part KIND PLUGIN SPEC.json` (hil/run/build.py _spawn_part).
+    assert not _running(" part controller "), "the controller the rig spawned is gone after the run"
     s = run.summary["safety"]
     steps = [(e["to_state"], e["cause"]) for e in s["events"]]
     assert steps[:2] == [("STOPPING", "BUTTON_ESTOP"), ("ESTOP", "BUTTON_ESTOP")], steps
