@@ -14,6 +14,7 @@ from hil.cli import main
 from hil.run.build import judged_rules, supervisor_rules
 from hil.run.scenario import Scenario
 from safety.config import SupervisorConfig
+from tests.zenoh_helpers import private_bench
 
 
 def _supervised(bench, **changes):
@@ -74,10 +75,7 @@ def test_an_external_supervisors_rules_are_checked_when_the_run_is_built(tmp_pat
     run by name instead of being judged by the defaults."""
     from hil.pipeline import run
 
-    bench = load_bench("embedded")
-    bench = msgspec.structs.replace(
-        bench, supervisor=msgspec.structs.replace(bench.supervisor, where="external")
-    )
+    bench = private_bench(supervisor="external")  # its own hub port: tests never take fixed ports
     scenario = Scenario(name="s", duration=0.1, safety={"speed": {"absolut_cap": 1.2}})
     failure = run(scenario, bench).trace.failure
     assert failure is not None and failure.config and "absolut_cap" in failure.error, failure

@@ -162,6 +162,20 @@ ALIVE_CHECK = 0.25
 """s between looks at whether a part a command runs is still alive."""
 
 
+def part_ended(command: str, part: str, node: object, interrupted: bool) -> int:
+    """A part command's last words: what the part missed on the bus, where its plug keeps the reference's
+    counters (a reader that falls behind loses frames silently on vcan: docs/bench.md; the contract does not
+    ask for them), and its exit code: 1 if the part ended on its own, not on a signal."""
+    can_node = getattr(node, "can", None)
+    if can_node is not None:
+        stats = can_node.stats.as_dict()
+        print(f"  bus: lost {stats['lost_frames']}, E2E {stats['e2e']}, malformed {stats['malformed']}")
+    if not interrupted:
+        print(f"pure-hil {command}: the {part} ended on its own (its error is above)", file=sys.stderr)
+        return 1
+    return 0
+
+
 def join_rig(args: argparse.Namespace):
     """An operator client's bench, zenoh session and the card of the rig it reached: the hub from --hub,
     $PURE_HIL_HUB, the one live rig of the bench on this machine, or the bench file; a rig of another

@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
 import msgspec
 
-from hil.commands.common import add_bench_options, bench_from, until_interrupted
+from hil.commands.common import add_bench_options, bench_from, part_ended, until_interrupted
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -46,13 +45,7 @@ def handle(args: argparse.Namespace) -> int:
         )
     finally:
         handle.stop()
-    # What it missed on the bus, where the plug keeps the reference's counters (as `pure-hil supervisor`).
-    can_node = getattr(getattr(handle, "node", None), "can", None)
-    if can_node is not None:
-        stats = can_node.stats.as_dict()
-        print(f"  bus: lost {stats['lost_frames']}, E2E {stats['e2e']}, malformed {stats['malformed']}")
-    if not interrupted:
-        print("pure-hil controller: the controller ended on its own (its error is above)", file=sys.stderr)
-        return 1
-    print("pure-hil controller: stopped", flush=True)
-    return 0
+    code = part_ended("controller", "controller", getattr(handle, "node", None), interrupted)
+    if code == 0:
+        print("pure-hil controller: stopped", flush=True)
+    return code

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import msgspec
 
-from hil.commands.common import until_interrupted
+from hil.commands.common import part_ended, until_interrupted
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -55,7 +55,4 @@ def handle(args: argparse.Namespace) -> int:
         )
     finally:
         handle.stop()
-    if not interrupted:
-        print(f"pure-hil part: the {args.kind} ended on its own (its error is above)", file=sys.stderr)
-        return 1
-    return 0
+    return part_ended("part", args.kind, None, interrupted)

@@ -8,7 +8,7 @@ from typing import Any
 
 import msgspec
 
-from hil.commands.common import add_bench_options, bench_from, until_interrupted
+from hil.commands.common import add_bench_options, bench_from, part_ended, until_interrupted
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -83,13 +83,4 @@ def handle(args: argparse.Namespace) -> int:
     node = handle.node
     for e in node.events:
         print(f"  t={e.t:9.3f}  {e.kind:<14} {e.from_state} -> {e.to_state} ({e.cause}) {e.detail}")
-    # What it missed on the bus (a reader that falls behind loses frames silently on vcan: docs/bench.md),
-    # where the plug keeps the reference's bus counters (the contract does not ask for them).
-    can_node = getattr(node, "can", None)
-    if can_node is not None:
-        stats = can_node.stats.as_dict()
-        print(f"  bus: lost {stats['lost_frames']}, E2E {stats['e2e']}, malformed {stats['malformed']}")
-    if not interrupted:
-        print("pure-hil supervisor: the supervisor ended on its own (its error is above)", file=sys.stderr)
-        return 1
-    return 0
+    return part_ended("supervisor", "supervisor", node, interrupted)
