@@ -17,28 +17,35 @@ SCRIPT = str(Path(sys.executable).with_name("pure-controller"))
 RIDER = str(ROOT / "configs/riders/s04_abi_50kg_164.toml")
 
 
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
-def test_runs_as_its_own_process_and_stops_cleanly(sig):
+def _run_until_signalled(argv: list[str], sig: int, while_running=lambda pid: None) -> str:
+    """Start a controller process on its own hub, wait until it subscribes to the seat wrench (our publisher
+    sees the match over loopback), call `while_running(pid)`, send `sig`, and return what it printed (it
+    must exit 0)."""
     endpoint = hub_endpoint()
     hub = open_session(role="hub", hub_endpoint=endpoint)
     proc = subprocess.Popen(
-        [SCRIPT, "--can", "virtual", "--hub", endpoint, "--rider", RIDER, "--law", "ihacs"],
+        [*argv, "--hub", endpoint, "--rider", RIDER, "--law", "ihacs"],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
     )
     try:
-        link = ZenohLink(hub)
-        # The controller process subscribes to the seat wrench: our publisher sees the match over loopback.
-        assert wait_matching(link.publisher(Keys().tes_wrench), timeout=30.0)
+        assert wait_matching(ZenohLink(hub).publisher(Keys().tes_wrench), timeout=30.0)
+        while_running(proc.pid)
         proc.send_signal(sig)
         out, _ = proc.communicate(timeout=15)
         assert proc.returncode == 0, out
-        assert "running" in out and "stopped" in out
+        return out
     finally:
         if proc.poll() is None:
             proc.kill()
         hub.close()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_runs_as_its_own_process_and_stops_cleanly(sig):
+    out = _run_until_signalled([SCRIPT, "--can", "virtual"], sig)
+    assert "running" in out and "stopped" in out
 
 
 def test_bad_config_exits_2(tmp_path):
@@ -69,26 +76,12 @@ def test_pure_hil_controller_is_the_controller_so_a_signal_stops_it():
     # it started: a wrapper that ran the controller as its child would exit and leave it running on the bus.
     # `pure-hil controller` starts the bench's plug in its own process, from the spec a run uses
     # (hil.run.build.controller_spec).
-    endpoint = hub_endpoint()
-    hub = open_session(role="hub", hub_endpoint=endpoint)
+    def no_wrapper(pid: int) -> None:
+        assert _children(pid) == [], "no controller process under a wrapper"
+
     argv = [str(Path(sys.executable).with_name("pure-hil")), "controller", "--can", "virtual:exec-check"]
-    proc = subprocess.Popen(
-        [*argv, "--hub", endpoint, "--rider", RIDER, "--law", "ihacs"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    try:
-        assert wait_matching(ZenohLink(hub).publisher(Keys().tes_wrench), timeout=30.0)
-        assert _children(proc.pid) == [], "no controller process under a wrapper"
-        proc.send_signal(signal.SIGINT)
-        out, _ = proc.communicate(timeout=15)
-        assert proc.returncode == 0, out
-        assert "reference (ihacs)" in out and "stopped" in out, out
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        hub.close()
+    out = _run_until_signalled(argv, signal.SIGINT, no_wrapper)
+    assert "reference (ihacs)" in out and "stopped" in out, out
 
 
 def test_pure_hil_controller_refuses_a_plug_that_is_not_installed(tmp_path):
