@@ -17,7 +17,8 @@ What changes against balance_controller.py:
   - Enable: one thread per drive walks the 402 state machine through BaseNode402's `state` property to
     'OPERATION ENABLED' (fault reset on its way out of FAULT), and to 'SWITCH ON DISABLED' (disable
     voltage) when the law disables its drives. RPDO1 is this loop's cyclic PDO (its `period` says so),
-    so the walk's controlwords go out in it, at the next SYNC.
+    so the walk's controlwords go out in it, at the next SYNC. Its target torque stays zero until all
+    three drives are OPERATION ENABLED (the walks end at different SYNCs).
 The contract's own frames (SYNC, the IMU, the supervisor's, CONTROLLER_HEARTBEAT with its boot-up) still go
 through the contract's DBC (balance_controller.py's Wire).
 
@@ -126,10 +127,14 @@ class Cia402Drives:
         return out
 
     def command(self, torques: tuple[float, float, float], enable: bool) -> None:
-        """RPDO1 to each drive: the controlword the walk last set, the target torque."""
+        """RPDO1 to each drive: the controlword the walk last set, the target torque: zero until every drive
+        is OPERATION ENABLED. Each walk ends at its own SYNC, and a wheel that pushes while another is not yet
+        enabled turns the ball about the vertical, which a supervisor cannot tell from an encoder fault (the
+        reference's yaw check took over at 0.03 s when one drive came up 3 SYNCs after another)."""
         self.want = enable
+        together = enable and all(node.state == ENABLED for node in self.nodes)
         for node, torque, rated in zip(self.nodes, torques, self.rated_mnm, strict=True):
-            per_mille = round(torque * 1e6 / rated) if enable else 0  # Nm -> per mille of rated mNm
+            per_mille = round(torque * 1e6 / rated) if together else 0  # Nm -> per mille of rated mNm
             node.rpdo[1][0x6071].raw = max(-32768, min(32767, per_mille))
             node.rpdo[1].transmit()
 
