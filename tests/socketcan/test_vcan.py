@@ -522,9 +522,9 @@ def test_a_lab_controller_on_the_fields_own_client_balances_the_robot_through_th
     print(f"\n{profile} lab client (1 s) on vcan0: {s['timing']['wall_time']} s wall, {s['rig']}")
     assert s["fallen"] is False and s["safety"]["final_state"] == "NORMAL", (s["safety"], s["rig"])
     assert "Traceback" not in run.logs["controller"], run.logs["controller"]
-    # Its three drives push together from the first torque on: the chassis turned 0.0006-0.0007 rad/s at most
-    # in 60 such runs (every profile), 0.015-0.045 rad/s in the 6 of 20 where the cia402 client let one drive
-    # push 1-3 SYNCs before another (the supervisor's yaw check stopped one of them at 0.03 s).
+    # Its three drives push together from the first torque on: the chassis turned at most 0.0007 rad/s in 74
+    # such runs (udp_multicast, all three profiles), 0.015-0.045 rad/s in the 6 of 20 where the cia402 client
+    # let one drive push 1-3 SYNCs before another (the supervisor's yaw check stopped one of them at 0.03 s).
     trace = np.load(run.out / "trace.npy")
     yaw_rate = np.abs(trace[:, [c.name for c in COLUMNS].index("yaw_rate")]).max()
     assert yaw_rate < 0.005, f"the chassis turned at {yaw_rate:.4f} rad/s: a wheel pushed alone"
