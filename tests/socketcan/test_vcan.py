@@ -31,7 +31,7 @@ from drivers.can_bus import RECEIVE_BUFFER, CanNode, open_bus
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, Catalog
 from drivers.devices import CANOPEN_FUNCTIONS, Devices
 from drivers.e2e import E2EChecker, E2EStatus, is_protected
-from hil.outputs.trace_log import COLUMNS
+from hil.outputs.trace_log import LAYOUT
 
 pytestmark = pytest.mark.socketcan
 
@@ -526,7 +526,7 @@ def test_a_lab_controller_on_the_fields_own_client_balances_the_robot_through_th
     # such runs (udp_multicast, all three profiles), 0.015-0.045 rad/s in the 6 of 20 where the cia402 client
     # let one drive push 1-3 SYNCs before another (the supervisor's yaw check stopped one of them at 0.03 s).
     trace = np.load(run.out / "trace.npy")
-    yaw_rate = np.abs(trace[:, [c.name for c in COLUMNS].index("yaw_rate")]).max()
+    yaw_rate = np.abs(trace[:, LAYOUT.span("yaw_rate")]).max()
     assert yaw_rate < 0.005, f"the chassis turned at {yaw_rate:.4f} rad/s: a wheel pushed alone"
     wire = per_id(frames(run.capture))
     if profile == "xsens":
