@@ -39,14 +39,19 @@ def load_toml(path: Path | str, type: type[T]) -> T:
 
 
 def decode_toml(raw: bytes | str, type: type[T], origin: Path | str = "<string>") -> T:
+    if isinstance(raw, bytes):
+        # A binary file, named as such before the decoder sees it: TOML is UTF-8 text, and what msgspec
+        # raises for other bytes differs by version (UnicodeDecodeError in 0.22, DecodeError in 0.23).
+        try:
+            raw = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise ConfigError(origin, f"not a TOML text file (byte {exc.start} is not UTF-8)") from exc
     try:
         return msgspec.toml.decode(raw, type=type)
     except msgspec.ValidationError as exc:
         raise ConfigError(origin, str(exc)) from exc
     except msgspec.DecodeError as exc:
         raise ConfigError(origin, f"not valid TOML: {exc}") from exc
-    except UnicodeDecodeError as exc:  # a binary file: TOML is UTF-8 text
-        raise ConfigError(origin, f"not a TOML text file (byte {exc.start} is not UTF-8)") from exc
 
 
 def dump_toml(record: msgspec.Struct) -> bytes:

@@ -10,6 +10,7 @@ rig run (TES, supervisor), the wall clock (time.time) for operator tools.
 
 from __future__ import annotations
 
+import inspect
 import math
 from typing import Annotated, Any, ClassVar, Literal, TypeVar
 
@@ -195,3 +196,22 @@ def decode(data: bytes | bytearray | memoryview, type: type[P]) -> P:
     except (msgspec.DecodeError, UnicodeDecodeError) as exc:
         # msgspec lets invalid UTF-8 in map keys escape as UnicodeDecodeError (found by fuzzing).
         raise PayloadError("garbage", str(exc)) from None
+
+
+def json_schema(payload: type[Payload]) -> dict[str, Any]:
+    """msgspec's JSON Schema of a payload, its descriptions cleaned as `inspect.cleandoc` does: msgspec 0.23
+    dedents a docstring where 0.22 kept its indentation, and a published schema must not change with that."""
+
+    def clean(node: object) -> object:
+        if isinstance(node, dict):
+            return {
+                k: inspect.cleandoc(v) if k == "description" and isinstance(v, str) else clean(v)
+                for k, v in node.items()
+            }
+        if isinstance(node, list):
+            return [clean(v) for v in node]
+        return node
+
+    schema = clean(msgspec.json.schema(payload))
+    assert isinstance(schema, dict)
+    return schema

@@ -18,6 +18,7 @@ import msgspec
 from drivers.can_codec import Catalog, MessageName
 from drivers.config import load_toml
 from drivers.keys import PAYLOADS as KEY_PAYLOADS
+from drivers.schemas import json_schema
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -30,8 +31,7 @@ BEGIN, END = "<!-- generated: {name} (python -m hil.contract docs) -->", "<!-- /
 def json_schemas() -> dict[str, bytes]:
     """File name -> JSON Schema (draft 2020-12, as msgspec writes it) of each payload."""
     return {
-        f"{t.__name__}.json": msgspec.json.format(msgspec.json.encode(msgspec.json.schema(t)), indent=2)
-        + b"\n"
+        f"{t.__name__}.json": msgspec.json.format(msgspec.json.encode(json_schema(t)), indent=2) + b"\n"
         for t in PAYLOADS
     }
 

@@ -14,8 +14,8 @@ publish time alike):
     /trace           one message per tick: trace.npy's row as the tick ends (the plant's truth, the
                      supervisor's state and speed estimate; hil/outputs/trace_log.py COLUMNS)
     /events/...      what happened, at its time: each fault's window, the fault log, the supervisor's
-                     transitions with their causes, the operator's actions (EVENTS; handed over as the run
-                     ends, `event`)
+                     transitions with their causes, the operator's actions, the rig's own late windows in
+                     real time (EVENTS; handed over as the run ends, `event`)
     /pose/<body>     a body's pose as Foxglove's FrameTransform from "world": at 0, at 100 Hz and at the
                      last tick (hil/outputs/bodies.py, foxglove.py)
     /scene           every body's shapes as Foxglove's SceneUpdate, once at 0, each in its body's frame
@@ -39,10 +39,7 @@ from mcap.reader import make_reader
 
 from drivers.can_codec import Catalog, MessageCodec
 from drivers.keys import PAYLOADS, Keys
-from drivers.schemas import (
-    PayloadError,
-    decode,
-)
+from drivers.schemas import Payload, PayloadError, decode, json_schema
 from hil.outputs.bodies import Body
 from hil.outputs.foxglove import (
     FRAME_TRANSFORM,
@@ -66,6 +63,7 @@ FAULT_WINDOWS = "/events/fault_windows"
 FAULT_LOG = "/events/faults"
 SUPERVISOR = "/events/supervisor"
 OPERATOR = "/events/operator"
+RIG_LATE = "/events/rig_late"
 POSE = "/pose/{body}"
 SCENE = "/scene"
 FAILED = "failed"
@@ -146,10 +144,10 @@ def _signals_schema(codec: MessageCodec) -> bytes:
     return _schema(codec.name, properties, f"CAN 0x{codec.frame_id:03X} decoded through the DBC")
 
 
-def _payload_schema(payload: type) -> bytes:
+def _payload_schema(payload: type[Payload]) -> bytes:
     """msgspec's JSON Schema of a payload, the payload's own at the top (no `$ref` for a viewer to follow:
     the payloads of drivers/schemas.py refer to no other type)."""
-    schema = msgspec.json.schema(payload)
+    schema = json_schema(payload)
     defs = schema.get("$defs", {})
     return msgspec.json.encode(defs[payload.__name__] if len(defs) == 1 else schema)
 
@@ -205,6 +203,14 @@ EVENTS: dict[str, tuple[str, dict, str]] = {
             "scheduled": {"type": "boolean", "description": "one of the scenario's own [[operator]] steps"},
         },
         "an operator's e-stop, category-0 cut or reset as the supervisor took it in",
+    ),
+    RIG_LATE: (
+        "RigLateWindow",
+        {
+            "start": {**_NUMBER, "description": "s, the first tick whose SYNC the rig sent late"},
+            "end": {**_NUMBER, "description": "s, the window's end (its last late tick's tail included)"},
+        },
+        "real time: a window in which the rig itself sent SYNC late (docs/rig.md, When the rig is late)",
     ),
 }
 """The event topics: (schema title, properties, description)."""
