@@ -19,6 +19,7 @@ from tests.helpers import ROOT
 COMPILED_SUITE = (
     # Every compiled module is exercised by at least one of these (test_every_compiled_module_is_covered).
     "tests/test_compiled.py",
+    "tests/test_lock.py",  # the wheel's venv holds the locked set, and its metadata the lower bounds
     "tests/test_can.py",  # drivers/can_codec.py, drivers/e2e.py, drivers/can_bus.py
     "tests/test_can_decode_cache.py",  # the codecs shared by the nodes of one DBC, compiled
     "tests/test_run_logs.py",  # the logs' own process, which imports the compiled codec

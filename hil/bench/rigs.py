@@ -94,8 +94,9 @@ def announce(session: zenoh.Session, prefix: str, bench: str, endpoint: str, run
 
     # Answered on zenoh's own thread (indirect=False): zenoh's default runs a callback on a Python thread
     # of its own, and a second Python thread makes a lockstep tick yield the GIL (~100 us a tick here).
+    # `drop` given: eclipse-zenoh 1.4 requires it (positional, None: nothing to do when it is dropped).
     queryable = session.declare_queryable(
-        Keys(prefix).rig(HELLO), zenoh.handlers.Callback(answer, indirect=False)
+        Keys(prefix).rig(HELLO), zenoh.handlers.Callback(answer, None, indirect=False)
     )
     path = folder() / f"{card.pid}-{id(card):x}.json"
     written: Path | None = path
