@@ -33,7 +33,7 @@ CREATE TABLE IF NOT EXISTS runs (
     bench TEXT NOT NULL,
     controller TEXT NOT NULL,       -- where it ran and its law, e.g. "embedded reference ihacs"
     clock TEXT NOT NULL,
-    verdict TEXT NOT NULL,          -- RUNNING, then PASSED FAILED ESTOPPED STOPPED ERROR or INTERRUPTED
+    verdict TEXT NOT NULL,    -- RUNNING, then PASSED FAILED INCONCLUSIVE ESTOPPED STOPPED ERROR INTERRUPTED
     first_cause TEXT,               -- the supervisor's first transition's cause, e.g. OPERATOR_ESTOP
     error TEXT,
     started REAL NOT NULL,          -- wall clock, s since the epoch

@@ -206,5 +206,6 @@ def test_a_real_time_run_says_its_overruns_beside_its_verdict(shipped):
     trace = dataclasses.replace(result.trace, timing=timing)
     late = dataclasses.replace(result, clock="realtime", trace=trace)
     last = format_table(late).splitlines()[-1]
-    assert f"113 overruns of {timing.ticks} ticks; " in last and last.endswith(result.verdict)
+    assert f"113 overruns of {timing.ticks} ticks, 0 SYNCs late; " in last and last.endswith(result.verdict)
+    assert "commands missing 0 and late 0 (the controller's), 0 and 0 (the rig's)" in last
     assert "overruns" not in format_table(result), "a lockstep run has no deadlines to overrun"

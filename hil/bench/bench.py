@@ -79,6 +79,10 @@ class RealtimePart(_Part, frozen=True):
     limit."""
     cpu: Annotated[int, msgspec.Meta(ge=0)] | None = None
     """Pin the rig's tick thread to this CPU."""
+    sync_allowance: Annotated[float, msgspec.Meta(ge=0.05, le=0.9)] = 0.4
+    """The share of a tick's period after its scheduled start by which its SYNC must be out; a tick whose
+    SYNC is later is the rig's late tick, and what the controller misses then is not the controller's
+    (docs/rig.md "When the rig is late")."""
 
 
 class OutputsPart(_Part, frozen=True):

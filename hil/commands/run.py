@@ -36,6 +36,7 @@ def handle(args: argparse.Namespace) -> int:
     from hil.pipeline import check_start, load_scenario, run
     from hil.report.folder import format_table
     from hil.run.build import RunOptions
+    from hil.run.judge import EXIT_CODES
 
     scenario = load_scenario(args.scenario)
     bench = bench_from(args)
@@ -67,4 +68,4 @@ def handle(args: argparse.Namespace) -> int:
         simulated = float(result.trace.t[-1]) if len(result.trace.t) else 0.0
         print(f"pure-hil run: stopped at t = {simulated:.2f} s of {scenario.duration:g} s", file=sys.stderr)
         return 130
-    return {"PASSED": 0, "ESTOPPED": 3}.get(result.verdict, 1)
+    return EXIT_CODES[result.verdict]

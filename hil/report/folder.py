@@ -19,7 +19,7 @@ import numpy as np
 
 from drivers.vocabulary import State
 from hil.bench.bench import OutputsPart
-from hil.outputs.mcap_log import FAULT_LOG, FAULT_WINDOWS, OPERATOR, SUPERVISOR
+from hil.outputs.mcap_log import FAULT_LOG, FAULT_WINDOWS, OPERATOR, RIG_LATE, SUPERVISOR
 from hil.outputs.mcap_log import check as check_mcap
 from hil.outputs.trace_log import describe
 from hil.run.judge import RunResult, operator_actions
@@ -87,6 +87,7 @@ def summary(result: RunResult) -> dict:
         "commit": commit(),
         "passed": result.passed,
         "verdict": result.verdict,
+        "inconclusive": result.rig_was_late(),
         "failure": None if tr.failure is None else {"stage": tr.failure.stage, "error": tr.failure.error},
         # The same meaning as the `fallen` measurement (a criterion's value 1 or 0); how and when beside it.
         "fallen": tr.fallen is not None,
@@ -103,6 +104,9 @@ def summary(result: RunResult) -> dict:
             "guards_expired": tr.stats.guards_expired,
             "controller_states": {str(k): v for k, v in sorted(tr.stats.controller_states.items())},
             "controller_telemetry_missing": tr.controller_telemetry_missing,
+            # Real time: the ticks whose SYNC the rig sent late and what that cost; the rest of the missing
+            # and late commands above are the controller's own.
+            "late": tr.lateness.as_dict(),
         },
         "safety": safety_summary(tr),
         "faults": [
@@ -165,7 +169,8 @@ def safety_summary(tr: Trace) -> dict:
 
 def events(tr: Trace, scenario: Scenario) -> list[tuple[str, float, dict]]:
     """The run's events as run.mcap carries them, (topic, t, message): each fault's window, the fault log,
-    the supervisor's events, the operator's actions; the same records as the summary's."""
+    the supervisor's events, the operator's actions, the rig's late windows; the same records as the
+    summary's."""
     out: list[tuple[str, float, dict]] = []
     for n, (spec, window) in enumerate(zip(tr.faults, tr.fault_windows, strict=True)):
         if window is not None:
@@ -200,6 +205,7 @@ def events(tr: Trace, scenario: Scenario) -> list[tuple[str, float, dict]]:
     out += [
         (OPERATOR, a["t"], {k: v for k, v in a.items() if k != "t"}) for a in operator_actions(tr, scenario)
     ]
+    out += [(RIG_LATE, a, {"start": round(a, 6), "end": round(b, 6)}) for a, b in tr.lateness.windows]
     return sorted(out, key=lambda event: event[1])
 
 
@@ -278,8 +284,16 @@ def format_table(result: RunResult) -> str:
     tr = result.trace
     if tr.failure is not None:
         lines.append(f"the run failed at {tr.failure.stage}: {tr.failure.error}")
-    # Under the real-time clock a late tick explains missing commands: say how many there were.
-    late = f", {tr.timing.overruns} overruns of {tr.timing.ticks} ticks" if result.clock == "realtime" else ""
+    lines += [f"INCONCLUSIVE: {why}" for why in result.rig_was_late()]
+    # Under the real-time clock: the rig's own lateness beside the controller's.
+    late = ""
+    if result.clock == "realtime":
+        s, rig = tr.stats, tr.lateness
+        late = (
+            f", {tr.timing.overruns} overruns of {tr.timing.ticks} ticks, {rig.ticks} SYNCs late; commands "
+            f"missing {s.missing_commands - rig.missing} and late {s.late_commands - rig.late} (the "
+            f"controller's), {rig.missing} and {rig.late} (the rig's)"
+        )
     lines.append(
         f"{result.scenario.name}: {tr.t[-1] if len(tr.t) else 0:.2f} s simulated "
         f"({result.law}, {result.clock}) in {tr.timing.wall_time:.1f} s wall "

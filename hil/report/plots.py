@@ -90,7 +90,7 @@ def figure(result: RunResult) -> Figure:
     ax.set_xlabel("simulated time (s)")
     _criteria(axes, result)
     _faults(axes, trace)
-    shaded = _supervisor(axes, trace)
+    shaded = _supervisor(axes, trace) + _rig_late(axes, trace)
     for ax in axes:
         ax.grid(alpha=0.3)
         # Beside the plot, never over its lines.
@@ -208,6 +208,23 @@ def _criteria(axes, result: RunResult) -> None:
                     sign * bound, c.after, end, color="darkred", lw=1.0, ls=style, label=label
                 )
                 label = None
+
+
+RIG_LATE = "#6a1b9a"
+"""The rig's own late windows in real time (the console's INCONCLUSIVE colour)."""
+
+
+def _rig_late(axes, trace) -> list[Patch]:
+    """Hatch the windows in which the rig itself sent SYNC late (hil/run/lateness.py); the legend's handle
+    when there were any."""
+    windows = trace.lateness.windows
+    if not windows:
+        return []
+    for ax in axes:
+        for start, end in windows:
+            ax.axvspan(start, end, facecolor="none", edgecolor=RIG_LATE, hatch="//", lw=0, alpha=0.5)
+    label = f"the rig late ({trace.lateness.ticks} SYNCs, {trace.lateness.cost} commands lost to it)"
+    return [Patch(facecolor="none", edgecolor=RIG_LATE, hatch="//", label=label)]
 
 
 def _supervisor(axes, trace) -> list[Patch]:

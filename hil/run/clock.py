@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import gc
+import math
 import os
 import threading
 import time
@@ -64,6 +65,10 @@ class LockstepClock:
         """Wall-clock (monotonic) time until which the rig waits for this tick's commands."""
         return time.monotonic() + self.command_guard
 
+    def sync_due(self) -> float:
+        """Lockstep has no wall-clock due time: a SYNC is never late."""
+        return math.inf
+
     def stats(self) -> TimingStats:
         return TimingStats(
             self.ticks, time.perf_counter() - self._t0, self.ticks * self.period, started=self.started
@@ -79,11 +84,13 @@ class RealtimeClock:
         priority: int = 0,
         cpu: int | None = None,
         lock_memory: bool = False,
-        margin: float = 0.0003,
+        sync_allowance: float = 0.001,
     ):
         """priority: SCHED_FIFO priority of the calling thread (0: the normal scheduler); cpu: pin it there;
-        lock_memory: mlockall for the loop. Each falls back, and `policy` says so, where refused."""
-        self.period, self.priority, self.cpu, self.margin = period, priority, cpu, margin
+        lock_memory: mlockall for the loop. Each falls back, and `policy` says so, where refused.
+        sync_allowance: how long after a tick's scheduled start its SYNC may go out (hil/run/lateness.py)."""
+        self.period, self.priority, self.cpu = period, priority, cpu
+        self.sync_allowance = sync_allowance
         self.lock_memory = lock_memory
         self._locked = False
         self.ticks = 0
@@ -142,8 +149,12 @@ class RealtimeClock:
             self._locked = False
 
     def command_deadline(self) -> float:
-        """Commands must arrive before the next tick starts (less a margin for the rig's own work)."""
-        return time.monotonic() + max(self._next + self.period - time.perf_counter() - self.margin, 0.0)
+        """Nothing is waited for: the next tick takes what the controller answered by its start."""
+        return time.monotonic()
+
+    def sync_due(self) -> float:
+        """The monotonic time by which this tick's SYNC is due: its scheduled start plus the allowance."""
+        return time.monotonic() + (self._next + self.sync_allowance - time.perf_counter())
 
     def stats(self) -> TimingStats:
         return TimingStats(

@@ -28,6 +28,12 @@ STOP_ACTIONS = frozenset({"estop", "cut_power"})
 """Operator actions that stop the robot (a reset permits motion again, it stops nothing)."""
 SUPERVISOR_LOST = "SUPERVISOR_LOST"
 """The stop of a supervisor gone silent: the drives lose their permission with nobody deciding it."""
+REACTION_AFTER = 0.1
+"""s after the end of one of the rig's late windows within which a supervisor's stop is taken to be the
+lateness's doing: the reference's watchdogs on the rig's and the controller's frames are 25-100 ms
+(configs/safety/default.toml [watchdogs])."""
+EXIT_CODES = {"PASSED": 0, "FAILED": 1, "ESTOPPED": 3, "INCONCLUSIVE": 4, "STOPPED": 130}
+"""Each verdict and the exit code `pure-hil run` ends with (2 is a usage or configuration error's)."""
 NO_FALL, EXPECTED_FALL, NO_UNPLANNED_STOP = "no fall", "expected fall", "no unplanned stop"
 RUN_RULES = frozenset({NO_FALL, EXPECTED_FALL, NO_UNPLANNED_STOP})
 """The verdicts every run has besides its scenario's criteria and fault expectations."""
@@ -54,14 +60,24 @@ class RunResult:
     def verdict(self) -> str:
         """How the run ended: STOPPED (ended early: Ctrl-C, SIGTERM, `rig stop`), ESTOPPED (an operator's
         e-stop the scenario did not script: `pure-hil estop`, a button, in whatever state the supervisor
-        was), FAILED (a verdict failed, the run could not finish), else PASSED. Only PASSED passes."""
+        was), FAILED (the run could not finish), INCONCLUSIVE (in real time the rig itself was late and that
+        cost the controller commands or set off a supervisor's stop: nothing can be said of the controller),
+        FAILED (a verdict failed), else PASSED. Only PASSED passes."""
         if self.trace.stopped_early:
             return "STOPPED"
         if self.live_estop() is not None:
             return "ESTOPPED"
-        if self.trace.failure is not None or not all(v.passed for v in self.verdicts):
+        if self.trace.failure is not None:
+            return "FAILED"
+        if self.rig_was_late():
+            return "INCONCLUSIVE"
+        if not all(v.passed for v in self.verdicts):
             return "FAILED"
         return "PASSED"
+
+    def rig_was_late(self) -> list[str]:
+        """Why the rig's own lateness makes the run inconclusive, one line each (empty: it does not)."""
+        return rig_lateness(self.trace, self.scenario)
 
     @property
     def passed(self) -> bool:
@@ -128,6 +144,26 @@ def judge(result: RunResult) -> RunResult:
     result.verdicts += fall_verdicts(trace, result.scenario)
     result.verdicts.append(stop_verdict(trace, result.scenario))
     return result
+
+
+def rig_lateness(trace: Trace, scenario: Scenario) -> list[str]:
+    """What the rig's own lateness in real time cost (hil/run/lateness.py): the controller's commands in its
+    late windows, and the supervisor's stops the scenario did not plan that came in or just after one."""
+    late = trace.lateness
+    why = []
+    if late.cost:
+        windows = ", ".join(f"{a:.3f}-{b:.3f} s" for a, b in late.windows[:3])
+        more = f" and {len(late.windows) - 3} more" if len(late.windows) > 3 else ""
+        why.append(
+            f"the rig sent {late.ticks} SYNCs late (windows {windows}{more}; up to "
+            f"{late.worst * 1e3:.2f} ms), which cost the controller {late.missing} missing and {late.late} "
+            "late commands"
+        )
+    for t, state, cause in stops(trace):
+        ours = cause not in LIVE_STOPS and not planned(trace, scenario, t, cause)
+        if ours and late.covers(t, REACTION_AFTER):
+            why.append(f"the supervisor's stop {state}/{cause} at {t:.3f} s came in or just after a late one")
+    return why
 
 
 def fall_verdicts(trace: Trace, scenario: Scenario) -> list[Verdict]:

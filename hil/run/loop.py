@@ -34,7 +34,9 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
         clock = LockstepClock(plant.dt, rig.command_guard)
     else:
         rt = built.realtime
-        clock = RealtimeClock(plant.dt, rt.priority, rt.cpu, rt.lock_memory)
+        clock = RealtimeClock(
+            plant.dt, rt.priority, rt.cpu, rt.lock_memory, sync_allowance=rt.sync_allowance * plant.dt
+        )
     log = TraceLog(ticks, built.trace_path)
     first_tick = plant.tick + 1
 
@@ -56,7 +58,7 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
     try:  # the clock's real-time settings (gc off) end with the loop, whatever ends it
         while n < ticks and not stopped:
             try:
-                rig.tick(clock.command_deadline(), lockstep)
+                rig.tick(clock.command_deadline(), lockstep, clock.sync_due())
             except Exception as exc:  # a bug or a broken bus mid-run: keep what ran, say where it stopped
                 failure = Failure(f"tick {plant.tick} (t = {plant.t:.4f} s)", reason(exc))
                 break
@@ -100,6 +102,7 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
         **series,
         fallen=plant.fallen,
         stats=rig.stats,
+        lateness=rig.lateness,
         controller_telemetry_missing=int(np.isnan(series["command_speed"][:, 0]).sum()),
         timing=timing,
         bus=rig.can.stats.as_dict(),

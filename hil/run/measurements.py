@@ -199,8 +199,16 @@ MEASUREMENTS: dict[str, Measurement] = {
         Measurement(
             "missing_commands",
             "",
-            "drive commands that never arrived for their tick",
-            lambda w: float(w.trace.stats.missing_commands),
+            "the controller's drive commands that never arrived for their tick (in real time: not counting "
+            "the ticks the rig itself was late in, docs/rig.md)",
+            lambda w: float(w.trace.stats.missing_commands - w.trace.lateness.missing),
+        ),
+        Measurement(
+            "late_commands",
+            "",
+            "the controller's drive commands that arrived after their tick was over (not counting the ticks "
+            "the rig itself was late in)",
+            lambda w: float(w.trace.stats.late_commands - w.trace.lateness.late),
         ),
         Measurement(
             "safety_reaction",

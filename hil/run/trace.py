@@ -15,6 +15,7 @@ from drivers.zenoh_link import ZenohConfigError
 from hil.faults import FaultError, FaultEvent, FaultSpec
 from hil.outputs.bodies import Poses
 from hil.run.clock import TimingStats
+from hil.run.lateness import Lateness
 from hil.run.rig import TickStats
 
 
@@ -106,6 +107,8 @@ class Trace:
     """Logs the run streamed that failed as it wrote them (can.log, run.mcap), and why."""
     poses: Poses | None = None
     """The bodies' poses for the recording's 3-D view (hil/outputs/bodies.py); None: none were kept."""
+    lateness: Lateness = field(default_factory=Lateness)
+    """Real time: the ticks the rig itself was late in, and what that cost the controller."""
 
     @classmethod
     def empty(cls, failure: Failure) -> Trace:

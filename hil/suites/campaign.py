@@ -275,6 +275,17 @@ class CaseResult:
     supervisor: str = ""
     """The supervisor plug that judged it (`reference`, a lab's own), `external` for one the rig did not
     start; '' when the case never ran."""
+    inconclusive: list[str] = field(default_factory=list)
+    """Why the run was INCONCLUSIVE (the rig itself late in real time, hil/run/judge.py); empty: not."""
+
+    @property
+    def verdict(self) -> str:
+        """ERROR, INCONCLUSIVE, PASS or FAIL: the case's line in every report."""
+        if self.error:
+            return "ERROR"
+        if self.inconclusive:
+            return "INCONCLUSIVE"
+        return "PASS" if self.passed else "FAIL"
 
     @classmethod
     def errored(cls, case: Case, why: str, wall: float = 0.0) -> CaseResult:
@@ -289,7 +300,7 @@ class CaseResult:
         """Why the case failed, one line per failed verdict (notes say what was expected instead)."""
         if self.error:
             return self.error
-        lines = []
+        lines = [f"INCONCLUSIVE: {why}" for why in self.inconclusive]
         if self.coverage is not None and not self.coverage.passed:
             c = self.coverage
             lines.append(f"{c.name}: {c.cause or 'no reaction of its own'}; {c.note}".rstrip("; "))
@@ -345,6 +356,7 @@ def run_case(case: Case, out: Path | None = None, bench: Bench | None = None) ->
         outcome=outcome(result) if judged else None,
         twin_wall=twin_wall,
         supervisor=bench.supervisor.plug or "external",
+        inconclusive=result.rig_was_late(),
     )
     if res.outcome is not None:  # every role but plain (judged)
         res.outcome.unrecoverable = case.unrecoverable
@@ -578,10 +590,16 @@ def coverage_report(results: list[CaseResult]) -> str:
     return "\n".join(line for line in lines if line is not None) + "\n"
 
 
+def inconclusive(results: list[CaseResult]) -> str:
+    """', N inconclusive' for a report's headline when any case was (the rig itself late)."""
+    n = sum(r.verdict == "INCONCLUSIVE" for r in results)
+    return f", {n} inconclusive" if n else ""
+
+
 def report(campaign: str, results: list[CaseResult]) -> str:
     rows = [
         (
-            "ERROR" if r.error else "PASS" if r.passed else "FAIL",
+            r.verdict,
             r.case_id,
             peak_tilt(r),
             "fell" if r.fallen else "",
@@ -593,7 +611,8 @@ def report(campaign: str, results: list[CaseResult]) -> str:
     ]
     head = ("verdict", "case", "peak tilt after release deg", "fall", "supervisor", "wall s", "why")
     lines = [
-        f"# Campaign {campaign}: {sum(r.passed for r in results)}/{len(results)} passed",
+        f"# Campaign {campaign}: {sum(r.passed for r in results)}/{len(results)} passed"
+        + inconclusive(results),
         "",
         f"{provenance()}. Judged by the supervisor {supervisors(results)}. Worst first: errors, failures, "
         f"then passes by {PEAK_TILT}.",
@@ -631,6 +650,7 @@ def report_json(campaign: str, results: list[CaseResult]) -> bytes:
             "scenario": r.scenario,
             "role": r.role,
             "passed": r.passed,
+            "verdict": r.verdict,
             "error": r.error,
             "why": "" if r.passed else r.message(),
             "fallen": r.fallen is not None,
@@ -654,6 +674,7 @@ def report_json(campaign: str, results: list[CaseResult]) -> bytes:
         "commit": commit(),
         "supervisor": supervisors(results),
         "passed": sum(r.passed for r in results),
+        "inconclusive": sum(bool(r.inconclusive) and not r.error for r in results),
         "total": len(results),
     }
     return msgspec.json.format(msgspec.json.encode({**summary, "cases": cases}), indent=2)
@@ -664,8 +685,9 @@ def junit_xml(campaign: str, results: list[CaseResult]) -> bytes:
         "testsuite",
         name=campaign,
         tests=str(len(results)),
-        failures=str(sum(not r.passed and not r.error for r in results)),
+        failures=str(sum(r.verdict == "FAIL" for r in results)),
         errors=str(sum(bool(r.error) for r in results)),
+        skipped=str(sum(r.verdict == "INCONCLUSIVE" for r in results)),
         time=f"{sum(r.wall for r in results):.3f}",
     )
     judged_by = ET.SubElement(suite, "properties")
@@ -683,6 +705,10 @@ def junit_xml(campaign: str, results: list[CaseResult]) -> bytes:
             ET.SubElement(props, "property", name=v["criterion"], value=f"{v['value']:.6g}")
         if r.error:
             ET.SubElement(case, "error", message=r.error.splitlines()[0][:200]).text = r.error
+        elif r.inconclusive:
+            # Neither passed nor failed: JUnit's `skipped`, its message saying why.
+            message = r.message()
+            ET.SubElement(case, "skipped", message=message.splitlines()[0][:200]).text = message
         elif not r.passed:
             message = r.message()
             ET.SubElement(case, "failure", message=message.splitlines()[0][:200]).text = message

@@ -112,6 +112,9 @@ class CampaignItem(pytest.Item):
             judge(result, twin, self.case.bounds)
         for v in result.verdicts:
             self.user_properties.append((v["criterion"], v["value"]))
+        if result.inconclusive and not result.error:
+            # The rig itself was late in real time: neither a pass nor a fail of the controller.
+            pytest.skip(f"{self.case.id}: {result.message()}")
         if not result.passed:
             raise HilCaseFailed(result.message())
 

@@ -681,7 +681,11 @@ async function loadHistory() {
   const reply = await api("/api/history?limit=50");
   if (!reply.ok) { text("history-total", reply.error); return; }
   state.history = reply.runs;
-  text("history-total", `(${reply.total} runs)`);
+  // Each verdict counted apart (INCONCLUSIVE is neither a pass nor a fail), over the runs shown.
+  const counts = {};
+  for (const run of reply.runs) counts[run.verdict] = (counts[run.verdict] || 0) + 1;
+  const shown = Object.entries(counts).map(([verdict, n]) => `${n} ${verdict}`).join(", ");
+  text("history-total", `(${reply.total} runs${shown ? `; the last ${reply.runs.length}: ${shown}` : ""})`);
   const body = $("history").tBodies[0];
   body.replaceChildren(...reply.runs.map((run) => {
     const tr = document.createElement("tr");
