@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import resource
 import subprocess
@@ -75,17 +76,118 @@ class AnonymousPeak:
         return self.mb
 
 
+class Probe:
+    """Where a real-time tick's time goes, tick by tick (--probe): each stage's end after the tick's
+    scheduled start. wake: the clock's wake-up; taken: the last tick's commands taken in (hil/run/rig.py
+    `_close_tick`); sync: SYNC sent (a driven controller's poll starts); answered: a driven controller has
+    answered (the rig expects the next commands); supervised: the supervisor's part done; done: the loop's
+    own work done, before it sleeps. From a Rig and a clock subclassed by the build (a compiled Rig cannot be
+    patched)."""
+
+    STAGES = ("wake", "taken", "sync", "answered", "supervised", "done")
+
+    def __init__(self):
+        self.rows: list[list[float]] = []
+        self.scheduled = 0.0
+
+    def install(self) -> None:
+        import hil.run.build as build_module
+        import hil.run.loop as loop_module
+
+        probe = self
+        clock = loop_module.RealtimeClock
+        rig = build_module.Rig
+
+        class ProbedClock(clock):
+            def start(self):
+                super().start()
+                probe.scheduled = self._next
+                probe.row(0)
+
+            def wait_next(self):
+                probe.row(5)
+                super().wait_next()
+                probe.scheduled = self._next
+                probe.row(0)
+
+        def after(stage: int, method):
+            def wrapper(self, *a, **kw):
+                try:
+                    return method(self, *a, **kw)
+                finally:
+                    probe.row(stage)
+
+            return wrapper
+
+        def expect(self, *a, **kw):
+            if self.poll_dut is None:
+                probe.row(2)  # nothing driven: SYNC just went out
+            probe.row(3)
+            return rig._expect(self, *a, **kw)
+
+        class ProbedRig(rig):
+            def __init__(self, *a, **kw):
+                super().__init__(*a, **kw)
+                poll = self.poll_dut
+                if poll is not None:
+
+                    def polled():
+                        probe.row(2)
+                        poll()
+
+                    self.poll_dut = polled
+
+        ProbedRig._close_tick = after(1, rig._close_tick)
+        ProbedRig._expect = expect
+        ProbedRig._supervise = after(4, rig._supervise)
+        loop_module.RealtimeClock = ProbedClock
+        build_module.Rig = ProbedRig
+
+    def row(self, stage: int) -> None:
+        if stage == 0:
+            self.rows.append([math.nan] * len(self.STAGES))
+        if self.rows:
+            self.rows[-1][stage] = (time.perf_counter() - self.scheduled) * 1e6
+
+    def report(self) -> dict[str, dict[str, float]]:
+        import numpy as np
+
+        a = np.array(self.rows[:-1])
+        out = {}
+        for i, name in enumerate(self.STAGES):
+            col = a[:, i][np.isfinite(a[:, i])]
+            if len(col):
+                q = {
+                    name: float(np.percentile(col, p))
+                    for name, p in (("p50", 50), ("p99", 99), ("p99.9", 99.9))
+                }
+                out[name] = {**q, "max": float(col.max())}
+        return out
+
+
 def full(args) -> None:
     import msgspec
 
     from hil.bench.bench import load_bench
     from hil.pipeline import load_scenario, run
 
+    probe = Probe() if args.probe else None
+    if probe is not None:
+        probe.install()
+
     # The machine's own stalls: the same clock with no work. On a shared VM a few wake-ups a minute come
     # late by a whole period or more, which no work in the loop can avoid.
     idle = paced(min(args.seconds, 30.0), 400.0, lambda: None, False, None)
     scenario = msgspec.structs.replace(load_scenario(args.scenario), duration=args.seconds)
-    bench = load_bench("processes" if args.processes else "embedded")
+    bench = load_bench("processes" if args.processes or args.external else "embedded")
+    controller = None
+    if args.external:
+        # A lab's controller in a process of its own at host speed, on the bench's bus: examples/ written
+        # from docs/contract.md, which reads nothing from zenoh (so `balance`, not a riding scenario).
+        bench = bench.with_overrides(controller="external", supervisor="embedded")
+        example = Path(__file__).resolve().parents[1] / "examples" / "balance_controller.py"
+        where = f"{bench.can.interface}:{bench.can.channel}"
+        controller = subprocess.Popen([sys.executable, str(example), "--can", where])
     realtime = msgspec.structs.replace(
         bench.realtime, priority=50 if args.fifo else 0, lock_memory=args.lock_memory, cpu=args.cpu
     )
@@ -93,7 +195,12 @@ def full(args) -> None:
     with tempfile.TemporaryDirectory(prefix="realtime-bench-") as tmp:
         anonymous = AnonymousPeak()
         t0 = time.perf_counter()
-        result = run(scenario, bench, out=Path(tmp))
+        try:
+            result = run(scenario, bench, out=Path(tmp))
+        finally:
+            if controller is not None:
+                controller.terminate()
+                controller.wait(10)
         wall = time.perf_counter() - t0
         peak_anonymous = anonymous.stop()
     tr = result.trace
@@ -117,6 +224,7 @@ def full(args) -> None:
         "wall_s": wall,
         "policy": timing.realtime_policy,
         "bench": bench.name,
+        "probe_us": probe.report() if probe is not None else None,
     }
     if args.json:
         print(json.dumps(figures))
@@ -141,6 +249,10 @@ def full(args) -> None:
         f"  peak memory {figures['peak_rss_mb']:.0f} MB (anonymous {peak_anonymous:.0f} MB); "
         f"whole command {wall:.1f} s (outputs included)"
     )
+    if probe is not None:
+        print("  each stage's end after the tick's scheduled start, us   p50     p99   p99.9     max")
+        for name, q in figures["probe_us"].items():
+            print(f"    {name:<50}" + "".join(f"{q[p]:8.0f}" for p in ("p50", "p99", "p99.9", "max")))
 
 
 def in_a_loopback_namespace(argv: list[str]) -> int:
@@ -169,9 +281,18 @@ def main() -> None:
     p.add_argument(
         "--processes", action="store_true", help="--full: controller and supervisor in their own processes"
     )
+    p.add_argument(
+        "--external",
+        action="store_true",
+        help="--full: examples/balance_controller.py in its own process, the supervisor in the rig's tick "
+        "(use --scenario balance: the example reads nothing from zenoh)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--probe", action="store_true", help="--full: where each tick's time goes (Probe)")
     args = p.parse_args()
-    if args.processes and network_interfaces() != ["lo"]:
+    if args.external:
+        args.full = True
+    if (args.processes or args.external) and network_interfaces() != ["lo"]:
         sys.exit(in_a_loopback_namespace(sys.argv[1:]))
     if args.full:
         full(args)

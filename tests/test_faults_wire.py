@@ -456,6 +456,8 @@ class Responder:
 
         self.node = CanNode(open_bus(bench.bus_config), name="responder")
         self.stop = threading.Event()
+        self.answered = threading.Condition()
+        self.last = -1
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.thread.start()
 
@@ -466,6 +468,14 @@ class Responder:
                 k = int(rx.signals["Tick"])
                 for n in (1, 2, 3):
                     self.node.send(f"DRIVE{n}_COMMAND", {"Torque": k / 1000, "Tick": k, "Enable": 1})
+                with self.answered:
+                    self.last = k
+                    self.answered.notify_all()
+
+    def wait_answer(self, k: int) -> None:
+        """Until SYNC(k) is answered: what the real-time clock's sleep gives a controller on its own thread."""
+        with self.answered:
+            assert self.answered.wait_for(lambda: self.last == k, timeout=10.0), f"SYNC({k}) not answered"
 
     def close(self):
         self.stop.set()
@@ -489,9 +499,12 @@ def applied_commands(session, fault, ticks=80):
     bench.plant.drives.set_permission(True)
     out = []
     try:
-        for _ in range(ticks):
+        for _ in range(ticks + 1):
+            # Real time: the commands of tick k are taken in as tick k + 1 starts, before its step.
             bench.rig.tick(deadline=time.monotonic() + 1.0, lockstep=False)
-            out.append((bench.plant.tick, bench.plant.drives.motors[0].command))
+            if bench.plant.tick > 1:
+                out.append((bench.plant.tick - 1, bench.plant.drives.motors[0].command))
+            responder.wait_answer(bench.plant.tick)
     finally:
         responder.close()
         bench.close()

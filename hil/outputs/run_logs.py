@@ -61,6 +61,10 @@ PIPE_BYTES = 1 << 20
 unprivileged process may ask): ~800 ticks of calls, so the run is held back only when the process falls
 behind for longer than that."""
 CAN_LOG, MCAP = "can.log", "run.mcap"
+NICE = 10
+"""The writer's niceness under the real-time clock: it only has to keep up on average (its pipe holds ~800
+ticks), so it takes what CPU the rig, the controller and the supervisor leave and never delays their
+wake-ups (a nice-0 writer on the same core did, by up to its whole time slice)."""
 
 _fields = operator.attrgetter(*MESSAGE_FIELDS)
 _LENGTH = struct.Struct("<I")
@@ -152,7 +156,8 @@ class LocalLogs(can.Listener):
 class LogProcess(can.Listener):
     """The same calls as `LocalLogs`, handed to a `LocalLogs` in a process of its own."""
 
-    def __init__(self, can_log: Path | None, mcap: McapSpec | None):
+    def __init__(self, can_log: Path | None, mcap: McapSpec | None, nice: int = 0):
+        """nice: the writer process's niceness (NICE under the real-time clock)."""
         self.clock: Callable[[], float] = lambda: 0.0
         self.failed: dict[str, str] = {}
         self.cpu_s = 0.0
@@ -164,7 +169,7 @@ class LogProcess(can.Listener):
         self._broken: str | None = None
         env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONPATH": _import_path()}
         self._process = subprocess.Popen(
-            [sys.executable, "-P", "-m", __name__],  # -P: not the working directory's pure-hil, the run's
+            [sys.executable, "-P", "-m", __name__, str(nice)],  # -P: not the working directory's, the run's
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             env=env,
@@ -282,14 +287,16 @@ if TYPE_CHECKING:
     _CHECKED: tuple[type[RunLogs], ...] = (LocalLogs, LogProcess)
 
 
-def open_logs(can_log: Path | None, mcap: McapSpec | None, in_process: bool = False) -> RunLogs | None:
+def open_logs(
+    can_log: Path | None, mcap: McapSpec | None, in_process: bool = False, nice: int = 0
+) -> RunLogs | None:
     """The run's logs: None when it writes neither; on the caller's thread when asked or in a daemonic
-    process (a Dask worker)."""
+    process (a Dask worker); else in a process of their own at niceness `nice`."""
     if can_log is None and mcap is None:
         return None
     if in_process or multiprocessing.current_process().daemon:
         return LocalLogs(can_log, mcap)
-    return LogProcess(can_log, mcap)
+    return LogProcess(can_log, mcap, nice)
 
 
 def _import_path() -> str:
@@ -358,6 +365,7 @@ def _serve(calls: IO[bytes], report: IO[bytes]) -> None:
 
 
 if __name__ == "__main__":
+    os.nice(int(sys.argv[1]) if len(sys.argv) > 1 else 0)
     report = os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)  # a stray print goes to stderr, not into the report
     _serve(sys.stdin.buffer, report)

@@ -52,6 +52,7 @@ from drivers.vocabulary import OPERATOR_ACTIONS_KEPT, OperatorRecord, State
 from drivers.zenoh_link import Subscription, ZenohLink
 from hil.faults import FaultSet
 from hil.outputs.inputs_log import InputsLog
+from hil.run.lateness import Lateness
 from plant.ballbot import PlantCore
 from plant.drives import DriveState, MotorDrive
 from plant.sensors import DriveFeedback, ImuSample, TesSample
@@ -181,7 +182,15 @@ class Rig:
         self.recovery_in_commands = recovery_in_commands
         self._held: deque[tuple[int, int, float, bool]] = deque()
         """Commands a loop-delay fault holds back: (due tick, drive, torque, enable)."""
+        self._expected = -1
+        """The tick whose commands the controller's frames are taken for (-1: none: a command then is not
+        counted, as one before the first tick)."""
+        self._expected_delay = 0
+        self._pending: set[str] = set()
+        """The expected tick's commands not yet here."""
         self.stats = TickStats()
+        self.lateness = Lateness()
+        """Real time: the ticks whose SYNC the rig sent late, and what they cost the controller."""
         self.telemetry = link.subscribe(
             keys.controller_telemetry, ControllerTelemetry, capacity=TELEMETRY_CAPACITY
         )
@@ -291,13 +300,19 @@ class Rig:
         """The next frame, waiting until `deadline` at most, and not past a stop request."""
         return self.can.recv(timeout=min(max(deadline - time.monotonic(), 0.0), STOP_POLL))
 
-    def tick(self, deadline: float | None = None, lockstep: bool = True) -> None:
-        """One tick; wait for the controller's answer until `deadline` (time.monotonic()).
+    def tick(self, deadline: float | None = None, lockstep: bool = True, sync_due: float = math.inf) -> None:
+        """One tick. Lockstep: wait for the controller's answer until `deadline` (time.monotonic()), and for
+        the heartbeat that follows the commands, so every frame of tick k is on the bus before tick k + 1
+        starts (a deterministic CAN log).
 
-        Lockstep also waits for the heartbeat that follows the commands, so every frame of tick k is on
-        the bus before tick k + 1 starts (a deterministic CAN log).
+        Real time: nothing is waited for. The controller has until the next tick starts (docs/contract.md):
+        that tick takes first what it answered, then steps the plant under it (the drives hold a command
+        for the tick after its own either way). A SYNC sent after `sync_due` (time.monotonic()) makes the
+        tick one of the rig's late ones (hil/run/lateness.py).
         """
         plant, faults = self.plant, self.faults
+        if not lockstep:
+            self._close_tick()
         plant.step()
         k = plant.tick
         faults.update(k, plant.t)
@@ -313,13 +328,18 @@ class Rig:
         self._send_sensors(k, feedback, imu, silent)
         faults.flush(plant.t)
         self.can.send(MessageName.SYNC, {"Tick": k % TICK_MODULO})
+        if sync_due != math.inf:
+            self.lateness.sync(k, plant.t, plant.dt, time.monotonic() - sync_due)
         guard = time.monotonic() + self.command_guard if deadline is None else deadline
         if self.poll_dut is not None:
             self.poll_dut()  # driven: what it answers is queued when poll() returns, or it is not coming
-        # Neither a driven controller nor a silent one is waited for: take what is queued.
-        waiting = self.poll_dut is None and not self._silent
-        self._collect_commands(k, guard if waiting else time.monotonic(), lockstep, faults.command_delay())
-        self._deliver_held(k)
+        if lockstep:
+            # Neither a driven controller nor a silent one is waited for: take what is queued.
+            waiting = self.poll_dut is None and not self._silent
+            self._collect_commands(k, guard if waiting else time.monotonic(), faults.command_delay())
+            self._deliver_held(k)
+        else:
+            self._expect(k, faults.command_delay())
         self._supervise(k, guard, lockstep)
         self.drain_bus()
         self.apply_permission()
@@ -498,6 +518,8 @@ class Rig:
             self._recover(rx.signals)
         elif rx.name in COMMANDS and self.recovery_in_commands and self.takeover:
             self._recover_drive(COMMANDS[rx.name], rx.signals)
+        elif rx.name in COMMANDS:
+            self._accept(rx)  # real time: the answer to the last SYNC as the tick's drain takes it in
         elif rx.name == MessageName.SUPERVISOR_DIAGNOSIS and rx.ok:
             # What a seat, a handle or an operator's screen tells the rider.
             self.plant.alert(int(rx.signals["Alert"]))
@@ -548,61 +570,86 @@ class Rig:
             self.stats.contactor_opened += not drives.contactor_closed
 
     # ------------------------------------------------------------------------------------------- inputs
-    def _collect_commands(self, k: int, deadline: float, lockstep: bool, delay: int = 0) -> None:
-        """Hand the controller's commands for tick k to the drives, waiting until `deadline` at most.
-
-        Lockstep: the tick is over when the heartbeat follows a command of this tick (the contract:
-        commands, then the heartbeat), so a command lost on the way is counted missing at once instead of
-        waited for. A controller that has answered before and then let a whole guard pass without a word
-        is dead or hung: it is not waited for again until it is heard from (a run under such a fault
-        takes about the wall time of its fault-free twin)."""
-        tag = k % TICK_MODULO
-        pending = set(COMMANDS)
+    def _collect_commands(self, k: int, deadline: float, delay: int = 0) -> None:
+        """Lockstep: hand the controller's commands for tick k to the drives, waiting until `deadline` at
+        most. The tick is over when the heartbeat follows a command of this tick (the contract: commands,
+        then the heartbeat), so a command lost on the way is counted missing at once instead of waited for.
+        A controller that has answered before and then let a whole guard pass without a word is dead or
+        hung: it is not waited for again until it is heard from (a run under such a fault takes about the
+        wall time of its fault-free twin)."""
+        self._expect(k, delay)
         heard = spoke = False
         """heard: a command tagged k arrived (the next heartbeat closes the tick); spoke: any frame of the
         controller arrived."""
-        drives = self.plant.drives.motors
         waiting = not self._silent
-        while pending or lockstep:
+        while True:
             rx = self._recv_until(deadline)
             if rx is None:
                 if time.monotonic() >= deadline:
-                    self.stats.guards_expired += lockstep and waiting
+                    self.stats.guards_expired += waiting
                     break
                 if self.stopping:
+                    self._expected = -1
                     return  # the run's last tick: what did not come is not counted missing
                 continue
-            if rx.name not in COMMANDS:
-                self._other_frame(rx)
+            if rx.name not in COMMANDS or (self.takeover and self.recovery_in_commands):
+                self._other_frame(rx)  # under a takeover with device profiles: the supervisor's commands
                 if rx.name == MessageName.CONTROLLER_HEARTBEAT:
                     spoke = True
-                    if (heard or self.takeover) and lockstep:  # under a takeover it commands nothing
+                    if heard or self.takeover:  # under a takeover it commands nothing
                         break
                 continue
-            if self.takeover and self.recovery_in_commands:
-                self._other_frame(rx)  # the supervisor's, in the drives' own frames
-                continue
             spoke = True
-            if not rx.ok:
-                continue
-            if int(rx.signals["Tick"]) != tag:
-                self.stats.late_commands += 1  # stale: never applied
-                continue
-            heard = True
-            index, torque, enable = COMMANDS[rx.name], rx.signals["Torque"], bool(rx.signals["Enable"])
-            if delay or self._held:
-                # A late loop: a command never overtakes an earlier one.
-                due = max(k + delay, self._held[-1][0] if self._held else k)
-                self._held.append((due, index, torque, enable))
-            else:
-                self._command(drives[index], torque, enable)
-            pending.discard(rx.name)
-        self.stats.missing_commands += len(pending)
+            heard = self._accept(rx) or heard
+        self._close_tick(take_queued=False)
         self._answered = self._answered or heard
         if spoke:
             self._silent = False
-        elif lockstep and self._answered:
+        elif self._answered:
             self._silent = True
+
+    def _expect(self, k: int, delay: int) -> None:
+        """From now on the controller's commands tagged k are this tick's (applied `delay` ticks late: a
+        loop-delay fault)."""
+        self._expected, self._expected_delay = k, delay
+        self._pending = set(COMMANDS)
+
+    def _accept(self, rx: Received) -> bool:
+        """A command frame of the controller's: applied if it is for the expected tick (True), else counted
+        late (its tick is over: never applied)."""
+        k = self._expected
+        if not rx.ok or k < 0:
+            return False
+        tick = int(rx.signals["Tick"])
+        if tick != k % TICK_MODULO:
+            self.stats.late_commands += 1
+            self.lateness.late += self.lateness.owns_tag(k, tick)
+            return False
+        index, torque, enable = COMMANDS[rx.name], rx.signals["Torque"], bool(rx.signals["Enable"])
+        if self._expected_delay or self._held:
+            # A late loop: a command never overtakes an earlier one.
+            due = max(k + self._expected_delay, self._held[-1][0] if self._held else k)
+            self._held.append((due, index, torque, enable))
+        else:
+            self._command(self.plant.drives.motors[index], torque, enable)
+        self._pending.discard(rx.name)
+        return True
+
+    def _close_tick(self, take_queued: bool = True) -> None:
+        """The expected tick is over: its commands that came are taken in (`take_queued`: all that are queued
+        now; lockstep has taken them already), the rest counted missing (the rig's, in one of its late
+        windows), the held ones due delivered."""
+        k = self._expected
+        if k < 0:
+            return
+        if take_queued:
+            self.drain_bus()
+        pending = len(self._pending)
+        self.stats.missing_commands += pending
+        if pending and self.lateness.owns(k):
+            self.lateness.missing += pending
+        self._deliver_held(k)
+        self._expected = -1
 
     def _command(self, drive: MotorDrive, torque: float, enable: bool) -> None:
         if self.takeover:
