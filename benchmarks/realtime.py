@@ -165,6 +165,13 @@ class Probe:
         return out
 
 
+def bare_floor_us(ticks: int = 4000) -> float:
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from lockstep import bare_floor
+
+    return bare_floor(ticks) / ticks * 1e6
+
+
 def full(args) -> None:
     import msgspec
 
@@ -172,6 +179,9 @@ def full(args) -> None:
     from hil.pipeline import load_scenario, run
 
     probe = Probe() if args.probe else None
+    # The machine's speed in the same run: python-can's bare send+recv of a tick's frames (lockstep.py's
+    # floor), so a tick's work reads in floors as well as in microseconds.
+    floor_us = bare_floor_us()
     if probe is not None:
         probe.install()
 
@@ -218,6 +228,9 @@ def full(args) -> None:
         "late_commands": stats.late_commands,
         "telemetry_missing": tr.controller_telemetry_missing,
         "passed": result.passed,
+        "verdict": result.verdict,
+        "rig_late": tr.lateness.as_dict(),
+        "floor_us": floor_us,
         "failure": None if tr.failure is None else str(tr.failure),
         "peak_rss_mb": peak_rss_mb(),
         "peak_anonymous_mb": peak_anonymous,
@@ -241,15 +254,21 @@ def full(args) -> None:
     print("  jitter = |period - nominal|, us      p50     p99   p99.9     max")
     for label, q in (("the run", j), ("no work (baseline)", i)):
         print(f"    {label:<32}" + "".join(f"{q.get(p, 0):8.0f}" for p in ("p50", "p99", "p99.9", "max")))
+    late = tr.lateness
     print(
-        f"  commands missing {stats.missing_commands}, late {stats.late_commands}; "
-        f"ticks without controller telemetry {tr.controller_telemetry_missing}"
+        f"  commands missing {stats.missing_commands}, late {stats.late_commands} (of them the rig's: "
+        f"{late.missing}, {late.late}, in {late.ticks} late SYNCs); ticks without controller telemetry "
+        f"{tr.controller_telemetry_missing}; verdict {result.verdict}"
     )
+    period_floors = 1e6 / args.hz / floor_us
+    print(f"  floor (bare python-can, 12 frames) {floor_us:.0f} us: the period is {period_floors:.1f} floors")
     print(
         f"  peak memory {figures['peak_rss_mb']:.0f} MB (anonymous {peak_anonymous:.0f} MB); "
         f"whole command {wall:.1f} s (outputs included)"
     )
     if probe is not None:
+        work = figures["probe_us"]["done"]["p50"] - figures["probe_us"]["wake"]["p50"]
+        print(f"  the tick's work (wake to done, medians) {work:.0f} us = {work / floor_us:.1f} floors")
         print("  each stage's end after the tick's scheduled start, us   p50     p99   p99.9     max")
         for name, q in figures["probe_us"].items():
             print(f"    {name:<50}" + "".join(f"{q[p]:8.0f}" for p in ("p50", "p99", "p99.9", "max")))
