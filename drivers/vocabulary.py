@@ -71,6 +71,8 @@ class Cause(IntEnum):
 ReactionStateName = Literal["LIMITING", "STOPPING", "ESTOP", "RECOVERY"]
 """The states a supervisor's reaction leads to (all but NORMAL): what a fault or a run can expect."""
 StateName = Literal["NORMAL", ReactionStateName]
+RUNNING_STATES = frozenset({"NORMAL", "LIMITING"})
+"""The states the robot runs in: a stop starts from one of them (the others are a stop under way)."""
 """State's names, as SafetyState.state carries them (tests/test_vocabulary.py checks they are State's)."""
 
 OperatorCommand = Literal["estop", "cut_power", "reset"]

@@ -33,7 +33,8 @@ from hil.faults import parse_fault
 from hil.history import History
 from hil.pipeline import run
 from hil.run.judge import EXPECTED_FALL, NO_FALL, NO_UNPLANNED_STOP, RunResult, judge
-from hil.run.scenario import Criterion, OperatorEntry, Scenario
+from hil.run.lateness import Lateness
+from hil.run.scenario import Criterion, OperatorEntry, Scenario, ScEntry
 from hil.run.trace import Trace
 from hil.service import RigService
 from tests.helpers import ROOT, wait_for
@@ -255,6 +256,78 @@ def test_a_stop_is_planned_by_a_scheduled_fault_a_live_fault_that_expects_it_or_
     assert not no_unplanned_stop(
         judged(trace(safety_events=events), criteria=[Criterion(metric="safety_state", equals=0)])
     )
+
+
+# ---------------------------------------------------- 4. a fault is judged on what it caused (issue 46)
+NOISE = {
+    "kind": "sensor.noise",
+    "channel": "imu.pitch",
+    "at": 1.0,
+    "expect": {"reaction": "none", "fall": False},
+}
+
+
+def no_reaction(result: RunResult):
+    return next(v for v in result.verdicts if v.criterion.endswith(": no reaction"))
+
+
+def test_a_transition_something_else_explains_is_not_the_faults_and_one_nothing_explains_is():
+    noise = parse_fault({**NOISE, "sigma": 0.001})
+    flood = parse_fault({"kind": "zenoh.sc_flood", "at": 0.5, "duration": 0.4})
+
+    def judged_with(events, faults=(noise,), windows=((1.0, 2.0),), **scenario):
+        tr = trace(safety_events=events, faults=list(faults), fault_windows=list(windows))
+        return no_reaction(judged(tr, faults=list(faults), **scenario))
+
+    assert not judged_with([stop(1.2, "SENSOR_DISAGREE")]).passed  # the positive control: nothing explains it
+    operator = judged_with([stop(1.5, "OPERATOR_ESTOP"), stop(1.8, "OPERATOR_ESTOP", "ESTOP", "STOPPING")])
+    assert (
+        operator.passed
+        and "an operator's e-stop" in operator.note
+        and "a stop already under way" in operator.note
+    )
+    # Another fault's window and its aftermath: the SC silence an earlier flood left.
+    aftermath = judged_with([stop(1.3, "SC_SILENT")], faults=(flood, noise), windows=((0.5, 0.9), (1.0, 2.0)))
+    assert aftermath.passed and "fault 0 zenoh.sc_flood" in aftermath.note
+    long_after = judged_with(
+        [stop(3.5, "SC_SILENT")], faults=(flood, noise), windows=((0.5, 0.9), (1.0, 4.0))
+    )
+    assert not long_after.passed, "AFTERMATH is bounded"
+    # The scenario's own SC cap, in force then; without it, OVER_CAP is the fault's.
+    limiting = [Event(1.4, "transition", "NORMAL", "LIMITING", "OVER_CAP")]
+    capped = judged_with(limiting, sc=[ScEntry(at=0.0, mode="limit", cap=0.5)])
+    assert capped.passed and not judged_with(limiting, sc=[ScEntry(at=0.0, mode="free")]).passed
+    # The rig's own lateness in real time.
+    late = Lateness()
+    late.sync(500, 1.25, 0.0025, 0.002)
+    tr = trace(
+        safety_events=[stop(1.3, "IMU_SILENT")], faults=[noise], fault_windows=[(1.0, 2.0)], lateness=late
+    )
+    assert no_reaction(judged(tr, faults=[noise])).passed
+
+
+def scheduled_noise(sigma: float) -> RunResult:
+    """The issue's case: noise the robot should ride through, then the scenario's own e-stop."""
+    from hil.pipeline import load_scenario
+
+    scenario = msgspec.structs.replace(
+        load_scenario("balance"),
+        duration=3.0,
+        faults=[parse_fault({**NOISE, "sigma": sigma})],
+        operator=[OperatorEntry(at=2.0, action="estop")],
+    )
+    return run(scenario, private_bench())
+
+
+def test_ride_through_this_noise_then_check_the_estop_passes_and_noise_that_trips_fails_on_its_line():
+    ridden = scheduled_noise(0.001)
+    assert ridden.verdict == "PASSED", [v for v in ridden.verdicts if not v.passed]
+    assert "STOPPING/OPERATOR_ESTOP at 2.000 s (an operator's e-stop)" in no_reaction(ridden).note
+    tripped = scheduled_noise(0.05)
+    assert tripped.verdict == "FAILED"
+    assert [v.criterion for v in tripped.verdicts if not v.passed] == [
+        "fault 0 sensor.noise @1s: no reaction"
+    ]
 
 
 # ------------------------------------------------------------------- end to end, through `pure-hil serve`

@@ -2,6 +2,10 @@
 
 A missed reaction fails with a message that says what was expected, by when, and what the supervisor did
 instead, so a campaign report or a pytest failure reads on its own.
+
+A fault that expects no reaction is judged on what it caused (docs/faults.md "Attribution"): a transition
+of the supervisor's after its start is held against it unless something else in the run explains it
+(`explained_by`).
 """
 
 from __future__ import annotations
@@ -11,22 +15,50 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from drivers.vocabulary import OPERATOR_STOPS, RUNNING_STATES, Cause, Event
 from hil.faults.base import Expect, FaultSpec
-from hil.run.scenario import Verdict
+from hil.run.lateness import REACTION_AFTER
+from hil.run.scenario import Scenario, Verdict
 
 if TYPE_CHECKING:
     from hil.run.trace import Trace
 
+AFTERMATH = 2.0
+"""s after another fault's end within which a transition may still be its doing: the supervisor's slowest
+watchdog (the SC's, 1 s) and a stop's first step after it."""
+OPERATORS = frozenset(c.name for c in OPERATOR_STOPS)
 
-def fault_verdicts(trace: Trace) -> list[Verdict]:
+
+def fault_verdicts(trace: Trace, scenario: Scenario | None = None) -> list[Verdict]:
     out = []
     for n, spec in enumerate(trace.faults):
         if spec.expect is not None:
-            out += _judge(trace, n, spec, spec.expect)
+            out += _judge(trace, n, spec, spec.expect, scenario)
     return out
 
 
-def _judge(trace: Trace, n: int, spec: FaultSpec, e: Expect) -> list[Verdict]:
+def explained_by(trace: Trace, n: int, ev: Event, scenario: Scenario | None) -> str:
+    """What in the run other than fault n explains transition `ev` ('' : nothing, the fault is blamed):
+    a stop already under way (the transition does not start from a running state), an operator's e-stop,
+    the scenario's own SC cap in force, another fault acting then or AFTERMATH before, the rig's own
+    lateness in real time."""
+    if ev.from_state not in RUNNING_STATES:
+        return "a stop already under way"
+    if ev.cause in OPERATORS:
+        return "an operator's e-stop"
+    if ev.cause == Cause.OVER_CAP.name and scenario is not None:
+        steps = [s for s in scenario.sc if s.at <= ev.t + 1e-9]
+        if steps and steps[-1].mode == "limit":
+            return "the scenario's SC cap"
+    for m, window in enumerate(trace.fault_windows):
+        if m != n and window is not None and window[0] - 1e-9 <= ev.t <= window[1] + AFTERMATH:
+            return f"fault {m} {trace.faults[m].kind}"
+    if trace.lateness.covers(ev.t, REACTION_AFTER):
+        return "the rig's own lateness"
+    return ""
+
+
+def _judge(trace: Trace, n: int, spec: FaultSpec, e: Expect, scenario: Scenario | None) -> list[Verdict]:
     label = f"fault {n} {spec.kind} @{spec.at:g}s"
     window = trace.fault_windows[n] if n < len(trace.fault_windows) else None
     end = float(trace.t[-1]) if len(trace.t) else 0.0
@@ -57,15 +89,22 @@ def _judge(trace: Trace, n: int, spec: FaultSpec, e: Expect) -> list[Verdict]:
             )
         verdicts.append(Verdict(f"{label}: {wanted}", delay, f"<= {e.within:g} s", "s", passed, note))
     if e.reaction == "none":
+        causes = [explained_by(trace, n, ev, scenario) for ev in after]
+        blamed = [ev for ev, cause in zip(after, causes, strict=True) if not cause]
         note = ""
-        if after:
-            first = after[0]
+        if blamed:
+            first = blamed[0]
             note = (
                 f"expected no supervisor reaction to {spec.describe()}, but it entered "
-                f"{first.to_state}/{first.cause} at {first.t:.3f} s"
+                f"{first.to_state}/{first.cause} at {first.t:.3f} s and nothing else in the run explains it"
+            )
+        elif after:
+            pairs = zip(after, causes, strict=True)
+            note = "not this fault's: " + "; ".join(
+                f"{ev.to_state}/{ev.cause} at {ev.t:.3f} s ({c})" for ev, c in pairs
             )
         verdicts.append(
-            Verdict(f"{label}: no reaction", float(len(after)), "== 0 transitions", "", not after, note)
+            Verdict(f"{label}: no reaction", float(len(blamed)), "== 0 transitions", "", not blamed, note)
         )
     if e.fall is not None:
         fell = trace.fallen is not None

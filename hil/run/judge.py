@@ -9,8 +9,9 @@ import math
 from dataclasses import dataclass, field
 
 from drivers.rules import JudgedRules
-from drivers.vocabulary import OPERATOR_STOPS, State
+from drivers.vocabulary import OPERATOR_STOPS, RUNNING_STATES, State
 from hil.run.fault_verdicts import fault_verdicts
+from hil.run.lateness import REACTION_AFTER
 from hil.run.measurements import MEASUREMENTS, measure, summary_metrics, unavailable
 from hil.run.rig import SCENARIO_SOURCE
 from hil.run.scenario import Scenario, Verdict
@@ -20,18 +21,12 @@ LIVE_STOPS = frozenset(c.name for c in OPERATOR_STOPS)
 SCRIPTED_WITHIN = 0.5
 """s after a scripted e-stop within which the supervisor's transition is that e-stop's (a supervisor in
 another process takes it in on its own clock)."""
-RUNNING = frozenset({"NORMAL", "LIMITING"})
-"""States a stop starts from."""
 STOPS = frozenset({"STOPPING", "RECOVERY", "ESTOP"})
 """States a stop is in."""
 STOP_ACTIONS = frozenset({"estop", "cut_power"})
 """Operator actions that stop the robot (a reset permits motion again, it stops nothing)."""
 SUPERVISOR_LOST = "SUPERVISOR_LOST"
 """The stop of a supervisor gone silent: the drives lose their permission with nobody deciding it."""
-REACTION_AFTER = 0.1
-"""s after the end of one of the rig's late windows within which a supervisor's stop is taken to be the
-lateness's doing: the reference's watchdogs on the rig's and the controller's frames are 25-100 ms
-(configs/safety/default.toml [watchdogs])."""
 EXIT_CODES = {"PASSED": 0, "FAILED": 1, "ESTOPPED": 3, "INCONCLUSIVE": 4, "STOPPED": 130}
 """Each verdict and the exit code `pure-hil run` ends with (2 is a usage or configuration error's)."""
 NO_FALL, EXPECTED_FALL, NO_UNPLANNED_STOP = "no fall", "expected fall", "no unplanned stop"
@@ -96,7 +91,8 @@ class RunResult:
         scripted = [e.at for e in self.scenario.operator if e.action == "estop"]
         for event in self.trace.safety_events:
             # A stop's entry (a stop under way keeps its cause into ESTOP).
-            if event.kind != "transition" or event.cause not in LIVE_STOPS or event.from_state not in RUNNING:
+            entry = event.kind == "transition" and event.from_state in RUNNING_STATES
+            if not entry or event.cause not in LIVE_STOPS:
                 continue
             if not any(0.0 <= event.t - at <= SCRIPTED_WITHIN for at in scripted):
                 return event.t
@@ -140,7 +136,7 @@ def judge(result: RunResult) -> RunResult:
         note = unavailable(trace, c.metric) if math.isnan(value) else ""
         unit = MEASUREMENTS[c.metric].unit
         result.verdicts.append(Verdict(c.label, value, c.describe(), unit, c.check(value), note or c.note))
-    result.verdicts += fault_verdicts(trace)
+    result.verdicts += fault_verdicts(trace, result.scenario)
     result.verdicts += fall_verdicts(trace, result.scenario)
     result.verdicts.append(stop_verdict(trace, result.scenario))
     return result
@@ -205,7 +201,7 @@ def stops(trace: Trace) -> list[tuple[float, str, str]]:
     out = [
         (e.t, e.to_state, e.cause)
         for e in trace.safety_events
-        if e.kind == "transition" and e.from_state in RUNNING and e.to_state in STOPS
+        if e.kind == "transition" and e.from_state in RUNNING_STATES and e.to_state in STOPS
     ]
     out += [(t, "silent", SUPERVISOR_LOST) for t in trace.stats.supervisor_lost_at]
     return sorted(out)

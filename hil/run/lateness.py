@@ -20,6 +20,10 @@ TAIL_TICKS = 2
 WINDOWS_KEPT = 1000
 """Late windows a run keeps (their start and end); more are counted only (a week-long service run must not
 grow)."""
+REACTION_AFTER = 0.1
+"""s after the end of one of the rig's late windows within which a supervisor's stop is taken to be the
+lateness's doing: the reference's watchdogs on the rig's and the controller's frames are 25-100 ms
+(configs/safety/default.toml [watchdogs])."""
 RECENT = 64
 """Late ticks remembered to judge a late command by its tag (a command later than this is lost anyway)."""
 
