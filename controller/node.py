@@ -37,6 +37,9 @@ SHORT_WAIT = 0.005
 """s the lockstep controller waits for the rig's fence once it has been late LATE_RUN ticks in a row."""
 BOOT_PERIOD = 0.1
 """s between boot-up heartbeats (State INIT) until the first SYNC: the rig's start-up handshake."""
+RUN_OVER = 2.0
+"""s without a SYNC after which the run is over: the node starts over in INIT for the next one and announces
+its boot-up again (docs/contract.md "Between runs"); longer than any wait of a lockstep rig's tick (1 s)."""
 REST_SPEED, REST_TILT, REST_TIME = 0.05, math.radians(3.0), 0.3
 """Without a supervisor this controller turns its drives off once it has stood still (m/s) and upright
 (rad) this long (s): where the supervisor's own controlled stop would."""
@@ -72,6 +75,8 @@ class ControllerNode:
         reasons = can.catalog[MessageName.SUPERVISOR_ESTOP].values("Reason")
         self._seat_flags = frozenset(code for code, name in reasons.items() if name in SEAT_FLAGGED)
         self.tick: int | None = None
+        self.synced_at = 0.0
+        """time.monotonic() of the last SYNC handled."""
         self.late = 0
         """Lockstep ticks computed before the rig's fence of that tick arrived (the wait timed out)."""
         self._late_run = 0
@@ -116,6 +121,7 @@ class ControllerNode:
         return 0.0 if self.tick is None else self.tick * self.controller.dt
 
     def on_sync(self, raw_tick: int) -> Output:
+        self.synced_at = time.monotonic()
         if self.tick is None:
             self.tick = raw_tick
         else:
@@ -224,14 +230,29 @@ class ControllerNode:
         while (rx := self.can.recv(timeout=0.0)) is not None:
             self.handle(rx)
 
+    def reset(self) -> None:
+        """The run is over: back to INIT as at power-on (a fresh law, no tick, nothing heard), so the node
+        serves the next run without a restart."""
+        c = self.controller
+        self.controller = Controller(c.config, c.robot, c.rider)
+        self.tick, self.last_output = None, None
+        self.estop = self.seat_flagged = self.stopped_alone = False
+        self.supervisor_seen = self._still_since = None
+        self._wrench, self._sc = None, None
+        self.late = self._late_run = 0
+
     def run(self, stop: threading.Event, poll: float = 0.1, paused: threading.Event | None = None) -> None:
         """Receive until `stop` is set (recv blocks at most `poll` seconds, so stopping is prompt); while
-        `paused` is set, take nothing in (a hung controller, for fault injection)."""
+        `paused` is set, take nothing in (a hung controller, for fault injection). A SYNC silent for RUN_OVER
+        ends the run: the node starts over for the next (`reset`)."""
         next_boot = time.monotonic()
         while not stop.is_set():
             if paused is not None and paused.is_set():
                 stop.wait(0.001)
                 continue
+            if self.tick is not None and time.monotonic() - self.synced_at > RUN_OVER:
+                self.reset()
+                next_boot = time.monotonic()
             if self.tick is None and time.monotonic() >= next_boot:
                 self.boot()
                 next_boot = time.monotonic() + BOOT_PERIOD

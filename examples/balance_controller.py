@@ -56,6 +56,7 @@ INIT, DISABLED, BALANCING = 0, 1, 3  # CONTROLLER_HEARTBEAT.State
 CONTRACT = 2  # the contract version this controller speaks (docs/contract.md, Versions)
 HEARTBEAT = {"Mode": 0, "FaultCode": 0, "Contract": CONTRACT}
 BOOT_PERIOD = 0.1  # s between boot-up heartbeats until the first SYNC
+RUN_OVER = 2.0  # s without SYNC: the run is over, back to INIT (docs/contract.md "Between runs")
 TICK = 1.0 / 400  # s between SYNCs
 SUPERVISOR_LOST = 20  # ticks of silence of SUPERVISOR_ESTOP: the drives' permission timeout, 50 ms
 REST_SPEED, REST_TILT, REST_TICKS = 0.05, math.radians(3.0), 120  # m/s, rad, 0.3 s: at rest, drives off
@@ -133,12 +134,17 @@ class Wire:
 class BalanceController:
     def __init__(self, wire: Wire):
         self.wire = wire
+        self.reset()
+
+    def reset(self) -> None:
+        """Everything a run leaves behind, as at power-on: INIT, nothing measured, nothing named."""
         self.state = INIT
         self.permitted = False
         self.attitude: tuple[float, float] | None = None  # roll, pitch
         self.rate: tuple[float, float, float] | None = None
         self.velocity: list[float | None] = [None, None, None]
         self.synced = False
+        self.synced_at = 0.0  # time.monotonic() of the last SYNC
         self.last_tick = 0
         self.named: set[str] = set()  # what SUPERVISOR_DIAGNOSIS names faulty
         self.derivative = [0.0, 0.0]  # the attitude's derivative (roll, pitch), low-passed
@@ -164,7 +170,7 @@ class BalanceController:
             if not self.permitted and self.state == BALANCING:
                 self.state = DISABLED  # stays disabled: a reset permits motion, it never causes it
         elif name == "SYNC":
-            self.synced = True
+            self.synced, self.synced_at = True, time.monotonic()
             self.last_tick = int(s["Tick"])
             self.tick(self.last_tick)
 
@@ -221,8 +227,12 @@ class BalanceController:
         return self.still >= REST_TICKS
 
     def run(self, stop: threading.Event) -> None:
+        """Serve runs until `stop`: boot-up heartbeats until a run's first SYNC; a SYNC silent for RUN_OVER
+        ends the run, and the controller starts over for the next one (the rig waits for a boot-up)."""
         next_boot = time.monotonic()
         while not stop.is_set():
+            if self.synced and time.monotonic() - self.synced_at > RUN_OVER:
+                self.reset()
             if not self.synced and time.monotonic() >= next_boot:
                 self.wire.send("CONTROLLER_HEARTBEAT", {**HEARTBEAT, "State": INIT})
                 next_boot = time.monotonic() + BOOT_PERIOD
