@@ -112,6 +112,30 @@ def test_a_controller_that_never_starts_over_cannot_serve_a_second_run(served):
     assert second[0] == "FAILED" and "CONTROLLER_HEARTBEAT" in second[1]["error"], second
 
 
+def test_the_reference_controller_serves_runs_in_a_row(served):
+    """The reference as `pure-hil controller` runs it (its own thread, real time: not driven by the rig)."""
+    from drivers.dut import start_dut
+    from hil.run.build import Placement, controller_spec
+    from hil.run.scenario import Scenario
+
+    svc, client, _ = served
+    bench = svc.bench
+    at = Placement(bench.can, bench.zenoh, 400.0, lockstep=False)
+    handle = start_dut(
+        bench.controller.plugin, controller_spec(bench, Scenario(name="c", rider="ref_60kg_180"), at)
+    )
+    verdicts = []
+    try:
+        for _ in range(2):
+            assert ask(client, "start", RUN)["ok"]
+            assert svc.wait_idle(120), "a run did not end"
+            last = ask(client, "status")["last"]
+            verdicts.append((last["verdict"], last.get("failure")))
+    finally:
+        handle.stop()
+    assert verdicts == [("PASSED", None)] * 2
+
+
 def test_a_controller_that_never_answers_still_fails_naming_the_wait(tmp_path):
     """The positive control: nobody on the external controller's bus, a short boot timeout."""
     from hil.pipeline import load_scenario, run
