@@ -141,12 +141,15 @@ def stop_on_signals() -> threading.Event:
     return stop
 
 
-def until_interrupted(message: str, alive: Callable[[], bool] | None = None) -> bool:
+def until_interrupted(
+    message: str, alive: Callable[[], bool] | None = None, stop: threading.Event | None = None
+) -> bool:
     """Print `message`, then block until SIGINT or SIGTERM (True), or until `alive()` says the part it
     started has ended on its own (False: its thread's error is already on stderr); from then on a second
     signal ends the process at once (what the first started, e.g. writing a run's folder, is left
-    unfinished)."""
-    stop = stop_on_signals()
+    unfinished). `stop`: stop_on_signals()'s, taken before the part started (a signal while it starts is
+    then a clean stop, not a KeyboardInterrupt)."""
+    stop = stop or stop_on_signals()
     print(message, flush=True)
     interrupted = True
     while not stop.wait(ALIVE_CHECK if alive is not None else None):

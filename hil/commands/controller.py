@@ -6,7 +6,7 @@ import argparse
 
 import msgspec
 
-from hil.commands.common import add_bench_options, bench_from, part_ended, until_interrupted
+from hil.commands.common import add_bench_options, bench_from, part_ended, stop_on_signals, until_interrupted
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -36,12 +36,14 @@ def handle(args: argparse.Namespace) -> int:
     spec = controller_spec(bench, scenario, at)
     # A plug not installed, a bus that cannot open: one line and exit 2 (hil/cli.py main). Not the whole
     # bench's check: the supervisor's plug or the rig's certificate need not be on a controller's host.
+    stop = stop_on_signals()  # before the plug: a signal while it starts stops it cleanly
     handle = start_dut(bench.controller.plugin, spec)
     try:
         interrupted = until_interrupted(
             f"pure-hil controller: {bench.controller.plugin} ({spec.mode}) on {bench.can.interface}:"
             f"{bench.can.channel}, zenoh {bench.zenoh.mode}; Ctrl-C to stop",
             alive=getattr(handle, "alive", None),
+            stop=stop,
         )
     finally:
         handle.stop()

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import msgspec
 
-from hil.commands.common import part_ended, until_interrupted
+from hil.commands.common import part_ended, stop_on_signals, until_interrupted
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -46,12 +46,14 @@ def handle(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
+    stop = stop_on_signals()  # before the part: a signal while it starts stops it cleanly
     handle = start(spec)
     try:
         bus = f"{spec.can.interface}:{spec.can.channel}"
         interrupted = until_interrupted(
             f"pure-hil part: {args.kind} {args.plugin} on {bus}; Ctrl-C to stop",
             alive=getattr(handle, "alive", None),
+            stop=stop,
         )
     finally:
         handle.stop()

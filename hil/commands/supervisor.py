@@ -8,7 +8,7 @@ from typing import Any
 
 import msgspec
 
-from hil.commands.common import add_bench_options, bench_from, part_ended, until_interrupted
+from hil.commands.common import add_bench_options, bench_from, part_ended, stop_on_signals, until_interrupted
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -62,6 +62,7 @@ def handle(args: argparse.Namespace) -> int:
     # Its session as this command's role says (the rig's hub, or --identity's certificate), lent to the plug.
     session = bench.zenoh.open_rig(fallback=False)[0] if hub else bench.zenoh.open(args.identity)
     link = ZenohLink(session, Keys(bench.zenoh.prefix))
+    stop = stop_on_signals()  # before the plug: a signal while it starts stops it cleanly
     try:
         handle = start(spec, link=link)
         with ExitStack() as announced:
@@ -75,6 +76,7 @@ def handle(args: argparse.Namespace) -> int:
             interrupted = until_interrupted(
                 f"pure-hil supervisor: on {bench.can.interface}:{bench.can.channel}, {where}; Ctrl-C to stop",
                 alive=getattr(handle, "alive", None),
+                stop=stop,
             )
         handle.stop()
     finally:
