@@ -108,10 +108,14 @@ def test_lockstep_is_deterministic(tmp_path):
     assert c.metrics != a.metrics  # the seed matters (sensor noise)
 
 
-def test_the_rig_drives_the_embedded_controller_from_its_thread_under_both_clocks():
+def test_the_rig_drives_the_embedded_controller_from_its_thread_under_both_clocks(monkeypatch):
     """The rig polls the embedded controller right after SYNC (DutSpec.driven): no controller thread,
     every command within its own tick, no guard waited. Real time too: in one process the GIL runs one
     thread at a time, and a thread of its own only cost hand-offs (docs/rig.md)."""
+    import dataclasses
+
+    import hil.run.build as build_module
+
     short = msgspec.structs.replace(load("balance"), duration=0.5)
 
     def threads_during(bench) -> tuple[set[str], object]:
@@ -127,12 +131,12 @@ def test_the_rig_drives_the_embedded_controller_from_its_thread_under_both_clock
     seen, realtime = threads_during(private_bench(clock="realtime"))
     assert "controller" not in seen
     assert realtime.trace.stats.ticks == 200
-    # Control: the name looked for is the one a controller thread has.
-    from types import SimpleNamespace
-
-    from controller.node import ControllerThread
-
-    assert ControllerThread(SimpleNamespace(run=None)).thread.name == "controller"  # type: ignore[arg-type]
+    # Control: a controller the rig does not drive has its thread, by the name looked for.
+    spec_of = build_module.controller_spec
+    undriven = lambda b, s, at: spec_of(b, s, dataclasses.replace(at, driven=False))  # noqa: E731
+    monkeypatch.setattr(build_module, "controller_spec", undriven)
+    seen, _ = threads_during(private_bench(clock="realtime"))
+    assert "controller" in seen
 
 
 def test_controller_telemetry_is_taken_as_the_run_goes_not_only_at_its_end(monkeypatch):
