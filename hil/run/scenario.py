@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import msgspec
 
-from drivers.config import MAX_DURATION
+from drivers.bounds import MAX_DURATION
 from drivers.rules import JudgedRules
 from drivers.schemas import ScMode, Speed
 from drivers.vocabulary import Cause
