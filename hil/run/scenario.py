@@ -27,6 +27,8 @@ Positive = Annotated[float, msgspec.Meta(gt=0)]
 TickRate = Annotated[float, msgspec.Meta(gt=0, le=100_000)]
 Duration = Annotated[float, msgspec.Meta(gt=0, le=MAX_DURATION)]
 Seed = Annotated[int, msgspec.Meta(ge=0)]
+Moment = Annotated[float, msgspec.Meta(ge=0, le=MAX_DURATION)]
+"""s into the run: within the longest run (drivers/bounds.py MAX_DURATION)."""
 
 
 class _Record(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -37,7 +39,7 @@ class ScEntry(_Record, frozen=True, kw_only=True):
     """From `at` seconds on, the shared controller asks for `mode` (`cap` m/s in limit mode): the scenario
     file's spelling of an ScRequest (drivers/schemas.py), which the rig sends."""
 
-    at: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    at: Moment = 0.0
     mode: ScMode
     cap: Speed = 0.0
 
@@ -46,7 +48,7 @@ class OperatorEntry(_Record, frozen=True):
     """At `at` seconds the operator acts: `estop` or `reset` (the supervisor), `enable` or `disable` (the
     controller; it stays disabled after an e-stop until enabled)."""
 
-    at: Annotated[float, msgspec.Meta(ge=0)]
+    at: Moment
     action: Literal["estop", "reset", "enable", "disable"]
 
 
@@ -80,7 +82,7 @@ class Criterion(_Record, frozen=True):
     min: float | None = None
     max: float | None = None
     equals: float | bool | None = None
-    after: Annotated[float, msgspec.Meta(ge=0)] = 0.0
+    after: Moment = 0.0
     """Evaluate only the part of the run after this time, s (stop_time, safety_reaction, drives_off_after:
     the time measured from)."""
     cause: str = ""
@@ -90,6 +92,10 @@ class Criterion(_Record, frozen=True):
     def __post_init__(self) -> None:
         if self.min is None and self.max is None and self.equals is None:
             raise ValueError(f"criterion on {self.metric} needs min, max or equals")
+        for name in ("min", "max", "equals"):
+            value = getattr(self, name)
+            if isinstance(value, float) and not math.isfinite(value):  # msgspec takes nan and inf for a float
+                raise ValueError(f"criterion on {self.metric}: {name} = {value} is not a finite number")
         if (self.metric == "safety_reaction") != bool(self.cause):
             raise ValueError("safety_reaction needs a cause, and only it takes one")
         if self.cause and self.cause not in Cause.__members__:
@@ -170,6 +176,12 @@ class Scenario(_Record, frozen=True):
                 raise ValueError(
                     f"initial_tilt_deg = {list(self.initial_tilt_deg)}: the {plane} tilt must be a finite "
                     "number of degrees"
+                )
+        for i, fault in enumerate(self.faults):
+            if fault.at >= self.duration:  # it would never act, and a fault without `expect` would pass
+                raise ValueError(
+                    f"faults[{i}] ({fault.kind}): at = {fault.at:g} s is not within the scenario's duration: "
+                    f"0 <= at < {self.duration:g} s"
                 )
         if self.fall == "expected":
             for c in self.criteria:
