@@ -21,7 +21,8 @@ from drivers.schemas import ScMode, Speed
 from drivers.vocabulary import Cause
 from hil.faults import Fault
 from hil.run.measurements import MEASUREMENTS
-from plant.rider import Segment
+from plant.params import RiderParams
+from plant.rider import LeanStyle, Segment, beyond_reach
 
 Positive = Annotated[float, msgspec.Meta(gt=0)]
 TickRate = Annotated[float, msgspec.Meta(gt=0, le=100_000)]
@@ -61,6 +62,31 @@ class Intent(_Record, frozen=True):
     heeds_alert: bool = False
     """The rider sits up and holds still `alert_reaction_time` (the rider file) after the supervisor's first
     alert, as a rider instructed to would. False: exactly as scripted, whatever the supervisor says."""
+
+    def check_reach(self, rider: RiderParams, rider_file: str, where: str = "intent") -> None:
+        """Raise ValueError naming the segment, its field and the bound for a lean past the rider's
+        max_lean_deg or a twist past their max_twist_torque (`rider_file`'s): no rider reaches past their own
+        limits, and a profile that asks them to tests something no rider does (the rider would stop at the
+        limit, silently)."""
+        style = LeanStyle(rider.lean_amplitude_deg, rider.lean_rate_deg)
+        for plane in ("pitch", "roll", "twist"):
+            limit, unit, bound = (
+                (rider.max_twist_torque, "Nm", "max_twist_torque")
+                if plane == "twist"
+                else (rider.max_lean_deg, "deg", "max_lean_deg")
+            )
+            segments: list[Segment] = getattr(self, plane)
+            found = beyond_reach(segments, limit, style)
+            if found is None:
+                continue
+            i, field, value, reached = found
+            name = f"{where}.{plane}[{i}] ({segments[i].__struct_config__.tag}): {field} = {value:g}"
+            reach = f"|{plane}| <= {limit:g} {unit} ({bound} of {rider_file})"
+            if not math.isfinite(reached):
+                raise ValueError(f"{name} is not a finite number (expected {reach})")
+            about = "" if reached == value else f" about {reached - abs(value):g}: {reached:g} {unit}"
+            raise ValueError(f"{name} {unit}{about} is past the rider's reach {reach}")
+
 
 
 if TYPE_CHECKING:
