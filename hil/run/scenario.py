@@ -21,7 +21,8 @@ from drivers.schemas import ScMode, Speed
 from drivers.vocabulary import Cause
 from hil.faults import Fault
 from hil.run.measurements import MEASUREMENTS
-from plant.params import RiderParams
+from plant.model3d import MAX_SINK, lowest_fall_geom, releasable_share
+from plant.params import RiderParams, RobotParams
 from plant.rider import LeanStyle, Segment, beyond_reach
 
 Positive = Annotated[float, msgspec.Meta(gt=0)]
@@ -86,7 +87,6 @@ class Intent(_Record, frozen=True):
                 raise ValueError(f"{name} is not a finite number (expected {reach})")
             about = "" if reached == value else f" about {reached - abs(value):g}: {reached:g} {unit}"
             raise ValueError(f"{name} {unit}{about} is past the rider's reach {reach}")
-
 
 
 if TYPE_CHECKING:
@@ -176,8 +176,8 @@ class Scenario(_Record, frozen=True):
     seed: Seed = 0
     tick_hz: TickRate = 400.0
     initial_tilt_deg: tuple[float, float] = (0.0, 0.0)
-    """The chassis tilt the robot is released at, [pitch, roll] deg: finite, and within the bench's fall bound
-    (`check_start`: the bound is the bench's sim file's)."""
+    """The chassis tilt the robot is released at, [pitch, roll] deg: finite, within the bench's fall bound
+    (the bench's sim file's) and releasable, no foot and not the rim on the floor (`check_start`)."""
     fall: Literal["forbidden", "expected"] = "forbidden"
     """forbidden: a fall fails the run, whatever its criteria say (the verdict `no fall`, part of every run's
     verdict). expected: the run is meant to end in a fall (a push beyond the robot's limit) and fails if the
@@ -214,15 +214,30 @@ class Scenario(_Record, frozen=True):
                 if c.metric == "fallen" and not c.check(1.0):
                     raise ValueError(f'fall = "expected" and a criterion {c.label} {c.describe()} contradict')
 
-    def check_start(self, fall_tilt_deg: float, sim_file: str) -> None:
-        """Raise ValueError unless the start state is one the robot can be released in: each tilt within the
-        fall bound (a robot that starts fallen tests nothing)."""
+    def check_start(
+        self, fall_tilt_deg: float, sim_file: str, robot: RobotParams, rider: RiderParams, files: str
+    ) -> None:
+        """Raise ValueError unless the start state is one the robot can be released in (a robot that starts
+        fallen tests nothing): each tilt within the fall bound, and no foot of the rider and not the chassis'
+        rim on the floor (plant/model3d.py: the releasable tilt of this robot with this rider, whichever the
+        plant). `files`: where the robot and the rider come from, for the message."""
+        tilt = list(self.initial_tilt_deg)
         for plane, deg in zip(("pitch", "roll"), self.initial_tilt_deg, strict=True):
             if abs(deg) >= fall_tilt_deg:
                 raise ValueError(
-                    f"initial_tilt_deg = {list(self.initial_tilt_deg)}: the {plane} tilt must be within "
+                    f"initial_tilt_deg = {tilt}: the {plane} tilt must be within "
                     f"±{fall_tilt_deg:g} deg, the fall bound (fall_tilt_deg of {sim_file})"
                 )
+        pitch, roll = (math.radians(deg) for deg in self.initial_tilt_deg)
+        share = releasable_share(robot, rider, pitch, roll)
+        if share < 1.0:
+            name, height = lowest_fall_geom(robot, rider, pitch, roll)
+            bound = [math.trunc(share * deg * 10.0) / 10.0 for deg in self.initial_tilt_deg]  # never past it
+            raise ValueError(
+                f"initial_tilt_deg = {tilt}: the {name.replace('_', ' ')} would be {-1000.0 * height:.0f} mm "
+                f"into the floor; along this tilt the robot can be released from at most {bound} deg (the "
+                f"releasable tilt of {files}, the ball sunk {1000.0 * MAX_SINK:g} mm into the floor)"
+            )
 
     def tick_of(self, t: float) -> int:
         """The tick a scheduled time (s) falls on: times become ticks once, when the run is built, and the
