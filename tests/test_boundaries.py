@@ -205,7 +205,7 @@ FLOORS = (
     {"faults", "outputs", "devices"},  # the fault catalog, what streams during a run, the emulated devices
     {"bench"},  # the bench file, the machine's rigs
     {"run"},  # one run: build, tick loop, judge
-    {"report", "contract"},  # the run folder's summary and plots; the contract's generated tables
+    {"report", "contract", "config_bounds"},  # the run folder's summary and plots; generated doc tables
     {"pipeline", "live", "history"},  # build -> tick loop -> judge -> write; the service's stream and history
     {"service", "suites"},  # `pure-hil serve`; many runs
     {"console"},  # the rig's screen: a client of the service
