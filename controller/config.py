@@ -11,6 +11,29 @@ from typing import Annotated, Literal
 
 import msgspec
 
+from drivers.bounds import (
+    AzimuthDeg,
+    BallInertia,
+    BallMass,
+    BallRadius,
+    BodyInertia,
+    BodyMass,
+    ComHeight,
+    CountsPerRev,
+    GearRatio,
+    MotorSign,
+    RiderHeight,
+    RotorInertia,
+    SeatHeight,
+    StreamTimeout,
+    TopHeight,
+    TorqueLimit,
+    Viscous,
+    WheelInertia,
+    WheelRadius,
+    ZenithDeg,
+)
+
 Positive = Annotated[float, msgspec.Meta(gt=0)]
 NonNegative = Annotated[float, msgspec.Meta(ge=0)]
 
@@ -25,44 +48,44 @@ class _Strict(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=T
 
 # ---------------------------------------------------------------------- the robot, as the controller sees it
 class ModelBall(_Lenient, frozen=True):
-    radius: Positive = 0.1145
-    mass: Positive = 3.6
-    inertia: Positive = 0.047
+    radius: BallRadius = 0.1145
+    mass: BallMass = 3.6
+    inertia: BallInertia = 0.047
 
 
 class ModelBody(_Lenient, frozen=True):
-    mass: Positive = 30.0
-    com_height: Positive = 0.25
-    inertia_pitch: Positive = 0.5
-    inertia_roll: Positive = 0.5
-    top_height: Positive = 0.386
-    seat_height: NonNegative = 0.03
+    mass: BodyMass = 30.0
+    com_height: ComHeight = 0.25
+    inertia_pitch: BodyInertia = 0.5
+    inertia_roll: BodyInertia = 0.5
+    top_height: TopHeight = 0.386
+    seat_height: SeatHeight = 0.03
 
 
 class ModelDrivetrain(_Lenient, frozen=True):
-    wheel_radius: Positive = 0.0625
-    zenith_deg: Positive = 45.0
-    azimuth0_deg: float = 0.0
-    motor_sign: tuple[int, int, int] = (1, 1, 1)
-    gear_ratio: Positive = 8.0
-    wheel_inertia: NonNegative = 0.0015
-    rotor_inertia: NonNegative = 1.2e-4
+    wheel_radius: WheelRadius = 0.0625
+    zenith_deg: ZenithDeg = 45.0
+    azimuth0_deg: AzimuthDeg = 0.0
+    motor_sign: tuple[MotorSign, MotorSign, MotorSign] = (1, 1, 1)
+    gear_ratio: GearRatio = 8.0
+    wheel_inertia: WheelInertia = 0.0015
+    rotor_inertia: RotorInertia = 1.2e-4
 
 
 class ModelDrive(_Lenient, frozen=True):
-    torque_limit: Positive = 3.75
-    permission_timeout: Positive = 0.05
+    torque_limit: TorqueLimit = 3.75
+    permission_timeout: StreamTimeout = 0.05
     """s of silence of SUPERVISOR_ESTOP after which the supervisor is lost: this controller then stops on
     its own (the drives follow it for their grace)."""
 
 
 class ModelFriction(_Lenient, frozen=True):
-    rolling_viscous: NonNegative = 0.75
-    drivetrain_viscous: NonNegative = 0.5
+    rolling_viscous: Viscous = 0.75
+    drivetrain_viscous: Viscous = 0.5
 
 
 class ModelEncoder(_Lenient, frozen=True):
-    counts_per_rev: Annotated[int, msgspec.Meta(gt=0)] = 8192
+    counts_per_rev: CountsPerRev = 8192
 
 
 class RobotModel(_Lenient, frozen=True):
@@ -81,7 +104,7 @@ class RiderInfo(_Lenient, frozen=True):
     The weight is measured on the seat while parked (iHACS)."""
 
     name: str = "unknown"
-    height: Annotated[float, msgspec.Meta(gt=1.0, lt=2.3)] = 1.80
+    height: RiderHeight = 1.80
 
 
 # ----------------------------------------------------------------------------------------------- tuning

@@ -9,7 +9,7 @@ Struct that mypyc compiled, so the Structs stay in modules that stay Python.
 from __future__ import annotations
 
 import socket
-from typing import Any
+from typing import Annotated, Any
 
 import msgspec
 
@@ -29,9 +29,21 @@ class BusConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only
 
     interface: str = "pure_shared"
     channel: str = "pure"
-    bitrate: int = 1_000_000
+    bitrate: Annotated[
+        int,
+        msgspec.Meta(
+            ge=10_000,
+            le=1_000_000,
+            description="bit/s; ISO 11898's classical CAN runs at 10 kbit/s to 1 Mbit/s, and every frame "
+            "of the rig is classical (no bit-rate switch): the bus load and a babbling node's frames per "
+            "tick are counted at this rate (a CAN FD data phase, up to 8 Mbit/s, would be python-can's "
+            "data_bitrate in kwargs)",
+        ),
+    ] = 1_000_000
     kwargs: dict[str, Any] = {}
-    max_load: float = 0.70
+    max_load: Annotated[
+        float, msgspec.Meta(gt=0.0, le=1.0, description="a fraction of the bitrate: 1 is a full bus")
+    ] = 0.70
     """Refuse a tick rate whose worst-case bus load exceeds this fraction of the bitrate."""
 
     @property
@@ -46,8 +58,6 @@ class BusConfig(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only
                 f"inside a network namespace whose only interface is lo (this one has {', '.join(here)}); "
                 "use 'pure_shared' or 'socketcan', or run the bench inside such a namespace (docs/bench.md)"
             )
-        if not 0.0 < self.max_load <= 1.0:
-            raise ValueError("max_load must be in (0, 1]")
 
 
 def network_interfaces() -> list[str]:

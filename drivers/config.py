@@ -15,11 +15,6 @@ import msgspec
 T = TypeVar("T")
 
 
-MAX_DURATION = 86400.0
-"""s: one day of simulated time bounds a run, a fault's start and its length (a run folder grows by ~0.5 MB
-per simulated second; a service runs for weeks as many runs)."""
-
-
 class ConfigError(ValueError):
     """A configuration file is missing, not TOML, or does not match its schema."""
 

@@ -34,7 +34,7 @@ from hil.run.judge import RunResult, judge
 from hil.run.loop import tick_loop
 from hil.run.scenario import Scenario
 from hil.run.trace import CONFIG_ERRORS, ControllerUnavailable, Failure, Trace, reason
-from plant.params import RobotParams, SimParams
+from plant.params import RiderParams, RobotParams, SimParams
 
 
 def run(
@@ -102,14 +102,26 @@ def _hand_events(logs: RunLogs, trace: Trace, scenario: Scenario) -> None:
         trace.outputs_failed.setdefault("run.mcap", f"its events: {type(exc).__name__}: {exc}")
 
 
-def check_start(scenario: Scenario, bench: Bench, origin: str) -> None:
-    """Raise ConfigError, naming `origin`, the field and the bound, for a start state the robot cannot be
-    released in on this bench (beyond its sim file's fall bound)."""
-    sim_file = find(bench.sim, "sim")
+def check_start(scenario: Scenario, bench: Bench, origin: str) -> RiderParams:
+    """The scenario's rider, once the run can start; else ConfigError naming the file, the field and the
+    bound: a number of the robot or the rider file beyond its physical bound (drivers/bounds.py; the file
+    named), a rider's intent past that rider's reach, or a start the robot cannot be released in on this
+    bench (beyond its sim file's fall bound, or a foot or the rim on the floor; `origin` named)."""
+    sim_file, robot_file = find(bench.sim, "sim"), find(scenario.robot, "robot")
+    rider_file = find(scenario.rider, "riders")
+    robot, rider = load_toml(robot_file, RobotParams), load_toml(rider_file, RiderParams)
     try:
-        scenario.check_start(load_toml(sim_file, SimParams).fall_tilt_deg, str(sim_file))
+        scenario.intent.check_reach(rider, str(rider_file))
+        scenario.check_start(
+            load_toml(sim_file, SimParams).fall_tilt_deg,
+            str(sim_file),
+            robot,
+            rider,
+            f"robot {robot_file} with rider {rider_file}",
+        )
     except ValueError as exc:
         raise ConfigError(origin, str(exc)) from None
+    return rider
 
 
 def describe(bench: Bench) -> dict:

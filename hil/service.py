@@ -3,7 +3,8 @@
     pure/rig/status   -> JSON: state (idle | running), scenario, simulated time, the last run's result
     pure/rig/start    <- a scenario: a file path, or the TOML text itself; runs it in the background
     pure/rig/stop     -> ends the current run early
-    pure/rig/intent   <- JSON {"pitch": [...], "roll": [...], "twist": [...]}: the rider's intent from now on
+    pure/rig/intent   <- JSON {"pitch": [...], "roll": [...], "twist": [...]}: the running rider's intent from
+                         now on, within their reach (hil/run/scenario.py Intent.check_reach)
     pure/rig/fault/inject <- JSON fault {"kind": "sensor.stuck", "channel": "imu.pitch", ...}: into the
                          running run, `at` counted from the tick that takes it in (docs/faults.md)
     pure/rig/fault/clear  <- a fault's number, or nothing for all: ends it (them) at the next tick
@@ -37,7 +38,7 @@ import zenoh
 
 from drivers.config import ConfigError, decode_toml
 from drivers.keys import Keys
-from drivers.resources import shipped
+from drivers.resources import find, shipped
 from hil.bench.bench import Bench, load_bench
 from hil.bench.rigs import RigCard, announce
 from hil.faults import FaultSet, parse_fault
@@ -47,6 +48,7 @@ from hil.pipeline import check_start, describe, load_scenario, run
 from hil.run.build import RunOptions, RunStatus, clock_of, law_of
 from hil.run.scenario import Intent, Scenario
 from plant.ballbot import PlantCore, RiderIntent
+from plant.params import RiderParams
 
 if TYPE_CHECKING:  # imported where used: rerun loads only for a service with a live view
     from hil.outputs.recording import LiveView
@@ -87,6 +89,8 @@ class RigService:
         self._live = LiveStream(session, self.keys)
         self._stop = threading.Event()
         self._pending_intent: RiderIntent | None = None
+        self._rider: tuple[RiderParams, str] | None = None
+        """The rider of the run in progress, and their file: a live intent stays within their reach."""
         self._lock = threading.Lock()
         self._worker: threading.Thread | None = None
         self._queryables = [
@@ -157,7 +161,7 @@ class RigService:
     def _start(self, query: zenoh.Query) -> None:
         text = query.payload.to_string() if query.payload is not None else ""
         try:
-            scenario = self._scenario(text)
+            scenario, rider = self._scenario(text)
         except ConfigError as exc:
             self._refuse(query, str(exc))
             return
@@ -170,6 +174,7 @@ class RigService:
                 self._reply(query, {"ok": False, "error": f"already running {running.name}"})
                 return
             self.state, self.scenario, self.sim_time = "running", scenario, 0.0
+            self._rider = rider
             self._stop.clear()
             # The run's faults exist before the reply: an injection right after "running" is never lost.
             self._faults = FaultSet(scenario.faults, scenario.seed)
@@ -205,7 +210,8 @@ class RigService:
         out.mkdir(parents=True)
         return out
 
-    def _scenario(self, text: str) -> Scenario:
+    def _scenario(self, text: str) -> tuple[Scenario, tuple[RiderParams, str]]:
+        """The scenario a start request names, and its rider and their file, once it can start."""
         text = text.strip()
         if not text:
             raise ConfigError("pure/rig/start", "expected a scenario file path or its TOML text")
@@ -214,8 +220,8 @@ class RigService:
             scenario, origin = load_scenario(text), text  # a path or a shipped scenario's short name
         else:
             scenario = decode_toml(text, Scenario, origin)
-        check_start(scenario, self.bench, origin)  # a robot that starts fallen tests nothing
-        return scenario
+        rider = check_start(scenario, self.bench, origin)  # a robot that starts fallen tests nothing
+        return scenario, (rider, str(find(scenario.rider, "riders")))
 
     def _stop_run(self, query: zenoh.Query) -> None:
         running = self.state == "running"
@@ -229,9 +235,17 @@ class RigService:
         except (msgspec.ValidationError, msgspec.DecodeError) as exc:
             self._refuse(query, f"pure/rig/intent payload: {exc}")
             return
+        running, rider = self._running(), self._rider
+        if running is None or rider is None:  # whose reach it must be within is not known
+            self._reply(query, {"ok": False, "error": "no run in progress: start one first"})
+            return
+        try:
+            intent.check_reach(*rider, where="pure/rig/intent")
+        except ValueError as exc:
+            self._refuse(query, str(exc))
+            return
         self._pending_intent = RiderIntent(list(intent.pitch), list(intent.roll), list(intent.twist))
-        running = self._running()
-        self._reply(query, {"ok": True, "applies_to": running.name if running is not None else None})
+        self._reply(query, {"ok": True, "applies_to": running.name})
 
     def _fault_inject(self, query: zenoh.Query) -> None:
         text = query.payload.to_string() if query.payload is not None else ""

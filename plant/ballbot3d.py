@@ -26,6 +26,7 @@ from plant.model3d import (
     HIPS,
     HOLDS,
     LEAN_JOINTS,
+    MAX_SINK,
     MOTORS,
     P_SITE,
     TORSO,
@@ -185,7 +186,7 @@ class Plant3D(PlantCore):
         acceleration at rest is zero), so the first tick starts at rest, not dropping."""
         m, d = self.model, self.data
         r = self.robot.ball.radius
-        low, high = r - 0.01, r  # the contact's sink is well under 10 mm
+        low, high = r - MAX_SINK, r
         for _ in range(60):
             d.qpos[2] = 0.5 * (low + high)
             mujoco.mj_forward(m, d)

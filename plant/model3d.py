@@ -20,6 +20,7 @@ friction and damping differ between the tilt axes and yaw) are set on the compil
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,6 +44,13 @@ FOOT_RADIUS = 0.045
 """A shoe, as a capsule along the foot, m [EST]."""
 FOOT_LENGTH = 0.26
 """Heel to toe, m [EST]."""
+HEEL_SHARE = 0.25
+"""The share of the foot's length behind the shank's axis [EST]."""
+RIM_HALF_HEIGHT = 0.01
+"""Half the height of the chassis' lowest rim, m."""
+MAX_SINK = 0.01
+"""m: the ball sinks less than this into the floor's soft contact under the robot and its rider (Plant3D
+settles it within it before the first tick)."""
 
 # Contact bits: the floor collides with the ball and with the fall geoms, nothing else collides.
 _FLOOR_AFFINITY, _BALL_TYPE, _FALL_TYPE = 6, 2, 4
@@ -90,7 +98,7 @@ def build_model(robot: RobotParams, rider: RiderParams | None, engine: MujocoPar
     )
     ball_inertia = ball.inertia + drives.ball
     rim = (
-        f'<geom name="chassis_rim" type="cylinder" size="{_f(body.chassis_radius, 0.01)}" '
+        f'<geom name="chassis_rim" type="cylinder" size="{_f(body.chassis_radius, RIM_HALF_HEIGHT)}" '
         f'pos="0 0 {body.chassis_bottom!r}" contype="{_FALL_TYPE}" conaffinity="0" {solref} '
         f'friction="{_f(ball.floor_friction, 0.0, 0.0)}" condim="3" rgba="0.3 0.3 0.35 1"/>'
         f'<geom type="cylinder" size="{_f(body.chassis_radius, 0.5 * (top - body.chassis_bottom))}" '
@@ -115,11 +123,8 @@ def build_model(robot: RobotParams, rider: RiderParams | None, engine: MujocoPar
                     f'fromto="{_f(seated.hip_x - thigh.x, 0, 0, leg.x - thigh.x, 0, 0)}"/>',
                 )
             )
-            # The shank hangs from the knee (at hip height: the thigh is horizontal) to the foot, which
-            # points forward; positions relative to the shank's COM.
-            knee_z = seated.hip_z - leg.z
-            shank_length = knee_z / LEG_COM
-            foot_z = knee_z - shank_length
+            knee_z, foot_z = _shank(seated, leg)
+            heel, toe = _foot(0.0, 0.0, foot_z)  # in the shank's frame
             limbs.append(
                 _segment_body(
                     f"shank_{side}",
@@ -127,7 +132,7 @@ def build_model(robot: RobotParams, rider: RiderParams | None, engine: MujocoPar
                     f'<geom type="capsule" fromto="{_f(0, 0, knee_z, 0, 0, foot_z)}" size="0.05" '
                     f'rgba="0.2 0.3 0.6 1"/>'
                     f'<geom name="foot_{side}" type="capsule" '
-                    f'fromto="{_f(-0.25 * FOOT_LENGTH, 0, foot_z, 0.75 * FOOT_LENGTH, 0, foot_z)}" '
+                    f'fromto="{_f(*heel, *toe)}" '
                     f'size="{FOOT_RADIUS!r}" contype="{_FALL_TYPE}" conaffinity="0" {solref} condim="3" '
                     f'rgba="0.15 0.15 0.15 1"/>',
                 )
@@ -188,6 +193,89 @@ def build_model(robot: RobotParams, rider: RiderParams | None, engine: MujocoPar
 </mujoco>
 """
     return ModelInfo(xml, seated, gears)
+
+
+def _shank(seated: SeatedRider, leg: Segment) -> tuple[float, float]:
+    """The knee's and the foot's heights relative to the shank's COM: the shank hangs from the knee (at hip
+    height: the thigh is horizontal) to the foot, which points forward."""
+    knee_z = seated.hip_z - leg.z
+    return knee_z, knee_z - knee_z / LEG_COM
+
+
+Vec = tuple[float, float, float]
+
+
+def _foot(x: float, y: float, z: float) -> tuple[Vec, Vec]:
+    """A foot's capsule, heel to toe, with its ankle at (x, y, z)."""
+    return (x - HEEL_SHARE * FOOT_LENGTH, y, z), (x + (1.0 - HEEL_SHARE) * FOOT_LENGTH, y, z)
+
+
+@dataclass(frozen=True, slots=True)
+class FallGeom:
+    """One of FALL_GEOMS in the chassis' frame (origin at the ball's centre): a capsule (a segment and its
+    radius) or a cylinder with flat ends (its axis and its radius)."""
+
+    name: str
+    ends: tuple[Vec, Vec]
+    radius: float
+    capsule: bool
+
+    def lowest(self, rotation: np.ndarray) -> float:
+        """The height of its lowest point above the ball's centre with the chassis turned by `rotation`."""
+        a, b = (rotation @ np.asarray(end) for end in self.ends)
+        if self.capsule:
+            return float(min(a[2], b[2])) - self.radius
+        # A flat end's lowest point: its centre, down by the radius times the sine of its tilt.
+        axis_z = (b[2] - a[2]) / float(np.linalg.norm(b - a))
+        return float(min(a[2], b[2])) - self.radius * math.sqrt(max(0.0, 1.0 - axis_z * axis_z))
+
+
+def fall_geoms(robot: RobotParams, rider: RiderParams | None) -> tuple[FallGeom, ...]:
+    """The geoms build_model gives FALL_GEOMS' names, where it puts them."""
+    body = robot.body
+    bottom = body.chassis_bottom
+    rim_ends = ((0.0, 0.0, bottom - RIM_HALF_HEIGHT), (0.0, 0.0, bottom + RIM_HALF_HEIGHT))
+    geoms = [FallGeom("chassis_rim", rim_ends, body.chassis_radius, capsule=False)]
+    if rider is not None:
+        seated = seat_rider(robot, rider)
+        for side, leg in zip(("left", "right"), seated.legs, strict=True):
+            foot = _foot(leg.x, leg.y, leg.z + _shank(seated, leg)[1])
+            geoms.append(FallGeom(f"foot_{side}", foot, FOOT_RADIUS, capsule=True))
+    return tuple(geoms)
+
+
+def tilt_rotation(pitch: float, roll: float) -> np.ndarray:
+    """Ry(pitch) Rx(roll): the chassis released at that tilt (rad), as the plants release it."""
+    cp, sp, cr, sr = math.cos(pitch), math.sin(pitch), math.cos(roll), math.sin(roll)
+    return np.array([[cp, sp * sr, sp * cr], [0.0, cr, -sr], [-sp, cp * sr, cp * cr]])
+
+
+def lowest_fall_geom(
+    robot: RobotParams, rider: RiderParams | None, pitch: float, roll: float
+) -> tuple[str, float]:
+    """With the chassis at the tilt (pitch, roll), rad, the fall geom nearest the floor and its height above
+    it, m, the ball sunk MAX_SINK into the floor: at 0 or below it may touch the floor, which the 3-D plant
+    counts as a fall (Plant3D._check_fall)."""
+    rotation = tilt_rotation(pitch, roll)
+    centre = robot.ball.radius - MAX_SINK
+    return min(
+        ((g.name, centre + g.lowest(rotation)) for g in fall_geoms(robot, rider)), key=lambda found: found[1]
+    )
+
+
+def releasable_share(robot: RobotParams, rider: RiderParams | None, pitch: float, roll: float) -> float:
+    """The largest share s of the tilt (pitch, roll) at which every fall geom is off the floor (1 if the
+    whole of it is; to 1e-4): the robot can be released from (s pitch, s roll)."""
+    if lowest_fall_geom(robot, rider, pitch, roll)[1] > 0.0:
+        return 1.0
+    low, high = 0.0, 1.0  # upright, every fall geom is off the floor (RobotParams checks the rim's place)
+    while high - low > 1e-4:
+        mid = 0.5 * (low + high)
+        if lowest_fall_geom(robot, rider, mid * pitch, mid * roll)[1] > 0.0:
+            low = mid
+        else:
+            high = mid
+    return low
 
 
 @dataclass(frozen=True, slots=True)

@@ -12,9 +12,66 @@ from typing import Annotated, Literal
 
 import msgspec
 
+from drivers.bounds import (
+    AccelBiasSigma,
+    AccelBiasWalk,
+    AccelNoiseDensity,
+    AttitudeNoiseDeg,
+    AzimuthDeg,
+    BallInertia,
+    BallMass,
+    BallRadius,
+    BodyInertia,
+    BodyMass,
+    CalibrationError,
+    CellNoise,
+    CellRadius,
+    ChassisBottom,
+    ChassisRadius,
+    ComHeight,
+    ContactorTimeout,
+    CountsPerRev,
+    CurrentLoopTau,
+    DryFriction,
+    FloorFriction,
+    GearRatio,
+    GyroBiasSigma,
+    GyroBiasWalk,
+    GyroNoiseDensity,
+    HipHalfWidth,
+    HipTorque,
+    HipX,
+    ImuHeight,
+    LeanAccelDeg,
+    LeanDeg,
+    LeanRateDeg,
+    MotorSign,
+    ReactionTime,
+    RiderHeight,
+    RiderMass,
+    RollFriction,
+    RotorInertia,
+    SeatHeight,
+    SensorRateHz,
+    SpinFriction,
+    StickVelocity,
+    StreamTimeout,
+    SupervisorLostGrace,
+    TopHeight,
+    TorqueLimit,
+    TorqueNoise,
+    TrunkDamping,
+    TrunkStiffness,
+    TwistTorque,
+    VelocityNoise,
+    Viscous,
+    WheelInertia,
+    WheelRadius,
+    WordBits,
+    ZenithDeg,
+)
+
 Positive = Annotated[float, msgspec.Meta(gt=0)]
-NonNegative = Annotated[float, msgspec.Meta(ge=0)]
-Sign = Literal[-1, 1]
 
 
 class _Record(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
@@ -23,18 +80,18 @@ class _Record(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=T
 
 # --------------------------------------------------------------------------------------------- robot
 class Ball(_Record, frozen=True):
-    radius: Positive = 0.1145
+    radius: BallRadius = 0.1145
     """r_K, m."""
-    mass: Positive = 3.6
+    mass: BallMass = 3.6
     """m_K, kg."""
-    inertia: Positive = 0.047
+    inertia: BallInertia = 0.047
     """Θ_K about the ball centre, kg m²."""
-    floor_friction: Positive = 0.8
+    floor_friction: FloorFriction = 0.8
     """μ: ball-floor sliding friction coefficient (3-D plant: the ball slips past μ N)."""
-    spin_friction: NonNegative = 0.01
+    spin_friction: SpinFriction = 0.01
     """Ball-floor torsional friction, m: the contact holds a spin torque up to this times the normal force
     (3-D plant; about (2/3) μ a for a contact patch of radius a)."""
-    roll_friction: NonNegative = 0.0
+    roll_friction: RollFriction = 0.0
     """Ball-floor dry rolling friction, m (3-D plant; the viscous `friction.rolling_viscous` is the
     rolling resistance both plants share)."""
 
@@ -42,25 +99,25 @@ class Ball(_Record, frozen=True):
 class Body(_Record, frozen=True):
     """Everything above the ball that is not the rider: chassis, drivetrain, seat, TES, battery, footrest."""
 
-    mass: Positive = 30.0
+    mass: BodyMass = 30.0
     """kg."""
-    com_height: Positive = 0.25
+    com_height: ComHeight = 0.25
     """COM above the ball centre along the body axis, m."""
-    inertia_pitch: Positive = 0.5
+    inertia_pitch: BodyInertia = 0.5
     """About the COM, about body y, kg m²."""
-    inertia_roll: Positive = 0.5
+    inertia_roll: BodyInertia = 0.5
     """About the COM, about body x, kg m²."""
-    inertia_yaw: Positive = 0.3
+    inertia_yaw: BodyInertia = 0.3
     """About the body axis, kg m²."""
-    top_height: Positive = 0.386
+    top_height: TopHeight = 0.386
     """h_P: point P (top centre of the chassis, TES origin) above the ball centre, m."""
-    seat_height: NonNegative = 0.03
+    seat_height: SeatHeight = 0.03
     """Seat surface above P, m."""
-    imu_height: NonNegative = 0.20
+    imu_height: ImuHeight = 0.20
     """Body IMU above the ball centre on the body axis, m."""
-    chassis_radius: Positive = 0.20
+    chassis_radius: ChassisRadius = 0.20
     """Radius of the chassis' lowest rim, m (3-D plant: touching the floor with it is a fall)."""
-    chassis_bottom: float = 0.05
+    chassis_bottom: ChassisBottom = 0.05
     """Height of that rim above the ball centre, m."""
 
     def __post_init__(self) -> None:
@@ -74,60 +131,60 @@ class Body(_Record, frozen=True):
 
 
 class Drivetrain(_Record, frozen=True):
-    wheel_radius: Positive = 0.0625
+    wheel_radius: WheelRadius = 0.0625
     """r_W, m."""
-    zenith_deg: Annotated[float, msgspec.Meta(gt=0, lt=90)] = 45.0
+    zenith_deg: ZenithDeg = 45.0
     """α: angle between the body z axis and the ball-centre-to-contact line, deg."""
-    azimuth0_deg: float = 0.0
+    azimuth0_deg: AzimuthDeg = 0.0
     """β_0: azimuth of wheel 1 from body +x, deg; wheels follow at +120° and +240°."""
-    motor_sign: tuple[Sign, Sign, Sign] = (1, 1, 1)
+    motor_sign: tuple[MotorSign, MotorSign, MotorSign] = (1, 1, 1)
     """Per-motor direction: +1 when positive motor rotation is the positive wheel rate of the model."""
-    gear_ratio: Positive = 8.0
+    gear_ratio: GearRatio = 8.0
     """N, motor turns per wheel turn."""
-    wheel_inertia: NonNegative = 0.0015
+    wheel_inertia: WheelInertia = 0.0015
     """Omniwheel inertia at the wheel shaft, kg m²."""
-    rotor_inertia: NonNegative = 1.2e-4
+    rotor_inertia: RotorInertia = 1.2e-4
     """Motor rotor inertia at the motor shaft, kg m²."""
 
 
 class Drive(_Record, frozen=True):
-    torque_limit: Positive = 3.75
+    torque_limit: TorqueLimit = 3.75
     """Motor-shaft torque limit, Nm (× gear ratio at the wheel)."""
-    current_loop_tau: Positive = 0.0005
+    current_loop_tau: CurrentLoopTau = 0.0005
     """First-order lag of the torque (current) loop, s."""
-    watchdog_timeout: Positive = 0.02
+    watchdog_timeout: StreamTimeout = 0.02
     """The drive disables itself when no command arrives for this long, s."""
-    permission_timeout: Positive = 0.05
+    permission_timeout: StreamTimeout = 0.05
     """The supervisor is lost when its SUPERVISOR_ESTOP frame (100 Hz) is silent this long, s."""
-    supervisor_lost_grace: Positive = 30.0
+    supervisor_lost_grace: SupervisorLostGrace = 30.0
     """s the drives go on following the controller once the supervisor is lost (its frame silent, not an
     e-stop): cutting power in motion tips a ballbot, and the controller, which sees the silence too, brakes
     to rest and turns them off itself (docs/contract.md). Then off whatever the controller does."""
-    contactor_timeout: Positive = 0.1
+    contactor_timeout: ContactorTimeout = 0.1
     """The main contactor opens when SUPERVISOR_ESTOP has been silent this long after the drives' grace, s:
     the second channel, slower than the drives' own so that the first acts first."""
-    torque_noise: NonNegative = 0.005
+    torque_noise: TorqueNoise = 0.005
     """1σ of the measured-torque feedback, Nm."""
-    velocity_noise: NonNegative = 0.05
+    velocity_noise: VelocityNoise = 0.05
     """1σ of the motor velocity feedback, rad/s."""
 
 
 class Friction(_Record, frozen=True):
-    rolling_viscous: NonNegative = 0.75
+    rolling_viscous: Viscous = 0.75
     """b_φ: ball-floor rolling resistance, Nm s/rad on φ."""
-    drivetrain_viscous: NonNegative = 0.5
+    drivetrain_viscous: Viscous = 0.5
     """b_ψ: ball-equivalent drivetrain viscous friction, Nm s/rad on ψ = φ - θ."""
-    drivetrain_coulomb: NonNegative = 1.5
+    drivetrain_coulomb: DryFriction = 1.5
     """τ_c: ball-equivalent kinetic (Coulomb) friction, Nm."""
-    drivetrain_stiction: NonNegative = 2.0
+    drivetrain_stiction: DryFriction = 2.0
     """τ_s: breakaway torque; ψ stays stuck while the torque needed to hold it is below this, Nm."""
-    stick_velocity: Positive = 0.01
+    stick_velocity: StickVelocity = 0.01
     """|ψ̇| below which the drivetrain may stick, rad/s (Karnopp band)."""
-    yaw_viscous: NonNegative = 0.5
+    yaw_viscous: Viscous = 0.5
     """b_z: ball-body relative yaw viscous friction, Nm s/rad."""
-    yaw_coulomb: NonNegative = 0.5
+    yaw_coulomb: DryFriction = 0.5
     """Yaw kinetic friction, Nm."""
-    yaw_stiction: NonNegative = 0.8
+    yaw_stiction: DryFriction = 0.8
     """Yaw breakaway torque, Nm."""
 
     def __post_init__(self) -> None:
@@ -138,41 +195,41 @@ class Friction(_Record, frozen=True):
 
 
 class Encoder(_Record, frozen=True):
-    counts_per_rev: Annotated[int, msgspec.Meta(gt=0)] = 8192
+    counts_per_rev: CountsPerRev = 8192
     """Quadrature counts per motor revolution."""
-    word_bits: Annotated[int, msgspec.Meta(ge=8, le=64)] = 32
+    word_bits: WordBits = 32
     """The count wraps as a signed integer of this width."""
 
 
 class Imu(_Record, frozen=True):
-    rate_hz: Positive = 400.0
-    gyro_noise_density: NonNegative = 6.1e-5
+    rate_hz: SensorRateHz = 400.0
+    gyro_noise_density: GyroNoiseDensity = 6.1e-5
     """rad/s/√Hz (VN-100 class)."""
-    accel_noise_density: NonNegative = 1.37e-3
+    accel_noise_density: AccelNoiseDensity = 1.37e-3
     """m/s²/√Hz (VN-100 class)."""
-    gyro_bias_sigma: NonNegative = 1e-4
+    gyro_bias_sigma: GyroBiasSigma = 1e-4
     """1σ of the turn-on gyro bias, rad/s."""
-    gyro_bias_walk: NonNegative = 1e-5
+    gyro_bias_walk: GyroBiasWalk = 1e-5
     """Gyro bias random walk, rad/s/√s."""
-    accel_bias_sigma: NonNegative = 0.02
+    accel_bias_sigma: AccelBiasSigma = 0.02
     """1σ of the turn-on accelerometer bias, m/s²."""
-    accel_bias_walk: NonNegative = 5e-5
+    accel_bias_walk: AccelBiasWalk = 5e-5
     """Accelerometer bias random walk, m/s²/√s (m/s³/√Hz)."""
-    attitude_noise_deg: NonNegative = 0.05
+    attitude_noise_deg: AttitudeNoiseDeg = 0.05
     """1σ white noise of the AHRS attitude output, deg."""
 
 
 class Tes(_Record, frozen=True):
     """Force-sensing seat: six uniaxial load cells (three vertical, three tangential) under the seat plate."""
 
-    rate_hz: Positive = 400.0
-    cell_radius: Positive = 0.12
+    rate_hz: SensorRateHz = 400.0
+    cell_radius: CellRadius = 0.12
     """Radius of the circle of load cells around P, m."""
-    cell_azimuth0_deg: float = 90.0
+    cell_azimuth0_deg: AzimuthDeg = 90.0
     """Azimuth of the first pair of cells from body +x, deg; the others at +120°, +240°."""
-    cell_noise: NonNegative = 0.5
+    cell_noise: CellNoise = 0.5
     """1σ white noise per load cell, N."""
-    calibration_error: NonNegative = 0.0
+    calibration_error: CalibrationError = 0.0
     """Relative 1σ error of each entry of the calibration matrix (0: perfect calibration)."""
 
 
@@ -214,40 +271,40 @@ class RiderParams(_Record, frozen=True):
     """A seated rider: anthropometry (Winter fractions of mass and height) and torso capability."""
 
     name: str
-    mass: Annotated[float, msgspec.Meta(gt=20, lt=250)]
+    mass: RiderMass
     """Body mass, kg."""
-    height: Annotated[float, msgspec.Meta(gt=1.0, lt=2.3)]
+    height: RiderHeight
     """Standing height, m."""
-    max_lean_deg: Annotated[float, msgspec.Meta(gt=0, le=60)] = 30.0
+    max_lean_deg: LeanDeg = 30.0
     """Largest torso lean relative to the chassis the rider can reach, deg (fore-aft and sideways)."""
-    max_hip_torque: Positive = 150.0
+    max_hip_torque: HipTorque = 150.0
     """Largest hip torque the rider can produce on the torso, Nm."""
-    max_twist_torque: NonNegative = 20.0
+    max_twist_torque: TwistTorque = 20.0
     """Largest twisting moment the rider can put on the seat, Nm."""
-    max_lean_rate_deg: Positive = 40.0
+    max_lean_rate_deg: LeanRateDeg = 40.0
     """Fastest change of the intended lean, deg/s."""
-    lean_amplitude_deg: Annotated[float, msgspec.Meta(gt=0, le=60)] = 25.0
+    lean_amplitude_deg: LeanDeg = 25.0
     """How far this rider leans, relative to the chassis, when a trial asks them to lean as far as they can
     (an `until` segment without its own amplitude), deg, clipped to max_lean_deg. Default from the paper's
     Table II (docs/riders.md)."""
-    lean_rate_deg: Positive = 4.0
+    lean_rate_deg: LeanRateDeg = 4.0
     """How fast this rider leans in such a trial, deg/s. Default from the paper's Table II and Fig. 4
     (docs/riders.md)."""
-    alert_reaction_time: Positive = 1.0
+    alert_reaction_time: ReactionTime = 1.0
     """s from the supervisor's alert to this rider starting to sit up, when the scenario's rider heeds it:
     a driver's brake reaction to an expected signal is ~0.7 s, to an unexpected but common one ~1.25 s
     (Green 2000; docs/riders.md)."""
-    max_lean_accel_deg: Positive = 400.0
+    max_lean_accel_deg: LeanAccelDeg = 400.0
     """Fastest change of the intended lean's rate, deg/s² [EST]: a trunk cannot change its angular velocity
     at once (40 deg/s is reached in 0.1 s), so the hip torque and the seat's load change smoothly."""
-    trunk_stiffness: Positive = 800.0
+    trunk_stiffness: TrunkStiffness = 800.0
     """Proportional gain of the rider's lean control, Nm/rad."""
-    trunk_damping: Positive = 120.0
+    trunk_damping: TrunkDamping = 120.0
     """Derivative gain of the rider's lean control, Nm s/rad."""
-    hip_x: float | None = None
+    hip_x: HipX | None = None
     """Hip joint along body x from the ball axis, m; None places the seat so that the upright
     rider + robot COM lies over the ball."""
-    hip_half_width: Positive = 0.085
+    hip_half_width: HipHalfWidth = 0.085
     """Half the distance between the hip joint centres, m."""
     notes: str = ""
 

@@ -13,13 +13,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from typing import Annotated, Literal
+from typing import Literal
 
 import msgspec
 
+from drivers.bounds import LeanDeg, LeanRateDeg, ReactionTime, RobotSpeed, SegmentDuration, SwayHz
 from plant.params import RiderParams
-
-_Positive = Annotated[float, msgspec.Meta(gt=0)]
 
 
 class _Segment(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True, tag_field="kind"):
@@ -28,23 +27,26 @@ class _Segment(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
 
 class Ramp(_Segment, frozen=True, tag="ramp"):
     to: float
-    duration: _Positive
+    """Within the rider's reach (`beyond_reach`)."""
+    duration: SegmentDuration
 
 
 class Hold(_Segment, frozen=True, tag="hold"):
-    duration: _Positive
+    duration: SegmentDuration
 
 
 class Step(_Segment, frozen=True, tag="step"):
     to: float
+    """Within the rider's reach (`beyond_reach`)."""
 
 
 class Sine(_Segment, frozen=True, tag="sine"):
     """Oscillation about the value reached so far."""
 
     amplitude: float
-    frequency_hz: _Positive
-    duration: _Positive
+    """About the value reached so far, within the rider's reach (`beyond_reach`)."""
+    frequency_hz: SwayHz
+    duration: SegmentDuration
 
 
 class Adversarial(_Segment, frozen=True, tag="adversarial"):
@@ -53,11 +55,11 @@ class Adversarial(_Segment, frozen=True, tag="adversarial"):
     other way faster than `speed_threshold` for `reaction_time` (a person does not flip every wobble).
     Lean profiles only."""
 
-    duration: _Positive
+    duration: SegmentDuration
     direction: Literal[-1, 1] = 1
-    speed_threshold: _Positive = 0.1
+    speed_threshold: RobotSpeed = 0.1
     """|speed| in m/s beyond which motion against the lean counts."""
-    reaction_time: _Positive = 0.5
+    reaction_time: ReactionTime = 0.5
     """How long the robot must move against the lean before the rider switches sides, s."""
 
 
@@ -69,16 +71,16 @@ class Until(_Segment, frozen=True, tag="until"):
     finishing line). Lean profiles only; `amplitude` and `rate` default to the rider's own
     (RiderParams.lean_amplitude_deg, lean_rate_deg)."""
 
-    duration: _Positive
+    duration: SegmentDuration
     direction: Literal[-1, 1] = 1
-    speed: _Positive = 0.2
+    speed: RobotSpeed = 0.2
     """|speed|, m/s, whose crossing ends the segment."""
     when: Literal["faster", "slower"] = "faster"
-    amplitude: _Positive | None = None
-    """deg; None: the rider's lean_amplitude_deg."""
-    rate: _Positive | None = None
+    amplitude: LeanDeg | None = None
+    """deg, within the rider's reach (`beyond_reach`); None: the rider's lean_amplitude_deg."""
+    rate: LeanRateDeg | None = None
     """deg/s; None: the rider's lean_rate_deg."""
-    reaction_time: Annotated[float, msgspec.Meta(ge=0)] = 0.3
+    reaction_time: ReactionTime = 0.3
     """s from the speed's crossing to the rider's next move (a person's reaction to what they see)."""
 
 
@@ -119,6 +121,28 @@ def _compile(
             value = _leaning(seg, seg.duration, value, style, math.inf)
         t = end
     return spans, t, value
+
+
+def beyond_reach(
+    segments: Iterable[Segment], limit: float, style: LeanStyle = DEFAULT_STYLE
+) -> tuple[int, str, float, float] | None:
+    """The first segment that asks for more than ±limit (a rider's largest lean, deg, or twist, Nm), or a
+    value that is not a number: its index, its field, the field's value and the value it reaches (a sine's
+    amplitude about the value reached before it; the profile starts at 0). An adversarial segment and an
+    until without an amplitude lean as far as the rider can; None: all within reach."""
+    spans, _, _ = _compile(segments, 0.0, 0.0, style)
+    for i, (_, _, seg, v0) in enumerate(spans):
+        if isinstance(seg, (Ramp, Step)):
+            field, value, reached = "to", seg.to, seg.to
+        elif isinstance(seg, Sine):
+            field, value, reached = "amplitude", seg.amplitude, abs(v0) + abs(seg.amplitude)
+        elif isinstance(seg, Until) and seg.amplitude is not None:
+            field, value, reached = "amplitude", seg.amplitude, seg.amplitude
+        else:
+            continue
+        if not abs(reached) <= limit:  # NaN too
+            return i, field, value, reached
+    return None
 
 
 def _leaning(seg: Until, elapsed: float, v0: float, style: LeanStyle, limit: float) -> float:

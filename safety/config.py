@@ -12,6 +12,26 @@ from typing import Annotated
 
 import msgspec
 
+from drivers.bounds import (
+    AzimuthDeg,
+    BallInertia,
+    BallMass,
+    BallRadius,
+    BodyInertia,
+    BodyMass,
+    ComHeight,
+    CountsPerRev,
+    GearRatio,
+    ImuHeight,
+    MotorSign,
+    SeatHeight,
+    StreamTimeout,
+    TopHeight,
+    TorqueLimit,
+    WheelRadius,
+    WordBits,
+    ZenithDeg,
+)
 from drivers.rules import MotionLimits, NonNegative, Positive, SpeedLimits, StopLimits
 
 Fraction = Annotated[float, msgspec.Meta(gt=0, le=1)]
@@ -27,43 +47,43 @@ class _Strict(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=T
 
 # --------------------------------------------------------------------- the robot, as the supervisor sees it
 class Ball(_Lenient, frozen=True):
-    radius: Positive = 0.1145
-    mass: Positive = 3.6
-    inertia: Positive = 0.047
+    radius: BallRadius = 0.1145
+    mass: BallMass = 3.6
+    inertia: BallInertia = 0.047
 
 
 class Body(_Lenient, frozen=True):
-    mass: Positive = 30.0
+    mass: BodyMass = 30.0
     """kg of the chassis without ball and rider (the recovery law's model)."""
-    com_height: Positive = 0.25
+    com_height: ComHeight = 0.25
     """m above the ball centre."""
-    inertia_pitch: Positive = 0.5
-    inertia_roll: Positive = 0.5
-    inertia_yaw: Positive = 0.3
-    top_height: Positive = 0.386
+    inertia_pitch: BodyInertia = 0.5
+    inertia_roll: BodyInertia = 0.5
+    inertia_yaw: BodyInertia = 0.3
+    top_height: TopHeight = 0.386
     """m of the chassis top (the seat's base) above the ball centre."""
-    imu_height: Positive = 0.2
+    imu_height: ImuHeight = 0.2
     """m above the ball centre: the IMU's own acceleration includes the chassis' rotation about the ball."""
-    seat_height: NonNegative = 0.03
+    seat_height: SeatHeight = 0.03
     """m of the seat surface above P (the seat's COP is computed on it)."""
 
 
 class Encoder(_Lenient, frozen=True):
-    counts_per_rev: Annotated[int, msgspec.Meta(gt=0)] = 8192
-    word_bits: Annotated[int, msgspec.Meta(ge=8, le=64)] = 32
+    counts_per_rev: CountsPerRev = 8192
+    word_bits: WordBits = 32
 
 
 class Drivetrain(_Lenient, frozen=True):
-    wheel_radius: Positive = 0.0625
-    zenith_deg: Positive = 45.0
-    azimuth0_deg: float = 0.0
-    motor_sign: tuple[int, int, int] = (1, 1, 1)
-    gear_ratio: Positive = 8.0
+    wheel_radius: WheelRadius = 0.0625
+    zenith_deg: ZenithDeg = 45.0
+    azimuth0_deg: AzimuthDeg = 0.0
+    motor_sign: tuple[MotorSign, MotorSign, MotorSign] = (1, 1, 1)
+    gear_ratio: GearRatio = 8.0
 
 
 class DriveLimits(_Lenient, frozen=True):
-    torque_limit: Positive = 3.75
-    watchdog_timeout: Positive = 0.02
+    torque_limit: TorqueLimit = 3.75
+    watchdog_timeout: StreamTimeout = 0.02
     """The drives' own command watchdog, s (for the root-cause rule: it trips before the heartbeat's)."""
 
 

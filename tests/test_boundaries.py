@@ -18,16 +18,22 @@ ALLOWED = {
 # plant/ is physics only: numerics and typed records, nothing that does I/O, threads or clocks.
 PLANT_THIRD_PARTY = {"numpy", "scipy", "msgspec", "mypy_extensions", "mujoco"}  # mypy_extensions: @mypyc_attr
 PLANT_FORBIDDEN_STDLIB = {"time", "threading", "socket", "os", "io", "asyncio", "subprocess", "pathlib"}
+DECLARATIONS = "drivers.bounds"
+"""The one module of ours every package may import, the plant too: the bounds of the numbers in the files
+they all read, declared once (docs/architecture.md). Declarations only: it imports nothing but typing and
+msgspec."""
 
 
 def imported_roots(source: str, own_package: str) -> set[str]:
+    """The top-level packages `source` imports (DECLARATIONS, which anyone may import, not counted)."""
     tree = ast.parse(source)
     roots = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
-            roots |= {alias.name.split(".")[0] for alias in node.names}
+            roots |= {alias.name.split(".")[0] for alias in node.names if alias.name != DECLARATIONS}
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            roots.add(node.module.split(".")[0])
+            if node.module != DECLARATIONS:
+                roots.add(node.module.split(".")[0])
         elif isinstance(node, ast.ImportFrom) and node.level > 0:
             roots.add(own_package)  # a relative import stays inside its package
     return roots
@@ -116,6 +122,15 @@ def test_positive_control_a_vocabulary_import_from_safety_is_seen():
     assert len(vocabulary_imported_elsewhere("tests/x.py", source)) == 3
 
 
+def test_the_declarations_everyone_imports_import_nothing_that_acts():
+    path = ROOT / (DECLARATIONS.replace(".", "/") + ".py")
+    assert _imported_modules(path.read_text()) <= {"__future__", "typing", "msgspec"}
+    # Positive control: the plant importing anything else of drivers/ is still an arrow the table forbids.
+    source = "from drivers.bounds import BallMass\nfrom drivers.config import load_toml\n"
+    assert imported_roots(source, "plant") == {"drivers"}
+    assert imported_roots("from drivers.bounds import BallMass\n", "plant") == set()
+
+
 def test_checker_sees_a_violation():
     # Test the test: the same parser finds forbidden imports in every import form.
     source = "from plant.ballbot import Plant\nimport hil.cli as c\nfrom . import sibling\n"
@@ -190,7 +205,7 @@ FLOORS = (
     {"faults", "outputs", "devices"},  # the fault catalog, what streams during a run, the emulated devices
     {"bench"},  # the bench file, the machine's rigs
     {"run"},  # one run: build, tick loop, judge
-    {"report", "contract"},  # the run folder's summary and plots; the contract's generated tables
+    {"report", "contract", "config_bounds"},  # the run folder's summary and plots; generated doc tables
     {"pipeline", "live", "history"},  # build -> tick loop -> judge -> write; the service's stream and history
     {"service", "suites"},  # `pure-hil serve`; many runs
     {"console"},  # the rig's screen: a client of the service

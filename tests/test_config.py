@@ -46,8 +46,8 @@ def test_each_rider_can_hold_their_max_lean(path):
     ("text", "expected"),
     [
         ('[ball]\nmass = "heavy"\n', "Expected `float`, got `str` - at `$.ball.mass`"),
-        ("[ball]\nmass = -1.0\n", "Expected `float` > 0.0 - at `$.ball.mass`"),
-        ("[drivetrain]\nzenith_deg = 95.0\n", "Expected `float` < 90.0 - at `$.drivetrain.zenith_deg`"),
+        ("[ball]\nmass = -1.0\n", "Expected `float` >= 0.2 - at `$.ball.mass`"),
+        ("[drivetrain]\nzenith_deg = 95.0\n", "Expected `float` <= 80.0 - at `$.drivetrain.zenith_deg`"),
         ("[drivetrain]\nmotor_sign = [1, 2, 1]\n", "at `$.drivetrain.motor_sign[1]`"),
         ("[bal]\nmass = 3.0\n", "Object contains unknown field `bal`"),
         (

@@ -1,5 +1,6 @@
-"""docs/contract.md and docs/schemas/ say what the code does: generated parts current, every number a
-controller author relies on recomputed from the code, nothing pointing outside the repository."""
+"""docs/contract.md, docs/schemas/ and docs/configuration.md's bounds say what the code does: generated parts
+current, every number a controller author relies on recomputed from the code, nothing pointing outside the
+repository."""
 
 from __future__ import annotations
 
@@ -26,6 +27,20 @@ def test_generated_tables_and_schemas_are_current():
     for name, data in json_schemas().items():
         assert (ROOT / "docs/schemas" / name).read_bytes() == data, f"docs/schemas/{name}: {REGENERATE}"
     assert {p.name for p in (ROOT / "docs/schemas").glob("*.json")} == set(json_schemas())
+
+
+def test_the_configuration_pages_bounds_are_the_declarations():
+    from hil.config_bounds import PAGE, render
+
+    page = ROOT / PAGE
+    assert render(page.read_text()) == page.read_text(), (
+        f"regenerate with: python -m hil.config_bounds {PAGE}"
+    )
+    # Positive control: a bound that changed would be caught.
+    stale = page.read_text().replace(
+        "| `body.mass` | 5 <= mass <= 200 |", "| `body.mass` | 5 <= mass <= 300 |"
+    )
+    assert stale != page.read_text() and render(stale) != stale
 
 
 def rules_table(text: str) -> list[str]:

@@ -473,7 +473,7 @@ class Responder:
                     self.answered.notify_all()
 
     def wait_answer(self, k: int) -> None:
-        """Until SYNC(k) is answered: what the real-time clock's sleep gives a controller on its own thread."""
+        """Until SYNC(k) is answered: what the real-time clock's sleep gives a controller on a thread."""
         with self.answered:
             assert self.answered.wait_for(lambda: self.last == k, timeout=10.0), f"SYNC({k}) not answered"
 

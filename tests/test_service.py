@@ -68,6 +68,34 @@ def test_status_start_intent_stop(service, tmp_path):
     assert (tmp_path / last["out"].split("/")[-1] / "summary.json").exists()
 
 
+def test_a_live_intent_past_the_riders_reach_is_refused_naming_it(service):
+    """`pure-hil rig intent` holds the rider to their own limits, as a scenario's [intent] is (before, a lean
+    of 1e308 deg was taken and clipped silently). JSON has no NaN or infinity: msgspec refuses those."""
+    svc, client = service
+    lean = '{"pitch": [{"kind": "ramp", "to": %s, "duration": 0.5}]}'
+    idle = ask(client, "intent", lean % "10.0")
+    assert idle == {"ok": False, "error": "no run in progress: start one first"}, "no rider to hold it to"
+    assert ask(client, "start", SHORT)["ok"]
+    rider = "configs/riders/ref_60kg_180.toml"
+    for to, says in [
+        ("1e308", "to = 1e+308 deg is past the rider's reach |pitch| <= 30 deg (max_lean_deg of "),
+        ("31", "to = 31 deg is past the rider's reach |pitch| <= 30 deg"),
+    ]:
+        reply = ask(client, "intent", lean % to)
+        assert reply["refused"] and not reply["ok"], reply
+        assert (
+            reply["error"].startswith(f"pure/rig/intent.pitch[0] (ramp): {says}") and rider in reply["error"]
+        )
+    twist = ask(client, "intent", '{"twist": [{"kind": "step", "to": -20.5}]}')
+    assert (
+        "pure/rig/intent.twist[0] (step): to = -20.5 Nm is past the rider's reach |twist| <= 20 Nm"
+        in (twist["error"])
+    )
+    assert ask(client, "intent", lean % "30.0") == {"ok": True, "applies_to": "served"}  # at the limit
+    assert ask(client, "stop")["stopping"] is True
+    assert svc.wait_idle(30)
+
+
 def test_bad_requests_get_clear_errors(service):
     _, client = service
     assert "unknown field `durration`" in ask(client, "start", 'name = "x"\ndurration = 1.0\n')["error"]

@@ -37,7 +37,8 @@ from hil.run.lateness import Lateness
 from hil.run.scenario import Criterion, OperatorEntry, Scenario, ScEntry
 from hil.run.trace import Trace
 from hil.service import RigService
-from tests.helpers import ROOT, wait_for
+from plant.params import RobotParams
+from tests.helpers import RIDER_75, ROOT, wait_for
 from tests.zenoh_helpers import hub_endpoint, private_bench
 
 FELL = "tilt beyond 30 deg at t=0.800 s"
@@ -146,8 +147,10 @@ def test_a_start_beyond_the_fall_bound_is_exit_2_naming_the_file_the_field_and_t
     err = capsys.readouterr().err
     assert str(scenario) in err and "initial_tilt_deg" in err and bound in err, err
     assert not (out / "summary.json").exists(), "refused before anything ran"
-    # Just inside the bound is a start the robot can be released in (the positive control).
-    Scenario(name="x", initial_tilt_deg=(29.9, -29.9)).check_start(30.0, "sim")
+    # Just inside the bound, sideways or backward, is a start the robot can be released in (the positive
+    # control): no foot and not the rim on the floor there (forward the feet are: test_config_bounds.py).
+    for tilt in ((0.0, -29.9), (-29.9, 0.0)):
+        Scenario(name="x", initial_tilt_deg=tilt).check_start(30.0, "sim", RobotParams(), RIDER_75, "x")
 
 
 @pytest.mark.parametrize("tilt", ["[nan, 0.0]", "[0.0, inf]"])

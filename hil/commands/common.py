@@ -15,7 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, get_args
 
-from drivers.config import MAX_DURATION
+from drivers.bounds import MAX_DURATION
 from drivers.resources import shipped
 from plant.params import PlantName
 

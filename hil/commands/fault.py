@@ -6,7 +6,7 @@ import argparse
 import json
 import sys
 
-from drivers.config import MAX_DURATION
+from drivers.bounds import MAX_DURATION
 from hil.commands.common import DURATION, add_bench_options, ask_service, number
 
 

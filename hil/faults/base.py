@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Protocol, c
 import msgspec
 import numpy as np
 
-from drivers.config import MAX_DURATION
+from drivers.bounds import MAX_DURATION
 from drivers.vocabulary import Cause, ReactionStateName
 
 if TYPE_CHECKING:
@@ -130,7 +130,7 @@ Period = Annotated[
         0.0,
         MAX_DURATION,
         low_open=True,
-        why="s; at most the longest run (drivers/config.py MAX_DURATION): a longer period never comes round",
+        why="s; at most the longest run (drivers/bounds.py MAX_DURATION): a longer period never comes round",
     ),
 ]
 
@@ -174,13 +174,13 @@ class FaultSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only
     """Common to every fault: active from `at` (s) for `duration` (s; none: to the end of the run)."""
 
     at: Annotated[
-        float, Bound(0.0, MAX_DURATION, why="s; within the longest run (drivers/config.py MAX_DURATION)")
+        float, Bound(0.0, MAX_DURATION, why="s; within the longest run (drivers/bounds.py MAX_DURATION)")
     ] = 0.0
     duration: (
         Annotated[
             float,
             Bound(
-                0.0, MAX_DURATION, low_open=True, why="s; the longest run (drivers/config.py MAX_DURATION)"
+                0.0, MAX_DURATION, low_open=True, why="s; the longest run (drivers/bounds.py MAX_DURATION)"
             ),
         ]
         | None

@@ -22,7 +22,7 @@ from hil.faults.base import Bound, FaultSpec, FaultTarget, bounds_of, number
 from hil.faults.sensors import CHANNELS, SATURATION, channel_range
 from plant.params import RobotParams, SimParams
 
-BEGIN, END = "<!-- generated: {name} (python -m hil.faults.bounds) -->", "<!-- /generated: {name} -->"
+BEGIN, END = "<!-- generated: {name} (python -m {generator}) -->", "<!-- /generated: {name} -->"
 COMMON = ("at", "duration")
 """Every fault's own fields, listed once."""
 REFERENCE_BITRATE = 1_000_000
@@ -145,11 +145,16 @@ def sections() -> dict[str, str]:
 
 def render(text: str) -> str:
     """`text` (docs/faults.md) with its generated sections current."""
-    for name, body in sections().items():
-        begin, end = BEGIN.format(name=name), END.format(name=name)
+    return replace_sections(text, sections(), "hil.faults.bounds", "docs/faults.md")
+
+
+def replace_sections(text: str, bodies: dict[str, str], generator: str, page: str) -> str:
+    """`text` (the page `page`) with each of its sections that `generator` generates replaced by its body."""
+    for name, body in bodies.items():
+        begin, end = BEGIN.format(name=name, generator=generator), END.format(name=name)
         pattern = re.compile(re.escape(begin) + ".*?" + re.escape(end), re.S)
         if not pattern.search(text):
-            raise ValueError(f"docs/faults.md has no generated section {name!r} ({begin} ... {end})")
+            raise ValueError(f"{page} has no generated section {name!r} ({begin} ... {end})")
         text = pattern.sub(_replacement(f"{begin}\n{body}\n{end}"), text)
     return text
 

@@ -14,9 +14,9 @@ from typing import Annotated, ClassVar, Literal
 
 import can
 
+from drivers.bounds import MAX_DURATION
 from drivers.bus_load import frame_bits, frames_per_tick
 from drivers.can_codec import DRIVE_COMMAND, MessageName
-from drivers.config import MAX_DURATION
 from drivers.devices import ProfileNode, Translator
 from drivers.e2e import counter_of, is_protected, with_counter
 from hil.faults.base import Bound, FaultSpec, FaultState, FaultTarget, Hold, Probability, number
