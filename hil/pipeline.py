@@ -29,12 +29,13 @@ from hil.run.build import (
     run_logs,
     sim_params,
     start_up,
+    supervisor_rules,
 )
 from hil.run.judge import RunResult, judge
 from hil.run.loop import tick_loop
 from hil.run.scenario import Scenario
 from hil.run.trace import CONFIG_ERRORS, ControllerUnavailable, Failure, Trace, reason
-from plant.params import RobotParams, SimParams
+from plant.params import RiderParams, RobotParams, SimParams
 
 
 def run(
@@ -103,8 +104,20 @@ def _hand_events(logs: RunLogs, trace: Trace, scenario: Scenario) -> None:
 
 
 def check_start(scenario: Scenario, bench: Bench, origin: str) -> None:
-    """Raise ConfigError, naming `origin`, the field and the bound, for a start state the robot cannot be
+    """Raise ConfigError, naming `origin` (the scenario's file, or where its text came from), the field and
+    what was expected, before anything runs: a robot or rider file that cannot be read or is not one,
+    `[safety]` overrides the bench's supervisor does not take, and a start state the robot cannot be
     released in on this bench (beyond its sim file's fall bound)."""
+    for field, name, kind, schema in (
+        ("robot", scenario.robot, "robot", RobotParams),
+        ("rider", scenario.rider, "riders", RiderParams),
+    ):
+        try:
+            load_toml(find(name, kind), schema)
+        except ConfigError as exc:  # the file's own error, under the scenario's field that named it
+            said = exc.detail if exc.path == Path(name) else str(exc)  # its path once
+            raise ConfigError(origin, f'{field} = "{name}": {said}') from None
+    supervisor_rules(bench, scenario, f"{origin} [safety]")
     sim_file = find(bench.sim, "sim")
     try:
         scenario.check_start(load_toml(sim_file, SimParams).fall_tilt_deg, str(sim_file))
