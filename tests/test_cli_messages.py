@@ -134,3 +134,35 @@ def test_a_bad_file_is_named_by_its_path_and_field_before_anything_runs(case, fi
     assert field.format(tmp=tmp_path) in err, err
     assert "json5" not in err and "scenario balance" not in err, "named the file, not another"
     assert not out.exists(), "nothing began"
+
+
+@pytest.mark.parametrize("given", ["force=100,0", "force=[100,0]", "force=[100, 0]", "force=100, 0"])
+def test_a_fault_parameter_of_two_values_is_taken_as_docs_faults_md_writes_it(given, capsys, monkeypatch):
+    """`--param force=100,0` was 'Expected `array`, got `str`'; the comma form and JSON both send a list."""
+    import json
+
+    import hil.commands.fault as fault_command
+
+    sent = []
+    monkeypatch.setattr(
+        fault_command, "ask_service", lambda args, key, payload, who: sent.append(payload) or 0
+    )
+    code, err = said(["fault", "inject", "plant.push", "--param", given, "--param", "height=0.4"], capsys)
+    assert code == 0 and err == "", err
+    assert json.loads(sent[0])["force"] == [100.0, 0.0] and json.loads(sent[0])["height"] == 0.4
+
+
+def test_the_live_injection_docs_show_the_forms_the_command_takes():
+    from tests.helpers import ROOT
+
+    page = (ROOT / "docs/faults.md").read_text()
+    live = page[page.index("## Live injection") :]
+    assert "--param force=100,0" in live and "force=[100,0]" in live
+
+
+@pytest.mark.parametrize("given", ["force=100", "force=100,0,3", "force=[100,0,3]", "force=abc"])
+def test_a_fault_parameter_of_the_wrong_shape_names_it_and_its_form(given, capsys):
+    code, err = said(["fault", "inject", "plant.push", "--param", given], capsys)
+    form = "expected 2 numbers, as force=100,0 or force=[100,0]"
+    says = f"pure-hil fault inject: plant.push: --param {given}: {form}"
+    assert code == 2 and err.strip() == says, err
