@@ -132,6 +132,49 @@ def test_report_is_worst_first_and_junit_carries_failures_and_errors():
     assert cases["a-none-seed0"].find("properties/property").get("name") == "fallen"
 
 
+def test_a_verdict_without_a_unit_reads_without_a_stray_space_in_every_report(tmp_path):
+    """The junit and md reports read "measured 2 , limit" for a unitless measurement (a count)."""
+    from hil.run.scenario import Criterion
+    from hil.suites.html_report import html_report
+
+    limit = Criterion(metric="missing_commands", min=0.0, max=1.0).describe()
+    assert limit == ">= 0 and <= 1", "no unit, no space after the number"
+    assert Criterion(metric="max_speed", max=0.5).describe() == "<= 0.5 m/s", "the control: a unit kept"
+    verdicts = [
+        {
+            "criterion": "missing_commands",
+            "value": 2.0,
+            "limit": limit,
+            "units": "",
+            "passed": False,
+            "note": "",
+        },
+        {
+            "criterion": "max_speed",
+            "value": 0.75,
+            "limit": "<= 0.5 m/s",
+            "units": "m/s",
+            "passed": False,
+            "note": "",
+        },
+    ]
+    failed = CaseResult("a-none-seed0", "a.toml", False, 1.0, verdicts)
+    assert failed.message().splitlines() == [
+        "missing_commands: measured 2, limit >= 0 and <= 1",
+        "max_speed: measured 0.75 m/s, limit <= 0.5 m/s",
+    ]
+    junit = ET.fromstring(junit_xml("c", [failed])).find("testcase/failure")
+    texts = {
+        "junit message": junit.get("message"),
+        "junit text": junit.text,
+        "md": report("c", [failed]),
+        "html": html_report("c", [failed], tmp_path),
+    }
+    for where, text in texts.items():
+        assert "measured 2, limit" in text or "2 (limit" in text, (where, text)
+        assert " ," not in text and "2  (limit" not in text, (where, text)
+
+
 def test_the_peak_tilt_is_the_runs_own_after_the_release(shipped):
     """balance is released at 3 deg: the release ends when the robot first comes back through upright, and
     the peak after it is the run's own (3 deg, the release's, for every case of the scenario before)."""

@@ -20,7 +20,7 @@ from drivers.rules import JudgedRules
 from drivers.schemas import ScMode, Speed
 from drivers.vocabulary import Cause
 from hil.faults import Fault
-from hil.run.measurements import MEASUREMENTS
+from hil.run.measurements import MEASUREMENTS, with_unit
 from plant.rider import Segment
 
 Positive = Annotated[float, msgspec.Meta(gt=0)]
@@ -114,9 +114,9 @@ class Criterion(_Record, frozen=True):
             return f"== {self.equals}"
         parts = []
         if self.min is not None:
-            parts.append(f">= {self.min:g} {unit}")
+            parts.append(with_unit(f">= {self.min:g}", unit))
         if self.max is not None:
-            parts.append(f"<= {self.max:g} {unit}")
+            parts.append(with_unit(f"<= {self.max:g}", unit))
         return " and ".join(parts)
 
 

@@ -33,7 +33,7 @@ from drivers.config import load_toml
 from drivers.resources import find
 from hil.bench.bench import Bench, load_bench
 from hil.faults import Fault
-from hil.run.measurements import measure, release_end
+from hil.run.measurements import measure, release_end, with_unit
 from hil.run.scenario import OperatorEntry, Scenario
 from hil.suites.coverage import Bounds, Classification, Outcome, classify, false_trip, outcome
 
@@ -307,7 +307,8 @@ class CaseResult:
         if self.false_trip:
             lines.append(f"false trip: {self.false_trip}")
         for v in self.failed:
-            line = f"{v['criterion']}: measured {v['value']:.4g} {v['units']}, limit {v['limit']}".rstrip()
+            measured = with_unit(f"{v['value']:.4g}", v["units"])
+            line = f"{v['criterion']}: measured {measured}, limit {v['limit']}".rstrip()
             lines.append(line + (f" ({v['note']})" if v["note"] else ""))
         return "\n".join(lines)
 
