@@ -312,8 +312,11 @@ def test_plugin_fixtures_run_a_scenario_with_faults_and_assert_on_events(pyteste
     result.assert_outcomes(passed=1)
 
 
-def test_on_a_terminal_a_campaign_shows_a_progress_bar_with_counts_and_elsewhere_lines(tmp_path):
-    """The bar (tqdm, on stderr) only when stderr is a terminal; the lines of the test above otherwise."""
+@pytest.mark.parametrize("workers", ["2", "1"])
+def test_on_a_terminal_a_campaign_shows_a_progress_bar_with_counts_and_elsewhere_lines(tmp_path, workers):
+    """The bar (tqdm, on stderr) only when stderr is a terminal; the lines of the test above otherwise. The
+    bar stays one line: the cases' own (fault starts, supervisor transitions) broke it up, one worker's
+    cases run in this process."""
     import fcntl
     import os
     import pty
@@ -333,7 +336,7 @@ def test_on_a_terminal_a_campaign_shows_a_progress_bar_with_counts_and_elsewhere
             "campaign",
             str(campaign),
             "--workers",
-            "2",
+            workers,
             "--out",
             str(tmp_path / "out"),
         ],
@@ -364,6 +367,11 @@ def test_on_a_terminal_a_campaign_shows_a_progress_bar_with_counts_and_elsewhere
     assert proc.returncode == 0, stdout[-2000:] + terminal[-2000:]
     assert "2/2" in terminal and "passed=2" in terminal and ("case/s" in terminal or "s/case" in terminal)
     assert "[1/2]" not in stdout and "2/2 passed" in stdout  # no per-case lines under a bar; the report
+    assert "WRENCH_SILENT" in stdout, "the control: the faulty case's supervisor did react"
+    case_lines = [
+        line for line in terminal.splitlines() if "fault 0" in line or "supervisor transition" in line
+    ]
+    assert case_lines == [] and terminal.count("\n") <= 1, terminal[-2000:]
 
 
 AFTERMATH = """

@@ -19,8 +19,9 @@ import time
 import traceback
 import xml.etree.ElementTree as ET
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from multiprocessing import get_context
 from pathlib import Path
@@ -456,8 +457,9 @@ def run_campaign(
         phases = [[c for c in cases if c.role != "faulty"], [c for c in cases if c.role == "faulty"]]
         run_on_cluster(scheduler, phases, bench, out, run_case, CaseResult.errored, done)
     elif workers <= 1 or not parallel:
-        for case in cases:
-            done(case, run_case(case, folder(case), bench))
+        with quiet_cases():
+            for case in cases:
+                done(case, run_case(case, folder(case), bench))
     else:
         with run_pool(workers) as pool:
             futures = {pool.submit(run_case, c, folder(c), bench): c for c in cases if c.role != "faulty"}
@@ -485,6 +487,19 @@ def _quiet_worker() -> None:
     # Workers' warnings (every supervisor transition, every fault start) would interleave unreadably with
     # the progress lines; each case's summary.json keeps them.
     logging.basicConfig(level=logging.ERROR)
+
+
+@contextmanager
+def quiet_cases() -> Iterator[None]:
+    """Cases run in this process say no more than a worker's do (`_quiet_worker`): errors only, while
+    inside. Their warnings broke a campaign's progress bar up, case by case."""
+    root = logging.getLogger()
+    level = root.level
+    root.setLevel(max(level, logging.ERROR))
+    try:
+        yield
+    finally:
+        root.setLevel(level)
 
 
 def worst_first(results: list[CaseResult]) -> list[CaseResult]:
