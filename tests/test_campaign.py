@@ -18,6 +18,7 @@ import pytest
 from hil.run.measurements import measure, release_end
 from hil.suites.campaign import Campaign, CaseResult, expand, junit_xml, load_campaign, report
 from tests.helpers import ROOT, TWO_CASES
+from tests.zenoh_helpers import private_bench
 
 SMOKE = ROOT / "configs/campaigns/smoke.toml"
 
@@ -130,6 +131,26 @@ def test_report_is_worst_first_and_junit_carries_failures_and_errors():
     assert "expected ESTOP" in cases["a-x-seed0"].find("failure").text
     assert cases["a-y-seed0"].find("error").get("message").startswith("ControllerUnavailable")
     assert cases["a-none-seed0"].find("properties/property").get("name") == "fallen"
+
+
+def test_a_missing_rider_is_named_by_the_campaigns_file_and_field_or_the_cases_error(tmp_path):
+    """A rider the campaign lists is checked as it loads (each case ended FAIL, its verdicts NaN 'the run
+    never ticked', the rider named nowhere); a scenario's own, as its case's error."""
+    from drivers.config import ConfigError
+    from hil.suites.campaign import run_case
+
+    listed = tmp_path / "listed.toml"
+    listed.write_text('name = "x"\nscenarios = ["balance"]\nriders = ["nobody"]\n')
+    with pytest.raises(ConfigError) as refused:
+        load_campaign(listed)
+    assert str(refused.value).startswith(f'{listed}: riders: "nobody": no such file here')
+    own = tmp_path / "own.toml"
+    own.write_text((ROOT / "configs/scenarios/balance.toml").read_text().replace("ref_60kg_180", "nobody"))
+    campaign = tmp_path / "own_rider.toml"
+    campaign.write_text(f'name = "y"\nscenarios = ["{own}"]\n')
+    (case,) = expand(load_campaign(campaign))
+    result = run_case(case, bench=private_bench())
+    assert result.verdict == "ERROR" and 'rider = "configs/riders/nobody.toml": no such file' in result.error
 
 
 def test_a_verdict_without_a_unit_reads_without_a_stray_space_in_every_report(tmp_path):

@@ -30,13 +30,14 @@ from typing import Annotated, Literal, TypeVar
 import msgspec
 import numpy as np
 
-from drivers.config import load_toml
+from drivers.config import ConfigError, load_toml
 from drivers.resources import find
 from hil.bench.bench import Bench, load_bench
 from hil.faults import Fault
 from hil.run.measurements import measure, release_end, with_unit
 from hil.run.scenario import OperatorEntry, Scenario
 from hil.suites.coverage import Bounds, Classification, Outcome, classify, false_trip, outcome
+from plant.params import RiderParams
 
 Law = Literal["hacs", "ihacs"]
 Role = Literal["plain", "faulty", "twin", "fault_free"]
@@ -147,8 +148,21 @@ class Case:
 
 
 def load_campaign(name: Path | str) -> Campaign:
-    """A campaign by path or shipped short name (`smoke`, `diagnostics`)."""
-    return load_toml(find(name, "campaigns"), Campaign)
+    """A campaign by path or shipped short name (`smoke`, `diagnostics`). A rider file it names that cannot
+    be read or is not one is a ConfigError naming the campaign's file and the field, before any case runs
+    (each case would end in the same error)."""
+    path = find(name, "campaigns")
+    campaign = load_toml(path, Campaign)
+    listed = [("riders", campaign.riders)]
+    listed += [(f"fault_free[{i}].riders", entry.riders) for i, entry in enumerate(campaign.fault_free)]
+    for field_name, riders in listed:
+        for rider in riders:
+            try:
+                load_toml(find(rider, "riders"), RiderParams)
+            except ConfigError as exc:
+                said = exc.detail if exc.path == Path(rider) else str(exc)  # its path once
+                raise ConfigError(path, f'{field_name}: "{rider}": {said}') from None
+    return campaign
 
 
 _Choice = TypeVar("_Choice")
@@ -334,6 +348,8 @@ def run_case(case: Case, out: Path | None = None, bench: Bench | None = None) ->
         detail = "".join(traceback.format_exception_only(type(exc), exc)).strip()
         return CaseResult.errored(case, detail, time.monotonic() - start)
     tr = result.trace
+    if tr.failure is not None and not len(tr.t):  # it never ran: why is the case's line, not NaN verdicts
+        return CaseResult.errored(case, f"{tr.failure.stage}: {tr.failure.error}", time.monotonic() - start)
     judged = case.role != "plain"
     # A faulty case's falls and stops are its classification's to judge (against its twin; a fall the fault
     # makes unrecoverable passes), not the rules every run has.
