@@ -44,9 +44,11 @@ def render() -> str:
         for action in sub._actions:
             if isinstance(action, argparse._HelpAction):
                 continue
-            default = action.default
-            shown = "" if default in (None, False, [], argparse.SUPPRESS) else f" (default {default})"
-            lines.append(f"| {_option(action)} | {_cell((action.help or '') + shown)} |")
+            default, text = action.default, action.help or ""
+            # A help that says its default itself (as --help prints it) is not told it again.
+            said = "(default" in text
+            shown = "" if said or default in (None, False, [], argparse.SUPPRESS) else f" (default {default})"
+            lines.append(f"| {_option(action)} | {_cell(text + shown)} |")
         lines.append("")
     return "\n".join(lines)
 

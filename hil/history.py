@@ -143,6 +143,26 @@ class History:
                 (verdict, first_cause, error, time.time(), "/".join(files), *recorded, run_id),
             )
 
+    def interrupt(self, run_id: int, why: str) -> None:
+        """A run cut short as its process leaves at once (a second Ctrl-C): its row INTERRUPTED now, not
+        at the service's next start; a row already ended keeps its verdict. Safe from a signal handler: its
+        own connection, never the lock a thread of the service may hold."""
+        folder_of = "SELECT folder FROM runs WHERE id = ?"
+        db = sqlite3.connect(self.folder / FILE_NAME, timeout=10.0, isolation_level=None)
+        try:
+            row = db.execute(folder_of, (run_id,)).fetchone()
+            folder = self.folder / row[0] if row is not None else None
+            files = (
+                sorted(p.name for p in folder.iterdir() if p.is_file()) if folder and folder.is_dir() else []
+            )
+            db.execute(
+                "UPDATE runs SET verdict = 'INTERRUPTED', error = ?, ended = ?, files = ? "
+                "WHERE id = ? AND verdict = 'RUNNING'",
+                (why, time.time(), "/".join(files), run_id),
+            )
+        finally:
+            db.close()
+
     def runs(self, limit: int = 50, before: int | None = None) -> list[dict]:
         """The newest `limit` runs (older than run `before`), newest first."""
         limit = max(1, min(int(limit), MAX_LIMIT))

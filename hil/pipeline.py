@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from contextlib import ExitStack
 from pathlib import Path
+from typing import TypeVar
 
 import msgspec
 
@@ -29,12 +30,15 @@ from hil.run.build import (
     run_logs,
     sim_params,
     start_up,
+    supervisor_rules,
 )
 from hil.run.judge import RunResult, judge
 from hil.run.loop import tick_loop
 from hil.run.scenario import Scenario
 from hil.run.trace import CONFIG_ERRORS, ControllerUnavailable, Failure, Trace, reason
 from plant.params import RiderParams, RobotParams, SimParams
+
+T = TypeVar("T")
 
 
 def run(
@@ -102,14 +106,27 @@ def _hand_events(logs: RunLogs, trace: Trace, scenario: Scenario) -> None:
         trace.outputs_failed.setdefault("run.mcap", f"its events: {type(exc).__name__}: {exc}")
 
 
+def _named_file(origin: str, field: str, name: str, kind: str, schema: type[T]) -> T:
+    """The file a scenario's `field` names, decoded; its error under that field and `origin`."""
+    try:
+        return load_toml(find(name, kind), schema)
+    except ConfigError as exc:
+        said = exc.detail if exc.path == Path(name) else str(exc)  # its path once
+        raise ConfigError(origin, f'{field} = "{name}": {said}') from None
+
+
 def check_start(scenario: Scenario, bench: Bench, origin: str) -> RiderParams:
-    """The scenario's rider, once the run can start; else ConfigError naming the file, the field and the
-    bound: a number of the robot or the rider file beyond its physical bound (drivers/bounds.py; the file
-    named), a rider's intent past that rider's reach, or a start the robot cannot be released in on this
-    bench (beyond its sim file's fall bound, or a foot or the rim on the floor; `origin` named)."""
-    sim_file, robot_file = find(bench.sim, "sim"), find(scenario.robot, "robot")
-    rider_file = find(scenario.rider, "riders")
-    robot, rider = load_toml(robot_file, RobotParams), load_toml(rider_file, RiderParams)
+    """The scenario's rider, once the run can start; else ConfigError naming `origin` (the scenario's file,
+    or where its text came from), the file, the field and the bound, before anything runs: a robot or rider
+    file that cannot be read or is not one, a number of either beyond its physical bound (drivers/bounds.py),
+    `[safety]` overrides the bench's supervisor does not take, a rider's intent past that rider's reach, or
+    a start the robot cannot be released in on this bench (beyond its sim file's fall bound, or a foot or
+    the rim on the floor)."""
+    robot = _named_file(origin, "robot", scenario.robot, "robot", RobotParams)
+    rider = _named_file(origin, "rider", scenario.rider, "riders", RiderParams)
+    robot_file, rider_file = find(scenario.robot, "robot"), find(scenario.rider, "riders")
+    supervisor_rules(bench, scenario, f"{origin} [safety]")
+    sim_file = find(bench.sim, "sim")
     try:
         scenario.intent.check_reach(rider, str(rider_file))
         scenario.check_start(

@@ -406,6 +406,12 @@ class RigService:
             worker.join(timeout)
         return self.state == "idle"
 
+    def interrupt(self, why: str) -> None:
+        """The process is leaving at once (a second Ctrl-C while `close` waits): the run in progress is
+        INTERRUPTED in the history now, its folder as far as it got."""
+        if self.state == "running" and self.run_id is not None:
+            self.history.interrupt(self.run_id, why)
+
     def close(self) -> None:
         """End the run in progress (at its next tick) and wait until its folder is written, then leave."""
         self._stop.set()

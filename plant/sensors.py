@@ -211,6 +211,10 @@ class TesSample(Record):
 MIN_SEATED_LOAD = 20.0
 """Below this vertical load (N) the seat is empty and the COP is undefined (reported as 0, 0)."""
 
+SEAT_RADIUS = 0.3
+"""The seat's footprint around P's axis, m: pelvis and thighs press within it (the supervisor's default COP
+bound, safety.config, is this edge; riding peaks at half of it, docs/safety.md)."""
+
 
 class TesModel:
     """The force-sensing seat: true wrench -> six cell forces + noise -> calibration matrix -> wrench, COP."""
@@ -247,7 +251,17 @@ def cop(fx: float, fy: float, fz: float, mx: float, my: float, seat_height: floa
 
     The load acts at (x, y, h): M = r × F gives Mx = y Fz − h Fy and My = h Fx − x Fz. This is the AMTI
     formula of docs/physics.md §1.4 written for a z-up frame with the surface above the origin.
+
+    A point off the seat's footprint (SEAT_RADIUS) is reported at the footprint's edge, in its direction:
+    a seat can only be pressed, never pulled, so its pressure's centre stays on it. Beyond it the wrench is
+    one no seated body makes (a hard push carried through the rider's hip, or a few newtons of load with a
+    moment); the force and moment still say so, as they are.
     """
     if abs(fz) < MIN_SEATED_LOAD:
         return 0.0, 0.0
-    return (seat_height * fx - my) / fz, (mx + seat_height * fy) / fz
+    x, y = (seat_height * fx - my) / fz, (mx + seat_height * fy) / fz
+    off = math.hypot(x, y)
+    if off > SEAT_RADIUS:
+        scale = SEAT_RADIUS / off
+        return x * scale, y * scale
+    return x, y

@@ -18,6 +18,7 @@ import pytest
 from hil.run.measurements import measure, release_end
 from hil.suites.campaign import Campaign, CaseResult, expand, junit_xml, load_campaign, report
 from tests.helpers import ROOT, TWO_CASES
+from tests.zenoh_helpers import private_bench
 
 SMOKE = ROOT / "configs/campaigns/smoke.toml"
 
@@ -130,6 +131,69 @@ def test_report_is_worst_first_and_junit_carries_failures_and_errors():
     assert "expected ESTOP" in cases["a-x-seed0"].find("failure").text
     assert cases["a-y-seed0"].find("error").get("message").startswith("ControllerUnavailable")
     assert cases["a-none-seed0"].find("properties/property").get("name") == "fallen"
+
+
+def test_a_missing_rider_is_named_by_the_campaigns_file_and_field_or_the_cases_error(tmp_path):
+    """A rider the campaign lists is checked as it loads (each case ended FAIL, its verdicts NaN 'the run
+    never ticked', the rider named nowhere); a scenario's own, as its case's error."""
+    from drivers.config import ConfigError
+    from hil.suites.campaign import run_case
+
+    listed = tmp_path / "listed.toml"
+    listed.write_text('name = "x"\nscenarios = ["balance"]\nriders = ["nobody"]\n')
+    with pytest.raises(ConfigError) as refused:
+        load_campaign(listed)
+    assert str(refused.value).startswith(f'{listed}: riders: "nobody": no such file here')
+    own = tmp_path / "own.toml"
+    own.write_text((ROOT / "configs/scenarios/balance.toml").read_text().replace("ref_60kg_180", "nobody"))
+    campaign = tmp_path / "own_rider.toml"
+    campaign.write_text(f'name = "y"\nscenarios = ["{own}"]\n')
+    (case,) = expand(load_campaign(campaign))
+    result = run_case(case, bench=private_bench())
+    assert result.verdict == "ERROR" and 'rider = "configs/riders/nobody.toml": no such file' in result.error
+
+
+def test_a_verdict_without_a_unit_reads_without_a_stray_space_in_every_report(tmp_path):
+    """The junit and md reports read "measured 2 , limit" for a unitless measurement (a count)."""
+    from hil.run.scenario import Criterion
+    from hil.suites.html_report import html_report
+
+    limit = Criterion(metric="missing_commands", min=0.0, max=1.0).describe()
+    assert limit == ">= 0 and <= 1", "no unit, no space after the number"
+    assert Criterion(metric="max_speed", max=0.5).describe() == "<= 0.5 m/s", "the control: a unit kept"
+    verdicts = [
+        {
+            "criterion": "missing_commands",
+            "value": 2.0,
+            "limit": limit,
+            "units": "",
+            "passed": False,
+            "note": "",
+        },
+        {
+            "criterion": "max_speed",
+            "value": 0.75,
+            "limit": "<= 0.5 m/s",
+            "units": "m/s",
+            "passed": False,
+            "note": "",
+        },
+    ]
+    failed = CaseResult("a-none-seed0", "a.toml", False, 1.0, verdicts)
+    assert failed.message().splitlines() == [
+        "missing_commands: measured 2, limit >= 0 and <= 1",
+        "max_speed: measured 0.75 m/s, limit <= 0.5 m/s",
+    ]
+    junit = ET.fromstring(junit_xml("c", [failed])).find("testcase/failure")
+    texts = {
+        "junit message": junit.get("message"),
+        "junit text": junit.text,
+        "md": report("c", [failed]),
+        "html": html_report("c", [failed], tmp_path),
+    }
+    for where, text in texts.items():
+        assert "measured 2, limit" in text or "2 (limit" in text, (where, text)
+        assert " ," not in text and "2  (limit" not in text, (where, text)
 
 
 def test_the_peak_tilt_is_the_runs_own_after_the_release(shipped):
@@ -269,8 +333,11 @@ def test_plugin_fixtures_run_a_scenario_with_faults_and_assert_on_events(pyteste
     result.assert_outcomes(passed=1)
 
 
-def test_on_a_terminal_a_campaign_shows_a_progress_bar_with_counts_and_elsewhere_lines(tmp_path):
-    """The bar (tqdm, on stderr) only when stderr is a terminal; the lines of the test above otherwise."""
+@pytest.mark.parametrize("workers", ["2", "1"])
+def test_on_a_terminal_a_campaign_shows_a_progress_bar_with_counts_and_elsewhere_lines(tmp_path, workers):
+    """The bar (tqdm, on stderr) only when stderr is a terminal; the lines of the test above otherwise. The
+    bar stays one line: the cases' own (fault starts, supervisor transitions) broke it up, one worker's
+    cases run in this process."""
     import fcntl
     import os
     import pty
@@ -290,7 +357,7 @@ def test_on_a_terminal_a_campaign_shows_a_progress_bar_with_counts_and_elsewhere
             "campaign",
             str(campaign),
             "--workers",
-            "2",
+            workers,
             "--out",
             str(tmp_path / "out"),
         ],
@@ -321,6 +388,11 @@ def test_on_a_terminal_a_campaign_shows_a_progress_bar_with_counts_and_elsewhere
     assert proc.returncode == 0, stdout[-2000:] + terminal[-2000:]
     assert "2/2" in terminal and "passed=2" in terminal and ("case/s" in terminal or "s/case" in terminal)
     assert "[1/2]" not in stdout and "2/2 passed" in stdout  # no per-case lines under a bar; the report
+    assert "WRENCH_SILENT" in stdout, "the control: the faulty case's supervisor did react"
+    case_lines = [
+        line for line in terminal.splitlines() if "fault 0" in line or "supervisor transition" in line
+    ]
+    assert case_lines == [] and terminal.count("\n") <= 1, terminal[-2000:]
 
 
 AFTERMATH = """

@@ -219,6 +219,19 @@ def test_the_command_reference_is_the_parser_and_every_option_says_what_it_does(
     assert not silent, f"options without help: {silent}"
 
 
+def test_no_option_says_its_default_twice_in_the_reference():
+    """`estop --timeout` read "(default 5) (default 5.0)": its help says it and the page added it again."""
+    from hil.cli_reference import render
+
+    rows = [line for line in render().splitlines() if line.startswith("| `")]
+    twice = [row for row in rows if row.count("(default") > 1]
+    assert not twice, twice
+    timeout = next(row for row in rows if row.startswith("| `--timeout` TIMEOUT | s to wait for the super"))
+    assert timeout.count("(default 5)") == 1, "the control: the default still said once"
+    workers = next(row for row in rows if row.startswith("| `--workers`"))
+    assert workers.endswith("(default 1) |"), "a help that does not say its default gets it from the parser"
+
+
 def table_disagreements(commands: dict, parser) -> list[str]:
     """Where hil/cli.py's COMMANDS and a parser built with every command's options disagree: a sub-command
     not in the table or out of its order, a summary not the table's, an entry whose module lacks its options

@@ -3,6 +3,7 @@ zenoh puts) or on the plant, against a healthy twin with the same seed where a c
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
@@ -408,6 +409,41 @@ def test_push_accelerates_the_robot_by_its_impulse(session):
     finally:
         faulty.close()
         healthy.close()
+
+
+HARD_PUSH = """
+name = "hard_push"
+rider = "configs/riders/ref_60kg_180.toml"
+law = "hacs"
+duration = 1.5
+[[sc]]
+mode = "free"
+[[faults]]
+kind = "plant.push"
+force = [2000.0, 0.0]
+height = 0.4
+at = 1.0
+duration = 0.3
+"""
+
+
+def test_a_hard_push_leaves_the_seat_publishing_what_its_schema_takes(caplog, tmp_path):
+    """A push at the rider's chest loads the seat with a moment no seated body makes: the seat's COP
+    stays on its footprint, so neither the controller nor the supervisor rejects a seat payload (it was
+    `cop[0]` >= -1 m, 11 payloads)."""
+    from drivers.config import decode_toml
+    from hil.pipeline import run
+    from hil.run.scenario import Scenario
+    from tests.zenoh_helpers import private_bench
+
+    scenario = decode_toml(HARD_PUSH, Scenario, tmp_path / "hard_push.toml")
+    caplog.set_level(logging.DEBUG, logger="drivers.zenoh_link")
+    result = run(scenario, private_bench())
+    assert result.trace.stats.ticks > 400, "the run reached the push"
+    seen = [e for e in result.trace.safety_events if e.t >= 1.0]
+    assert seen, "the push did load the seat: the supervisor saw it"
+    rejected = [r.getMessage() for r in caplog.records if "rejected payload" in r.getMessage()]
+    assert rejected == []
 
 
 def test_mass_shift_moves_the_torso_at_once(session):

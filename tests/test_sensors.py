@@ -144,6 +144,28 @@ def test_cop_of_a_point_load():
     assert cop(0.0, 0.0, -5.0, 1.0, 1.0, h) == (0.0, 0.0)  # empty seat
 
 
+def test_the_seats_cop_stays_on_its_footprint_and_its_payload_in_the_schema():
+    """A push through the rider's hip, or a few newtons of load with a moment, gives a wrench whose AMTI
+    point lies metres off the seat: a seat is only pressed, so its COP is reported at the footprint's edge,
+    in the wrench's direction, and the payload is one the rig's own schema takes."""
+    from drivers.schemas import TesWrench, decode, encode
+    from plant.sensors import SEAT_RADIUS
+
+    model = TesModel(Tes(cell_noise=0.0), 0.03, np.random.default_rng(0))
+    for wrench in ([0.0, 0.0, -500.0, 0.0, 900.0, 0.0], [0.0, 0.0, -25.0, -30.0, 30.0, 0.0]):
+        s = model.sample(wrench)
+        x, y = cop(*s.force, *s.moment[:2], 0.03)
+        assert math.hypot(x, y) == pytest.approx(SEAT_RADIUS)
+        free = (
+            (0.03 * s.force[0] - s.moment[1]) / s.force[2],
+            (s.moment[0] + 0.03 * s.force[1]) / s.force[2],
+        )
+        assert math.hypot(*free) > 1.0, "the control: the formula alone leaves the schema's bound"
+        assert math.atan2(y, x) == pytest.approx(math.atan2(free[1], free[0])), "toward where it pushes"
+        payload = TesWrench(seq=1, stamp=0.0, force=s.force, moment=s.moment, cop=s.cop, cells=s.cells)
+        assert decode(encode(payload), TesWrench).cop == s.cop == (x, y)
+
+
 def run_sensors(seed):
     intent = RiderIntent(
         pitch=[Ramp(to=10.0, duration=0.5), Sine(amplitude=5.0, frequency_hz=1.0, duration=1.0)]

@@ -205,7 +205,72 @@ def test_sigterm_ends_a_served_flooded_run_and_its_folder_is_written(tmp_path):
         if serve.poll() is None:
             serve.kill()
             serve.communicate()
-    assert serve.returncode == 0 and "pure-hil serve: stopped" in out
+    assert serve.returncode == 130 and "pure-hil serve: stopped" in out, "as `run` stopped by SIGTERM"
     (folder,) = runs.glob("flooded-*")
     summary = json.loads((folder / "summary.json").read_text())
     assert summary["verdict"] == "STOPPED" and (folder / "plots.png").exists(), "the whole folder"
+
+
+def _serve(tmp_path, endpoint: str) -> subprocess.Popen:
+    pure_hil = str(Path(sys.executable).with_name("pure-hil"))
+    env = {**os.environ, "PURE_HIL_RIGS": str(tmp_path / "rigs"), "PURE_HIL_HUB": endpoint}
+    serve = subprocess.Popen(
+        [pure_hil, "serve", "--hub", endpoint, "--out", str(tmp_path / "runs")],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    assert f"hub {endpoint}" in serve.stdout.readline()
+    return serve
+
+
+def test_serve_stopped_by_ctrl_c_exits_130_as_run_does(tmp_path):
+    """`run` stopped by Ctrl-C exits 130 (README's exit codes); `serve` exited 0."""
+    serve = _serve(tmp_path, hub_endpoint())
+    try:
+        serve.send_signal(signal.SIGINT)
+        out, _ = serve.communicate(timeout=ENDS)
+    finally:
+        if serve.poll() is None:
+            serve.kill()
+            serve.communicate()
+    assert serve.returncode == 130 and out.rstrip().endswith("pure-hil serve: stopped"), out
+
+
+def test_a_second_ctrl_c_leaves_at_once_and_the_runs_history_row_is_completed(tmp_path):
+    """The second Ctrl-C of a serve writing its run's folder ends it at once; its history row said RUNNING
+    until the next start. Now it is completed as the process leaves: INTERRUPTED (or STOPPED, had the folder
+    been written first), with its end."""
+    import sqlite3
+
+    endpoint = hub_endpoint()
+    serve = _serve(tmp_path, endpoint)
+    try:
+        client = open_session(role="member", hub_endpoint=endpoint)
+        try:
+            run_id = ask(client, "start", LONG)["run"]
+            deadline = time.monotonic() + ENDS
+            while ask(client, "status")["sim_time"] <= 0.0 and time.monotonic() < deadline:
+                time.sleep(0.05)
+        finally:
+            client.close()
+        serve.send_signal(signal.SIGINT)
+        assert "stopping the run" in serve.stdout.readline()
+        serve.send_signal(signal.SIGINT)
+        out, _ = serve.communicate(timeout=ENDS)
+    finally:
+        if serve.poll() is None:
+            serve.kill()
+            serve.communicate()
+    assert serve.returncode == 130, out
+    # Read as the file is (hil.history.History itself would complete a dead process's row on opening).
+    db = sqlite3.connect(tmp_path / "runs" / "history.sqlite")
+    try:
+        verdict, error, ended = db.execute(
+            "SELECT verdict, error, ended FROM runs WHERE id = ?", (run_id,)
+        ).fetchone()
+    finally:
+        db.close()
+    assert verdict in ("INTERRUPTED", "STOPPED") and ended is not None, (verdict, out)
+    if verdict == "INTERRUPTED":
+        assert error == "serve ended at once by a second SIGINT" and "stopped at once" in out, (error, out)

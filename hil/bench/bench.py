@@ -22,6 +22,7 @@ from drivers.config import ConfigError, load_toml
 from drivers.devices import Devices
 from drivers.resources import find
 from drivers.zenoh_access import ZenohAccess
+from drivers.zenoh_link import ZenohConfigError, check_endpoint
 from plant.params import PlantName
 
 Where = Literal["embedded", "spawned", "external"]
@@ -171,9 +172,12 @@ class Bench(_Part, frozen=True):
         if plant is not None:
             parts["plant"] = plant
         try:
-            return msgspec.convert(parts, Bench)
+            bench = msgspec.convert(parts, Bench)
         except msgspec.ValidationError as exc:
             raise ConfigError(f"bench {self.name} with the command's options", str(exc)) from exc
+        if can is not None:
+            _check_interface(bench, "--can")
+        return bench
 
 
 EMBEDDED = "embedded"
@@ -182,13 +186,38 @@ EMBEDDED = "embedded"
 
 def load_bench(name: str | Path = EMBEDDED) -> Bench:
     """A bench by path or shipped short name (`embedded`, `vcan`, `secured`); a `.json` file is a bench the
-    rig wrote for the processes it spawns (the command's overrides applied)."""
+    rig wrote for the processes it spawns (the command's overrides applied). ConfigError names the file and
+    the field, also for a bus python-can does not have and a hub off this machine."""
     path = find(name, "benches")
     if path.suffix != ".json":
-        return load_toml(path, Bench)
-    try:
-        return msgspec.json.decode(path.read_bytes(), type=Bench)
-    except OSError as exc:
-        raise ConfigError(path, f"cannot read: {exc.strerror or exc}") from exc
-    except msgspec.MsgspecError as exc:
-        raise ConfigError(path, str(exc)) from exc
+        bench = load_toml(path, Bench)
+    else:
+        try:
+            bench = msgspec.json.decode(path.read_bytes(), type=Bench)
+        except OSError as exc:
+            raise ConfigError(path, f"cannot read: {exc.strerror or exc}") from exc
+        except msgspec.MsgspecError as exc:
+            raise ConfigError(path, str(exc)) from exc
+    _check_interface(bench, str(path))
+    if bench.zenoh.endpoint is not None:
+        # Checked here, not where the zenoh config is opened: that error would name the zenoh config.
+        try:
+            check_endpoint(bench.zenoh.endpoint, "zenoh.endpoint", bench.zenoh.network)
+        except ZenohConfigError as exc:
+            raise ConfigError(path, str(exc)) from None
+    return bench
+
+
+def _check_interface(bench: Bench, origin: str) -> None:
+    """The bus is one python-can has (its own or a plugin's): else the bench would start and fail on
+    opening it, naming neither the file nor the field. `origin`: the file, or `--can`."""
+    from can.interfaces import VALID_INTERFACES
+
+    interface = bench.can.interface
+    if interface not in VALID_INTERFACES:
+        field = "" if origin == "--can" else "can.interface = "
+        raise ConfigError(
+            origin,
+            f"{field}{interface!r}: not a CAN interface python-can has here (one of: "
+            f"{', '.join(sorted(VALID_INTERFACES))})",
+        )

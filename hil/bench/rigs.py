@@ -17,7 +17,7 @@ import secrets
 import tempfile
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -47,6 +47,9 @@ class RigCard:
     """Wall clock, s."""
     id: str = field(default_factory=lambda: secrets.token_hex(6))
     """This rig process's own: a restarted rig may get its pid back, never its id (a console pins to it)."""
+    process: str = ""
+    """When its process started (`started_ticks`): with the pid, that process itself, as a pid alone is not
+    once the rig died and another process got the pid ('' : not known, the pid alone)."""
 
     def describe(self) -> str:
         return f"{self.runs} on bench {self.bench}, pid {self.pid}, at {self.endpoint}"
@@ -70,23 +73,47 @@ def alive(pid: int) -> bool:
     return True
 
 
+def started_ticks(pid: int) -> str:
+    """When process `pid` started, in clock ticks since boot (field 22 of /proc/PID/stat), '' where /proc
+    does not say: a later process given the same pid has another."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return ""
+    # Field 2, the command's name, is in parentheses and may hold spaces: count from its end (field 3 on).
+    fields = stat[stat.rfind(")") + 2 :].split()
+    return fields[19] if len(fields) > 19 else ""
+
+
+def live(card: RigCard) -> bool:
+    """The rig of `card` still runs: its pid alive and, where the card knows it, the same process."""
+    if not alive(card.pid):
+        return False
+    now = started_ticks(card.pid)
+    return not card.process or not now or now == card.process
+
+
 def running() -> list[RigCard]:
-    """The live rigs of this machine (files of rigs that died without removing theirs are ignored)."""
+    """The live rigs of this machine. The card of a rig that died without removing it (killed, or a
+    second Ctrl-C) is removed here: a client never picks it, nor counts it among a bench's rigs."""
     cards = []
     for path in sorted(folder().glob("*.json")):
         try:
             card = RigCard(**json.loads(path.read_text()))
         except (OSError, ValueError, TypeError):
             continue  # half-written, or removed meanwhile
-        if alive(card.pid):
+        if live(card):
             cards.append(card)
+        else:
+            with suppress(OSError):  # not ours to remove: still never picked
+                path.unlink(missing_ok=True)
     return cards
 
 
 @contextmanager
 def announce(session: zenoh.Session, prefix: str, bench: str, endpoint: str, runs: str) -> Iterator[RigCard]:
     """While inside, the rig at `endpoint` answers rig/hello and is listed in the machine's rig folder."""
-    card = RigCard(bench, endpoint, os.getpid(), runs, time.time())
+    card = RigCard(bench, endpoint, os.getpid(), runs, time.time(), process=started_ticks(os.getpid()))
     body = json.dumps({"ok": True, **asdict(card)})
 
     def answer(query: zenoh.Query) -> None:
@@ -102,6 +129,7 @@ def announce(session: zenoh.Session, prefix: str, bench: str, endpoint: str, run
     written: Path | None = path
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
+        running()  # the dead rigs' cards go as a new one comes, not only when a client looks
         path.write_text(json.dumps(asdict(card)))
     except OSError:
         written = None  # an unwritable folder costs the finding by folder, not the run

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 
 from hil.commands.common import COUNT, add_bench_options, bench_from, out_folder, progress_bar
@@ -92,9 +93,16 @@ def handle(args: argparse.Namespace) -> int:
     history = History(outputs) if out.resolve().is_relative_to(outputs) else NoHistory()
     controller = f"{bench.controller.where} {bench.controller.plugin}"
     entry = history.begin(out, f"campaign {campaign.name}", bench.name, controller, "lockstep")
+    # Under a bar, what does get logged (errors) is written above it, as a failed case's lines are.
+    above_bar: AbstractContextManager[None] = nullcontext()
+    if bar is not None:
+        from tqdm.contrib.logging import logging_redirect_tqdm
+
+        above_bar = logging_redirect_tqdm()
     try:
         try:
-            results = run_campaign(cases, args.workers, out, progress, bench, args.scheduler)
+            with above_bar:
+                results = run_campaign(cases, args.workers, out, progress, bench, args.scheduler)
         except OSError as exc:  # the scheduler cannot be reached (distributed: OSError after its timeout)
             print(f"pure-hil campaign: scheduler {args.scheduler}: {exc}", file=sys.stderr)
             history.end(entry, "ERROR", error=f"scheduler {args.scheduler}: {exc}")

@@ -13,6 +13,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
+from types import FrameType
 from typing import TYPE_CHECKING, get_args
 
 from drivers.bounds import MAX_DURATION
@@ -142,13 +143,17 @@ def stop_on_signals() -> threading.Event:
 
 
 def until_interrupted(
-    message: str, alive: Callable[[], bool] | None = None, stop: threading.Event | None = None
+    message: str,
+    alive: Callable[[], bool] | None = None,
+    then: Callable[[int, FrameType | None], object] | None = None,
+    stop: threading.Event | None = None,
 ) -> bool:
     """Print `message`, then block until SIGINT or SIGTERM (True), or until `alive()` says the part it
     started has ended on its own (False: its thread's error is already on stderr); from then on a second
     signal ends the process at once (what the first started, e.g. writing a run's folder, is left
-    unfinished). `stop`: stop_on_signals()'s, taken before the part started (a signal while it starts is
-    then a clean stop, not a KeyboardInterrupt)."""
+    unfinished): by the OS, or by `then(signum, frame)`, which records what it must and leaves itself.
+    `stop`: stop_on_signals()'s, taken before the part started (a signal while it starts is then a clean
+    stop, not a KeyboardInterrupt)."""
     stop = stop or stop_on_signals()
     print(message, flush=True)
     interrupted = True
@@ -157,7 +162,7 @@ def until_interrupted(
             interrupted = False
             break
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, signal.SIG_DFL)
+        signal.signal(sig, signal.SIG_DFL if then is None else then)
     return interrupted
 
 

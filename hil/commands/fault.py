@@ -4,23 +4,43 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
+import typing
+
+import msgspec
 
 from drivers.bounds import MAX_DURATION
 from hil.commands.common import DURATION, add_bench_options, ask_service, number
 
 
 def _parameter(value: str) -> object:
-    """A --param value: JSON (a number, true, a list), a number however Python spells it (nan, inf: refused
-    by name later, not taken for words), else the word itself (a channel, a message)."""
+    """A --param value: JSON (a number, true, a list: force=[100,0]), values separated by commas as a list
+    (force=100,0: a shell needs no quotes for it), a number however Python spells it (nan, inf: refused by
+    name later, not taken for words), else the word itself (a channel, a message)."""
     try:
         return json.loads(value)
     except json.JSONDecodeError:
         pass
+    if "," in value:
+        return [_parameter(part.strip()) for part in value.split(",")]
     try:
         return float(value)
     except ValueError:
         return value
+
+
+def _form(kind: str, name: str) -> str:
+    """How parameter `name` of fault `kind` is written on the command line when it takes several values (a
+    tuple: msgspec's 'Expected `array`' names neither that form nor the parameter); '' for any other."""
+    from hil.faults import CATALOG
+
+    field = next((f for f in msgspec.structs.fields(CATALOG[kind]) if f.name == name), None)
+    if field is None or typing.get_origin(field.type) is not tuple:
+        return ""
+    n = len(typing.get_args(field.type))
+    example = ",".join(["100"] + ["0"] * (n - 1))
+    return f"expected {n} numbers, as {name}={example} or {name}=[{example}]"
 
 
 def _expectation(text: str, within: float | None) -> dict:
@@ -44,7 +64,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("kind", nargs="?", default=None, help="inject: the fault's kind; clear: its number")
     parser.add_argument(
-        "--param", action="append", default=[], metavar="NAME=VALUE", help="a fault parameter"
+        "--param",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="a fault parameter; several values as a list: force=100,0 or force=[100,0]",
     )
     parser.add_argument(
         "--at", type=number(float, 0.0, MAX_DURATION), default=0.0, help="seconds from now (simulated)"
@@ -92,7 +116,13 @@ def handle(args: argparse.Namespace) -> int:
         try:
             parse_fault(fault, "pure-hil fault inject")  # the same check the service makes, before sending
         except ValueError as exc:
-            print(exc, file=sys.stderr)
+            at = re.search(r"at `\$\.(\w+)`", str(exc))
+            form = _form(args.kind, at.group(1)) if at else ""
+            if form and at:
+                given = next((p for p in args.param if p.partition("=")[0] == at.group(1)), at.group(1))
+                print(f"pure-hil fault inject: {args.kind}: --param {given}: {form}", file=sys.stderr)
+            else:
+                print(exc, file=sys.stderr)
             return 2
         key, payload = "fault/inject", json.dumps(fault)
     else:

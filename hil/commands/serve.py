@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import os
+import signal
+import sys
 from pathlib import Path
+from types import FrameType
 
 from hil.commands.common import add_bench_options, bench_from, until_interrupted
 
@@ -35,9 +39,20 @@ def handle(args: argparse.Namespace) -> int:
         fallback=False
     )  # operators find it where the bench says: it never moves
     service = RigService(session, bench, out_root=Path(args.out or bench.outputs.folder), view=view)
+
+    def at_once(signum: int, _frame: FrameType | None) -> None:
+        # The run's folder is left as far as it got, but its history row is completed before leaving: a
+        # row left RUNNING would say so until the service's next start.
+        try:
+            service.interrupt(f"serve ended at once by a second {signal.Signals(signum).name}")
+            os.write(sys.stdout.fileno(), b"pure-hil serve: stopped at once\n")  # print may be mid-write
+        finally:
+            os._exit(STOPPED)
+
     until_interrupted(
         f"pure-hil serve: bench {bench.name}, hub {service.endpoint}, queryables {service.keys.rig('*')}; "
-        "Ctrl-C to stop"
+        "Ctrl-C to stop",
+        then=at_once,
     )
     if service.state == "running":
         print(
@@ -46,4 +61,8 @@ def handle(args: argparse.Namespace) -> int:
     service.close()
     session.close()
     print("pure-hil serve: stopped")
-    return 0
+    return STOPPED
+
+
+STOPPED = 130
+"""serve ends only on SIGINT or SIGTERM: exit 130, as `pure-hil run` stopped by either (README)."""

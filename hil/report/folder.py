@@ -23,7 +23,7 @@ from hil.outputs.mcap_log import FAULT_LOG, FAULT_WINDOWS, OPERATOR, RIG_LATE, S
 from hil.outputs.mcap_log import check as check_mcap
 from hil.outputs.trace_log import describe
 from hil.run.judge import RunResult, operator_actions
-from hil.run.measurements import unavailable
+from hil.run.measurements import unavailable, with_unit
 from hil.run.scenario import Scenario
 from hil.run.trace import Trace
 
@@ -270,7 +270,7 @@ def format_table(result: RunResult) -> str:
     rows = [
         (
             v.criterion,
-            "unavailable" if v.note.startswith("unavailable") else f"{v.value:.3f} {v.units}".strip(),
+            "unavailable" if v.note.startswith("unavailable") else with_unit(f"{v.value:.3f}", v.units),
             v.limit,
             "PASS" if v.passed else "FAIL",
         )

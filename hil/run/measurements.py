@@ -76,6 +76,12 @@ class Window:
         return math.nan if self.empty else float(np.abs(values[self.mask]).max())
 
 
+def with_unit(number: str, unit: str) -> str:
+    """A measured or limiting number as reports write it: with its unit, or alone for a unitless
+    measurement (a count, a flag), never followed by a stray space ("measured 2 , limit")."""
+    return f"{number} {unit}" if unit else number
+
+
 @dataclass(frozen=True)
 class Measurement:
     name: str

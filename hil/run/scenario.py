@@ -20,7 +20,7 @@ from drivers.rules import JudgedRules
 from drivers.schemas import ScMode, Speed
 from drivers.vocabulary import Cause
 from hil.faults import Fault
-from hil.run.measurements import MEASUREMENTS
+from hil.run.measurements import MEASUREMENTS, with_unit
 from plant.model3d import MAX_SINK, lowest_fall_geom, releasable_share
 from plant.params import RiderParams, RobotParams
 from plant.rider import LeanStyle, Segment, beyond_reach
@@ -146,9 +146,9 @@ class Criterion(_Record, frozen=True):
             return f"== {self.equals}"
         parts = []
         if self.min is not None:
-            parts.append(f">= {self.min:g} {unit}")
+            parts.append(with_unit(f">= {self.min:g}", unit))
         if self.max is not None:
-            parts.append(f"<= {self.max:g} {unit}")
+            parts.append(with_unit(f"<= {self.max:g}", unit))
         return " and ".join(parts)
 
 

@@ -19,8 +19,9 @@ import time
 import traceback
 import xml.etree.ElementTree as ET
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from multiprocessing import get_context
 from pathlib import Path
@@ -29,13 +30,14 @@ from typing import Annotated, Literal, TypeVar
 import msgspec
 import numpy as np
 
-from drivers.config import load_toml
+from drivers.config import ConfigError, load_toml
 from drivers.resources import find
 from hil.bench.bench import Bench, load_bench
 from hil.faults import Fault
-from hil.run.measurements import measure, release_end
+from hil.run.measurements import measure, release_end, with_unit
 from hil.run.scenario import OperatorEntry, Scenario
 from hil.suites.coverage import Bounds, Classification, Outcome, classify, false_trip, outcome
+from plant.params import RiderParams
 
 Law = Literal["hacs", "ihacs"]
 Role = Literal["plain", "faulty", "twin", "fault_free"]
@@ -146,8 +148,21 @@ class Case:
 
 
 def load_campaign(name: Path | str) -> Campaign:
-    """A campaign by path or shipped short name (`smoke`, `diagnostics`)."""
-    return load_toml(find(name, "campaigns"), Campaign)
+    """A campaign by path or shipped short name (`smoke`, `diagnostics`). A rider file it names that cannot
+    be read or is not one is a ConfigError naming the campaign's file and the field, before any case runs
+    (each case would end in the same error)."""
+    path = find(name, "campaigns")
+    campaign = load_toml(path, Campaign)
+    listed = [("riders", campaign.riders)]
+    listed += [(f"fault_free[{i}].riders", entry.riders) for i, entry in enumerate(campaign.fault_free)]
+    for field_name, riders in listed:
+        for rider in riders:
+            try:
+                load_toml(find(rider, "riders"), RiderParams)
+            except ConfigError as exc:
+                said = exc.detail if exc.path == Path(rider) else str(exc)  # its path once
+                raise ConfigError(path, f'{field_name}: "{rider}": {said}') from None
+    return campaign
 
 
 _Choice = TypeVar("_Choice")
@@ -307,7 +322,8 @@ class CaseResult:
         if self.false_trip:
             lines.append(f"false trip: {self.false_trip}")
         for v in self.failed:
-            line = f"{v['criterion']}: measured {v['value']:.4g} {v['units']}, limit {v['limit']}".rstrip()
+            measured = with_unit(f"{v['value']:.4g}", v["units"])
+            line = f"{v['criterion']}: measured {measured}, limit {v['limit']}".rstrip()
             lines.append(line + (f" ({v['note']})" if v["note"] else ""))
         return "\n".join(lines)
 
@@ -332,6 +348,8 @@ def run_case(case: Case, out: Path | None = None, bench: Bench | None = None) ->
         detail = "".join(traceback.format_exception_only(type(exc), exc)).strip()
         return CaseResult.errored(case, detail, time.monotonic() - start)
     tr = result.trace
+    if tr.failure is not None and not len(tr.t):  # it never ran: why is the case's line, not NaN verdicts
+        return CaseResult.errored(case, f"{tr.failure.stage}: {tr.failure.error}", time.monotonic() - start)
     judged = case.role != "plain"
     # A faulty case's falls and stops are its classification's to judge (against its twin; a fall the fault
     # makes unrecoverable passes), not the rules every run has.
@@ -455,8 +473,9 @@ def run_campaign(
         phases = [[c for c in cases if c.role != "faulty"], [c for c in cases if c.role == "faulty"]]
         run_on_cluster(scheduler, phases, bench, out, run_case, CaseResult.errored, done)
     elif workers <= 1 or not parallel:
-        for case in cases:
-            done(case, run_case(case, folder(case), bench))
+        with quiet_cases():
+            for case in cases:
+                done(case, run_case(case, folder(case), bench))
     else:
         with run_pool(workers) as pool:
             futures = {pool.submit(run_case, c, folder(c), bench): c for c in cases if c.role != "faulty"}
@@ -484,6 +503,19 @@ def _quiet_worker() -> None:
     # Workers' warnings (every supervisor transition, every fault start) would interleave unreadably with
     # the progress lines; each case's summary.json keeps them.
     logging.basicConfig(level=logging.ERROR)
+
+
+@contextmanager
+def quiet_cases() -> Iterator[None]:
+    """Cases run in this process say no more than a worker's do (`_quiet_worker`): errors only, while
+    inside. Their warnings broke a campaign's progress bar up, case by case."""
+    root = logging.getLogger()
+    level = root.level
+    root.setLevel(max(level, logging.ERROR))
+    try:
+        yield
+    finally:
+        root.setLevel(level)
 
 
 def worst_first(results: list[CaseResult]) -> list[CaseResult]:

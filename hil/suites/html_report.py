@@ -10,6 +10,7 @@ import html
 import time
 from pathlib import Path
 
+from hil.run.measurements import with_unit
 from hil.suites.campaign import (
     PEAK_TILT,
     CaseResult,
@@ -63,7 +64,8 @@ def _row(r: CaseResult, folder: Path) -> str:
             links.append(f'<a href="{case}/{name}">{label}</a>')
     items = [
         f'<li class="{"passed" if v["passed"] else "failed"}">{html.escape(v["criterion"])}: '
-        f"{v['value']:.4g} {html.escape(v['units'])} (limit {html.escape(str(v['limit']))})"
+        f"{with_unit(format(v['value'], '.4g'), html.escape(v['units']))} "
+        f"(limit {html.escape(str(v['limit']))})"
         f"{' — ' + html.escape(v['note']) if v.get('note') else ''}</li>"
         for v in r.verdicts
     ]
