@@ -117,7 +117,7 @@ def test_a_robot_beyond_a_ballbot_is_refused_naming_the_file_the_field_and_the_b
     robot = tmp_path / "robot.toml"
     robot.write_text(f"[{section}]\n{line}\n")
     _, err = run_refused(tmp_path, capsys, f'robot = "{robot}"\n')
-    assert f"{robot}: {says}" in err, err
+    assert f'robot = "{robot}": {says}' in err, err  # the scenario's field, the file it names, the bound
     # The controller's and the supervisor's own decoders refuse it in the same words.
     for view in (RobotModel, RobotGeometry):
         with pytest.raises(ConfigError) as raised:
@@ -129,7 +129,7 @@ def test_a_rider_beyond_a_person_is_refused_naming_the_file_the_field_and_the_bo
     rider = tmp_path / "rider.toml"
     rider.write_text('name = "x"\nmass = 70.0\nheight = 1.75\nmax_hip_torque = inf\n')  # was: it ran
     _, err = run_refused(tmp_path, capsys, f'rider = "{rider}"\n')
-    assert f"{rider}: Expected `float` <= 500.0 - at `$.max_hip_torque`" in err
+    assert f'rider = "{rider}": Expected `float` <= 500.0 - at `$.max_hip_torque`' in err
 
 
 LEANS = [
