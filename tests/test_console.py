@@ -47,6 +47,7 @@ from drivers.schemas import EstopCommand, SafetyState
 from drivers.zenoh_link import ZenohLink, open_session
 from hil.bench.bench import load_bench
 from hil.bench.certs import init
+from hil.commands.serve import STOPPED
 from hil.console import accounts, rig_link
 from hil.console.events import Broadcast
 from hil.console.latch import SILENT, Latch, Word
@@ -294,7 +295,7 @@ def test_the_page_starts_a_run_estops_it_holds_the_latch_and_refuses_a_gone_or_d
         assert all(re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d[+-]\d\d:\d\d", t) for t in row[10:12]), row
 
         # The service goes: the page says so, every action but the E-STOP is off, and the E-STOP answers 502.
-        assert serve.stop() == 0
+        assert serve.stop() == STOPPED, "serve stopped by SIGINT exits 130, as run"
         page_wait(
             browser,
             "return document.getElementById('link').textContent.startsWith('service not answering')",
