@@ -31,6 +31,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 from drivers.keys import Keys
 from drivers.zenoh_link import free_loopback_endpoint, open_session
 from hil.bench.bench import load_bench
+from hil.commands.serve import STOPPED
 from hil.faults.base import bounds_of
 from hil.faults.bounds import reference_rig
 from hil.faults.topics import ScFlood
@@ -141,7 +142,7 @@ def by_signal(faults: list[dict], seconds: float, root: Path) -> tuple[float, fl
         if serve.poll() is None:
             serve.kill()
             serve.communicate()
-    assert serve.returncode == 0, serve.returncode
+    assert serve.returncode == STOPPED, serve.returncode
     return ended(flooded.folder, asked), gone, flooded
 
 
