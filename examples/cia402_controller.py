@@ -70,6 +70,8 @@ class Cia402Drives:
         self._used: list[float | None] = [None] * len(nodes)
         """Timestamp of each drive's TPDO2 the last SYNC used."""
         self._walkers: list[threading.Thread] = []
+        self._run_over = threading.Event()
+        """Set when a run ends: this run's walks end with it (the next run's drives boot afresh)."""
         for heard, node in zip(self._heard, nodes, strict=True):
             node.nmt.add_heartbeat_callback(lambda _state, heard=heard: heard.set())  # boot-up included
 
@@ -97,8 +99,10 @@ class Cia402Drives:
         for node in self.nodes:
             node.nmt.state = "OPERATIONAL"  # NMT start (0x000 01 id)
         self.started = True
+        self._run_over = threading.Event()
         for node in self.nodes:
-            walker = threading.Thread(target=self._walk, args=(node,), name=f"walk-{node.id}", daemon=True)
+            args = (node, self._run_over)
+            walker = threading.Thread(target=self._walk, args=args, name=f"walk-{node.id}", daemon=True)
             walker.start()
             self._walkers.append(walker)
         return True
@@ -139,11 +143,11 @@ class Cia402Drives:
             node.rpdo[1].transmit()
 
     # ------------------------------------------------------------------------------------ the walk
-    def _walk(self, node: canopen.BaseNode402) -> None:
+    def _walk(self, node: canopen.BaseNode402, run_over: threading.Event) -> None:
         """Keep the drive where the law wants it (also after a fault or a quick stop): BaseNode402's state
         setter sets the controlword in RPDO1 and waits for the statusword in TPDO1, step by step."""
         statusword = node.tpdo_pointers[0x6041].pdo_parent
-        while not self.stop.is_set():
+        while not (self.stop.is_set() or run_over.is_set()):
             state = node.state
             if self.want and state != ENABLED:
                 target = ENABLED
@@ -158,6 +162,17 @@ class Cia402Drives:
                 log.info("node %d: %s -> %s: %s", node.id, state, target, e)
                 statusword.wait_for_reception(timeout=0.05)
 
+    def start_over(self) -> None:
+        """The run is over (docs/contract.md "Between runs"): the next run's drives boot again, unconfigured
+        and PRE-OPERATIONAL, so the next SYNC starts them up anew, from their boot-up on."""
+        self._run_over.set()
+        self.close()
+        self._walkers.clear()
+        self.started, self.want = False, False
+        self._used = [None] * len(self.nodes)
+        for heard in self._heard:
+            heard.clear()
+
     def close(self) -> None:
         for walker in self._walkers:
             walker.join(timeout=2.0)
@@ -167,6 +182,11 @@ class Cia402BalanceController(BalanceController):
     """balance_controller.py's estimator and law; the drives are CiA 402 drives on CANopen."""
 
     drives: Cia402Drives
+
+    def reset(self) -> None:
+        super().reset()
+        if hasattr(self, "drives"):  # not at construction: the drives are given after it
+            self.drives.start_over()
 
     def tick(self, k: int) -> None:
         if not self.drives.started and not self.drives.start_up():
