@@ -30,7 +30,7 @@ from mypy_extensions import mypyc_attr
 from drivers.bus_config import BusConfig, BusConfigError
 from drivers.can_codec import CanCodecError, Catalog, MessageCodec
 from drivers.e2e import E2EChecker, E2EEvent, E2EProtector, E2EStatus, is_protected
-from drivers.shared_bus import SharedBus
+from drivers.shared_bus import SHARED_SOCKET_INTERFACES, SharedBus, shared_socket
 
 log = logging.getLogger(__name__)
 
@@ -124,7 +124,15 @@ def _enlarge_bus_buffer(bus: can.BusABC, where: str) -> None:
 
 def open_bus(config: BusConfig) -> can.BusABC:
     """python-can's bus for `config`, with a receive buffer of RECEIVE_BUFFER where it has a socket;
-    BusUnavailable (one line: the bus, the cause, the fix) when it cannot open here."""
+    BusUnavailable (one line: the bus, the cause, the fix) when it cannot open here. On an interface whose
+    sockets each receive every frame (SHARED_SOCKET_INTERFACES), the nodes of one process share one socket."""
+    if config.interface in SHARED_SOCKET_INTERFACES:
+        key = (config.interface, config.channel, config.bitrate, repr(sorted(config.kwargs.items())))
+        return shared_socket(key, lambda: _open_bus(config))
+    return _open_bus(config)
+
+
+def _open_bus(config: BusConfig) -> can.BusABC:
     try:
         bus = can.Bus(
             interface=config.interface, channel=config.channel, bitrate=config.bitrate, **config.kwargs

@@ -19,6 +19,7 @@ import queue
 import threading
 import time
 import weakref
+from collections.abc import Callable
 from typing import Any
 
 import can
@@ -164,3 +165,115 @@ def _received_copy(msg: can.Message, channel: Any) -> can.Message:
     frame.bitrate_switch = msg.bitrate_switch
     frame.error_state_indicator = msg.error_state_indicator
     return frame
+
+
+# ------------------------------------------------------------------------------ one socket per process
+SHARED_SOCKET_INTERFACES = frozenset({"udp_multicast"})
+"""Interfaces whose every socket in the group receives every frame, its own sends included (python-can's
+udp_multicast: multicast loop-back): a process's nodes share one socket (`SocketView`), each frame read
+once. SocketCAN keeps a socket per node (the kernel does not echo a frame to the socket that sent it)."""
+
+WAIT_SLICE = 0.05
+"""s a blocking reader waits on the shared socket at most before it looks at its own queue again (another
+thread may have read its frame meanwhile)."""
+
+
+class _Socket:
+    """One real bus of this process and the views reading it: whoever reads hands each frame to every view
+    whose filters take it (one `recvmsg` and one unpack a frame, not one per node). Views are held weakly,
+    as `_Channel` holds its buses."""
+
+    def __init__(self, key: tuple[Any, ...], bus: can.BusABC) -> None:
+        self.key, self.bus = key, bus
+        self.views: tuple[weakref.ref[SocketView], ...] = ()
+        self.reading = threading.Lock()
+
+    def read(self, timeout: float) -> None:
+        """Everything the socket holds now, waiting up to `timeout` for the first frame; the caller holds
+        `reading`."""
+        msg = self.bus.recv(timeout)
+        while msg is not None:
+            for ref in self.views:
+                view = ref()
+                if view is not None and (view._filters is None or view._matches_filters(msg)):
+                    view.frames.put(msg)
+            msg = self.bus.recv(0.0)
+
+    def add(self, view: SocketView) -> None:
+        with _lock:
+            self.views += (weakref.ref(view, self._remove),)
+
+    def _remove(self, gone: weakref.ref[SocketView] | None) -> None:
+        with _lock:
+            self.views = tuple(ref for ref in self.views if ref is not gone and ref() is not None)
+            if self.views or _sockets.get(self.key) is not self:
+                return
+            del _sockets[self.key]
+        self.bus.shutdown()
+
+    def remove(self, view: SocketView) -> None:
+        self._remove(next((ref for ref in self.views if ref() is view), None))
+
+
+_sockets: dict[tuple[Any, ...], _Socket] = {}
+
+
+class SocketView(can.BusABC):
+    """A node's bus on a socket this process shares (`shared_socket`). Receives what the socket receives, its
+    own sends included, as a socket of its own on that interface would; frames are shared read-only, as on
+    SharedBus. Sends go out on the shared socket."""
+
+    def __init__(self, shared: _Socket, can_filters: can.typechecking.CanFilters | None = None) -> None:
+        self._socket = shared
+        self.frames: queue.SimpleQueue[can.Message] = queue.SimpleQueue()
+        self.channel_info = f"{shared.bus.channel_info} (shared by this process's nodes)"
+        self._open = True
+        super().__init__(channel=shared.key[1], can_filters=can_filters)
+        shared.add(self)
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        if not self._open:
+            raise can.CanOperationError("Cannot operate on a closed bus")
+        frames = self.frames
+        if not frames.empty():  # the hot path: a frame another view's read brought
+            return frames.get_nowait()
+        shared = self._socket
+        deadline = None if timeout is None else time.monotonic() + max(timeout, 0.0)
+        while frames.empty():
+            wait = WAIT_SLICE if deadline is None else min(max(deadline - time.monotonic(), 0.0), WAIT_SLICE)
+            if shared.reading.acquire(timeout=wait):  # one reader at a time; 0: only if nobody reads
+                try:
+                    if frames.empty():  # else another reader brought it while this one waited
+                        shared.read(wait)
+                finally:
+                    shared.reading.release()
+            if deadline is not None and time.monotonic() >= deadline:
+                break
+        return None if frames.empty() else frames.get_nowait()
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        return self.recv(timeout), True
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if not self._open:
+            raise can.CanOperationError("Cannot operate on a closed bus")
+        self._socket.bus.send(msg, timeout)
+
+    def fileno(self) -> int:
+        return -1  # the shared socket is its owner's (its receive buffer was set when it opened)
+
+    def shutdown(self) -> None:
+        super().shutdown()
+        if self._open:
+            self._open = False
+            self._socket.remove(self)
+
+
+def shared_socket(key: tuple[Any, ...], opened: Callable[[], can.BusABC]) -> SocketView:
+    """A view on this process's socket for `key` (interface, channel, options), opened by `opened()` the first
+    time."""
+    with _lock:
+        shared = _sockets.get(key)
+        if shared is None:
+            shared = _sockets[key] = _Socket(key, opened())
+    return SocketView(shared)

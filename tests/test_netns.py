@@ -319,3 +319,52 @@ def test_the_processes_bench_runs_three_processes_over_multicast_only_inside_a_l
     # The bus echoes each process's own frames: the supervisor's start-up announcements are paced by its
     # clock (they used to trigger each other: thousands of frames, E2E counter aliasing at the rig).
     assert summary["bus"]["e2e"] == {} and summary["bus"]["received"]["SUPERVISOR_ESTOP"] < 2 * 2000
+
+
+SHARED_SOCKET = """
+import can
+import drivers.shared_bus as shared_bus
+from drivers.bus_config import BusConfig
+from drivers.can_bus import open_bus
+
+config = BusConfig(interface="udp_multicast", channel="239.74.163.2")
+a, b = open_bus(config), open_bus(config)
+b.set_filters([{"can_id": 0x080, "can_mask": 0x7FF}])
+other = can.Bus(interface="udp_multicast", channel="239.74.163.2")  # a socket of its own: another process's
+assert len(shared_bus._sockets) == 1, "one socket for the process's two nodes"
+
+def ids(bus):
+    got = []
+    while (msg := bus.recv(0.5 if not got else 0.05)) is not None:
+        got.append(msg.arbitration_id)
+    return got
+
+other.send(can.Message(arbitration_id=0x080, data=b"\\x01", is_extended_id=False))
+other.send(can.Message(arbitration_id=0x123, data=b"\\x02", is_extended_id=False))
+assert ids(a) == [0x080, 0x123] and ids(b) == [0x080], "each node gets every frame once, through its filters"
+assert ids(other) == [0x080, 0x123], "control: the interface echoes a socket's own sends"
+a.send(can.Message(arbitration_id=0x080, data=b"\\x03", is_extended_id=False))
+assert ids(other) == [0x080]
+assert ids(a) == [0x080] and ids(b) == [0x080], "a node's own send comes back, as on a socket of its own"
+a.shutdown()
+assert len(shared_bus._sockets) == 1 and ids(b) == []
+b.shutdown()
+assert shared_bus._sockets == {}, "the last node closes the socket"
+other.shutdown()
+print("ok")
+"""
+
+
+def test_a_processs_nodes_share_one_multicast_socket_and_see_what_their_own_sockets_would(loopback_host):
+    """udp_multicast delivers every frame to every socket in the group, its sender's included: a process's
+    nodes (the rig's, the recorder's, an embedded supervisor's) read one socket, each frame once, and each
+    node still gets what a socket of its own would have given it (drivers/shared_bus.py SocketView)."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    done = subprocess.run(
+        ["ip", "netns", "exec", loopback_host, sys.executable, "-c", SHARED_SOCKET],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=60,
+    )
+    assert done.returncode == 0 and done.stdout.strip() == "ok", done.stdout + done.stderr
