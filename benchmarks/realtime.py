@@ -239,6 +239,10 @@ def full(args) -> None:
         "bench": bench.name,
         "probe_us": probe.report() if probe is not None else None,
     }
+    if probe is not None and args.probe_rows is not None:
+        import numpy as np
+
+        np.save(args.probe_rows, np.array(probe.rows[:-1]))
     if args.json:
         print(json.dumps(figures))
         return
@@ -308,6 +312,13 @@ def main() -> None:
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--probe", action="store_true", help="--full: where each tick's time goes (Probe)")
+    p.add_argument(
+        "--probe-rows",
+        type=Path,
+        default=None,
+        help="--probe: also save every tick's stage ends (µs after its scheduled start) to this .npy file, "
+        "one row a tick, columns as Probe.STAGES",
+    )
     args = p.parse_args()
     if args.external:
         args.full = True

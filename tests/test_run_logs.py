@@ -105,6 +105,26 @@ def test_the_process_is_its_own_session_reports_its_cpu_and_ends(tmp_path):
     assert not Path(f"/proc/{pid}").exists(), "stop() waited for it"
 
 
+def test_under_the_real_time_clock_the_writer_runs_in_the_background_and_hands_over_smaller_batches(tmp_path):
+    """SCHED_IDLE never preempts the rig on its core when a hand-over wakes the writer (niceness did); the
+    hand-overs come every REALTIME_BATCH_TICKS ticks. The lockstep writer is the control."""
+    realtime = LogProcess(tmp_path / "rt.log", None, realtime=True)
+    lockstep = LogProcess(tmp_path / "ls.log", None)
+    try:
+        assert os.sched_getscheduler(realtime.pid) == os.SCHED_IDLE
+        assert os.sched_getscheduler(lockstep.pid) == os.SCHED_OTHER
+        handed: list[int] = []
+        hand_over = realtime._hand_over
+        realtime._hand_over = lambda: handed.append(len(realtime._calls)) or hand_over()
+        for tick in range(2 * run_logs.REALTIME_BATCH_TICKS):
+            realtime.trace((float(tick),))
+        assert handed == [run_logs.REALTIME_BATCH_TICKS] * 2
+    finally:
+        for logs in (realtime, lockstep):
+            logs.stop()
+            assert logs.failed == {}
+
+
 def test_a_log_that_cannot_be_written_is_named_and_the_other_is_still_written(tmp_path):
     (tmp_path / "can.log").mkdir()  # not a file: the process cannot open it
     logs = LogProcess(tmp_path / "can.log", McapSpec(tmp_path / "run.mcap", 400.0, "pure", {}))

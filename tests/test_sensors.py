@@ -186,3 +186,19 @@ def test_sensors_are_deterministic_for_a_seed():
     assert a != c
     # Changing the seed changes noise, not physics: counts agree to within noise-free quantisation.
     assert a[-1][0][1].counts == c[-1][0][1].counts
+
+
+@pytest.mark.parametrize("as_array", [False, True])
+def test_a_noise_streams_draws_do_not_depend_on_its_block(as_array):
+    """The block is a cost (one lump per refill), never a result: every seed's noise is the same sequence
+    drawn 64 rows or 1024 at a time (one numpy call per block)."""
+    from plant.sensors import NoiseStream
+
+    def draws(block):
+        stream = NoiseStream(np.random.default_rng(7), 6, block=block, as_array=as_array)
+        take = stream.draw_array if as_array else stream.draw
+        return np.array([np.array(take()) for _ in range(2500)])
+
+    small, large = draws(64), draws(1024)
+    assert np.array_equal(small, large)
+    assert not np.array_equal(small, draws(64)[::-1]), "control: the comparison sees an order"

@@ -52,8 +52,12 @@ FRAME, ZENOH, TRACE, EVENT, BODIES, POSES = 0, 1, 2, 3, 4, 5
 """What a call handed over is: a frame the recorder took (at simulated time t), a zenoh input, a trace row,
 an event, the bodies the poses name, a row of poses."""
 BATCH_TICKS = 16
-"""Ticks handed over in one write to the pipe (a write and the process's wake-up per tick cost more than
-the pickling)."""
+"""Ticks handed over in one write to the pipe in lockstep (a write and the process's wake-up per tick cost
+more than the pickling)."""
+REALTIME_BATCH_TICKS = 4
+"""The same in real time, where a hand-over's pickle and write are one lump on the tick that makes it: 16
+ticks' took ~550 µs of that tick against ~120 for the others, and most of an in-process run's overruns fell
+on those ticks; 4 ticks' ~170 µs (docs/performance.md "Real time", 2026-12-07)."""
 STOP_TIMEOUT = 60.0
 """s stop() waits for the process to finish the files (it is behind by at most a pipe's buffer)."""
 PIPE_BYTES = 1 << 20
@@ -61,10 +65,21 @@ PIPE_BYTES = 1 << 20
 unprivileged process may ask): ~800 ticks of calls, so the run is held back only when the process falls
 behind for longer than that."""
 CAN_LOG, MCAP = "can.log", "run.mcap"
-NICE = 10
-"""The writer's niceness under the real-time clock: it only has to keep up on average (its pipe holds ~800
-ticks), so it takes what CPU the rig, the controller and the supervisor leave and never delays their
-wake-ups (a nice-0 writer on the same core did, by up to its whole time slice)."""
+
+
+def _background(pid: int) -> None:
+    """The writer under the real-time clock: SCHED_IDLE (lowering a process's own child needs no privilege).
+    It only has to keep up on average (its pipe holds ~200 real-time hand-overs), so it takes what CPU the
+    rig, the controller and the supervisor leave. At niceness 10 a hand-over's write woke it onto the rig's
+    core ahead of the rig (that write took 1.8 ms at p90 instead of ~50 µs); a SCHED_IDLE task woken never
+    preempts a normal one.
+    Niceness 19 where the policy is missing. Set by the run's process as it starts the writer, so the
+    writer is in the background before the run's first tick."""
+    try:
+        os.sched_setscheduler(pid, os.SCHED_IDLE, os.sched_param(0))
+    except (AttributeError, OSError):
+        os.setpriority(os.PRIO_PROCESS, pid, 19)
+
 
 _fields = operator.attrgetter(*MESSAGE_FIELDS)
 _LENGTH = struct.Struct("<I")
@@ -156,8 +171,8 @@ class LocalLogs(can.Listener):
 class LogProcess(can.Listener):
     """The same calls as `LocalLogs`, handed to a `LocalLogs` in a process of its own."""
 
-    def __init__(self, can_log: Path | None, mcap: McapSpec | None, nice: int = 0):
-        """nice: the writer process's niceness (NICE under the real-time clock)."""
+    def __init__(self, can_log: Path | None, mcap: McapSpec | None, realtime: bool = False):
+        """realtime: the run's clock is real time (the writer in the background, smaller hand-overs)."""
         self.clock: Callable[[], float] = lambda: 0.0
         self.failed: dict[str, str] = {}
         self.cpu_s = 0.0
@@ -166,15 +181,18 @@ class LogProcess(can.Listener):
         self.takes_poses = mcap is not None
         self._calls: list[tuple[Any, ...]] = []
         self._ticks = 0
+        self._batch = REALTIME_BATCH_TICKS if realtime else BATCH_TICKS
         self._broken: str | None = None
         env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONPATH": _import_path()}
         self._process = subprocess.Popen(
-            [sys.executable, "-P", "-m", __name__, str(nice)],  # -P: not the working directory's, the run's
+            [sys.executable, "-P", "-m", __name__],  # -P: not the working directory's modules, the run's
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             env=env,
             start_new_session=True,  # a terminal's Ctrl-C is the run's to handle: it stops us, files complete
         )
+        if realtime:
+            _background(self._process.pid)
         self._stopped = False
         assert self._process.stdin is not None  # Popen(stdin=PIPE)
         self._pipe: IO[bytes] = self._process.stdin
@@ -195,7 +213,7 @@ class LogProcess(can.Listener):
     def trace(self, row: tuple[float, ...]) -> None:
         self._calls.append((TRACE, row))
         self._ticks += 1
-        if self._ticks % BATCH_TICKS == 0:
+        if self._ticks % self._batch == 0:
             self._hand_over()
 
     def event(self, topic: str, t: float, message: dict) -> None:
@@ -288,15 +306,15 @@ if TYPE_CHECKING:
 
 
 def open_logs(
-    can_log: Path | None, mcap: McapSpec | None, in_process: bool = False, nice: int = 0
+    can_log: Path | None, mcap: McapSpec | None, in_process: bool = False, realtime: bool = False
 ) -> RunLogs | None:
     """The run's logs: None when it writes neither; on the caller's thread when asked or in a daemonic
-    process (a Dask worker); else in a process of their own at niceness `nice`."""
+    process (a Dask worker); else in a process of their own (in the background under the real-time clock)."""
     if can_log is None and mcap is None:
         return None
     if in_process or multiprocessing.current_process().daemon:
         return LocalLogs(can_log, mcap)
-    return LogProcess(can_log, mcap, nice)
+    return LogProcess(can_log, mcap, realtime)
 
 
 def _import_path() -> str:
@@ -365,7 +383,6 @@ def _serve(calls: IO[bytes], report: IO[bytes]) -> None:
 
 
 if __name__ == "__main__":
-    os.nice(int(sys.argv[1]) if len(sys.argv) > 1 else 0)
     report = os.fdopen(os.dup(1), "wb")
     os.dup2(2, 1)  # a stray print goes to stderr, not into the report
     _serve(sys.stdin.buffer, report)

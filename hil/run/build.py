@@ -41,7 +41,7 @@ from hil.bench.rigs import announce
 from hil.devices import rig_node
 from hil.faults import FaultError, FaultSet
 from hil.outputs.inputs_log import InputsLog
-from hil.outputs.run_logs import NICE, McapSpec, RunLogs, open_logs
+from hil.outputs.run_logs import McapSpec, RunLogs, open_logs
 from hil.run.rig import SCENARIO_SOURCE, AgentLinks, OperatorStep, Rig, ScStep
 from hil.run.scenario import Scenario
 from hil.run.trace import ControllerUnavailable
@@ -282,11 +282,11 @@ def run_logs(
     can_log = out / "can.log" if bench.outputs.can_log else None
     # In lockstep a writer process pays only beside a rig alone in its process: where the controller or the
     # supervisor runs in a process of its own, the tick waits on them, and a writer would compete for their
-    # CPU. In real time the writer is niced (run_logs.NICE): it takes only what CPU the others leave, and
-    # its work is off the rig's tick whatever the bench.
+    # CPU. In real time the writer runs in the background (SCHED_IDLE, run_logs._background): it takes
+    # only what CPU the others leave, and its work is off the rig's tick whatever the bench.
     lockstep = clock_of(bench, scenario) == "lockstep"
     in_process = options.logs_in_process or (lockstep and not bench.self_contained)
-    return open_logs(can_log, mcap, in_process, nice=0 if lockstep else NICE)
+    return open_logs(can_log, mcap, in_process, realtime=not lockstep)
 
 
 def _connect(
