@@ -78,7 +78,8 @@ def _background(pid: int) -> None:
     try:
         os.sched_setscheduler(pid, os.SCHED_IDLE, os.sched_param(0))
     except (AttributeError, OSError):
-        os.setpriority(os.PRIO_PROCESS, pid, 19)
+        with contextlib.suppress(OSError):  # gone already: stop() names what it left unwritten
+            os.setpriority(os.PRIO_PROCESS, pid, 19)
 
 
 _fields = operator.attrgetter(*MESSAGE_FIELDS)
