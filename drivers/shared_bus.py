@@ -20,35 +20,43 @@ import threading
 import time
 import weakref
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 import can
 
+B = TypeVar("B", bound=can.BusABC)
 
-class _Channel:
-    """The buses on one channel, held weakly (a bus its owner forgot to shut down is collected, as python-can
-    expects, instead of living on here): a tuple replaced, never changed in place, when one opens or goes,
-    so a send iterates it without a lock."""
 
-    def __init__(self, name: Any) -> None:
-        self.name = name
-        self.buses: tuple[weakref.ref[SharedBus], ...] = ()
+class _Buses(Generic[B]):
+    """The buses on one shared thing (a channel, a socket), held weakly (a bus its owner forgot to shut down
+    is collected, as python-can expects, instead of living on here): a tuple replaced, never changed in
+    place, when one opens or goes, so a send or a read iterates it without a lock. The last one gone takes
+    this out of `registry`, under `key`."""
 
-    def add(self, bus: SharedBus) -> None:
+    def __init__(self, key: Any, registry: dict[Any, Any]) -> None:
+        self.key, self._registry = key, registry
+        self.buses: tuple[weakref.ref[B], ...] = ()
+
+    def add(self, bus: B) -> None:
         with _lock:
             self.buses += (weakref.ref(bus, self._remove),)
 
-    def _remove(self, gone: weakref.ref[SharedBus] | None) -> None:
-        with _lock:
-            self.buses = tuple(ref for ref in self.buses if ref is not gone and ref() is not None)
-            if not self.buses and _channels.get(self.name) is self:
-                del _channels[self.name]
-
-    def remove(self, bus: SharedBus) -> None:
+    def remove(self, bus: B) -> None:
         self._remove(next((ref for ref in self.buses if ref() is bus), None))
 
+    def _remove(self, gone: weakref.ref[B] | None) -> None:
+        with _lock:
+            self.buses = tuple(ref for ref in self.buses if ref is not gone and ref() is not None)
+            if self.buses or self._registry.get(self.key) is not self:
+                return
+            del self._registry[self.key]
+        self._emptied()
 
-_channels: dict[Any, _Channel] = {}
+    def _emptied(self) -> None:
+        """The last bus has gone."""
+
+
+_channels: dict[Any, _Buses[SharedBus]] = {}
 _lock = threading.RLock()
 
 
@@ -72,7 +80,7 @@ class SharedBus(can.BusABC):
         self._open = True
         super().__init__(channel=channel, can_filters=can_filters, **kwargs)
         with _lock:
-            self._channel = _channels.setdefault(channel, _Channel(channel))
+            self._channel = _channels.setdefault(channel, _Buses(channel, _channels))
             self._channel.add(self)
 
     def _apply_filters(self, filters: can.typechecking.CanFilters | None) -> None:
@@ -178,14 +186,13 @@ WAIT_SLICE = 0.05
 thread may have read its frame meanwhile)."""
 
 
-class _Socket:
+class _Socket(_Buses["SocketView"]):
     """One real bus of this process and the views reading it: whoever reads hands each frame to every view
-    whose filters take it (one `recvmsg` and one unpack a frame, not one per node). Views are held weakly,
-    as `_Channel` holds its buses."""
+    whose filters take it (one `recvmsg` and one unpack a frame, not one per node)."""
 
     def __init__(self, key: tuple[Any, ...], bus: can.BusABC) -> None:
-        self.key, self.bus = key, bus
-        self.views: tuple[weakref.ref[SocketView], ...] = ()
+        super().__init__(key, _sockets)
+        self.bus = bus
         self.reading = threading.Lock()
 
     def read(self, timeout: float) -> None:
@@ -193,26 +200,14 @@ class _Socket:
         `reading`."""
         msg = self.bus.recv(timeout)
         while msg is not None:
-            for ref in self.views:
+            for ref in self.buses:
                 view = ref()
                 if view is not None and (view._filters is None or view._matches_filters(msg)):
                     view.frames.put(msg)
             msg = self.bus.recv(0.0)
 
-    def add(self, view: SocketView) -> None:
-        with _lock:
-            self.views += (weakref.ref(view, self._remove),)
-
-    def _remove(self, gone: weakref.ref[SocketView] | None) -> None:
-        with _lock:
-            self.views = tuple(ref for ref in self.views if ref is not gone and ref() is not None)
-            if self.views or _sockets.get(self.key) is not self:
-                return
-            del _sockets[self.key]
+    def _emptied(self) -> None:
         self.bus.shutdown()
-
-    def remove(self, view: SocketView) -> None:
-        self._remove(next((ref for ref in self.views if ref() is view), None))
 
 
 _sockets: dict[tuple[Any, ...], _Socket] = {}
