@@ -1,10 +1,12 @@
-"""Builders shared by the plant tests."""
+"""Builders shared by the tests."""
 
 from __future__ import annotations
 
+import importlib.util
 import math
 import time
 from pathlib import Path
+from types import ModuleType
 
 import msgspec
 
@@ -59,3 +61,13 @@ expect = {{ state = "STOPPING", cause = "WRENCH_SILENT", within = 0.15, fall = f
 """A campaign of two passing cases of bench_smoke, fault-free and with a reaction to expect: what a case
 carries to a worker and back, and enough for a progress bar to count, at a third of the smoke campaign's
 cost."""
+
+
+def load_example(name: str) -> ModuleType:
+    """examples/NAME.py as a fresh module (the examples are scripts, not a package: a test may change a
+    module's constants without reaching another test's)."""
+    spec = importlib.util.spec_from_file_location(name, ROOT / "examples" / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

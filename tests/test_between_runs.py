@@ -6,7 +6,6 @@ bench with `controller = external`, three runs in a row through `pure-hil serve`
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import threading
 
@@ -19,7 +18,7 @@ from drivers.can_bus import private_channel
 from drivers.keys import Keys
 from drivers.zenoh_link import open_session
 from hil.service import RigService
-from tests.helpers import ROOT
+from tests.helpers import load_example
 from tests.zenoh_helpers import hub_endpoint, private_bench
 
 RUN = """
@@ -35,15 +34,6 @@ equals = false
 metric = "missing_commands"
 equals = 0
 """
-
-
-def example():
-    spec = importlib.util.spec_from_file_location(
-        "balance_controller", ROOT / "examples/balance_controller.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 BOOT_TIMEOUT = 6.0
@@ -79,7 +69,7 @@ def ask(client, action, payload=""):
 def runs_in_a_row(served, n: int, run_over: float | None = None) -> list[tuple[str, dict | None]]:
     """n runs through the service with the example controller up throughout; `run_over`: its RUN_OVER."""
     svc, client, channel = served
-    module = example()
+    module = load_example("balance_controller")
     if run_over is not None:
         module.RUN_OVER = run_over
     bus = can.Bus(interface="pure_shared", channel=channel)
@@ -87,17 +77,22 @@ def runs_in_a_row(served, n: int, run_over: float | None = None) -> list[tuple[s
     stop = threading.Event()
     thread = threading.Thread(target=controller.run, args=(stop,), daemon=True)
     thread.start()
-    verdicts = []
     try:
-        for _ in range(n):
-            assert ask(client, "start", RUN)["ok"]
-            assert svc.wait_idle(120), "a run did not end"
-            last = ask(client, "status")["last"]
-            verdicts.append((last["verdict"], last.get("failure")))
+        return serve_runs(svc, client, n)
     finally:
         stop.set()
         thread.join(5.0)
         bus.shutdown()
+
+
+def serve_runs(svc, client, n: int) -> list[tuple[str, dict | None]]:
+    """n runs of RUN through the service, one after another: each one's (verdict, failure)."""
+    verdicts = []
+    for _ in range(n):
+        assert ask(client, "start", RUN)["ok"]
+        assert svc.wait_idle(120), "a run did not end"
+        last = ask(client, "status")["last"]
+        verdicts.append((last["verdict"], last.get("failure")))
     return verdicts
 
 
@@ -124,16 +119,10 @@ def test_the_reference_controller_serves_runs_in_a_row(served):
     handle = start_dut(
         bench.controller.plugin, controller_spec(bench, Scenario(name="c", rider="ref_60kg_180"), at)
     )
-    verdicts = []
     try:
-        for _ in range(2):
-            assert ask(client, "start", RUN)["ok"]
-            assert svc.wait_idle(120), "a run did not end"
-            last = ask(client, "status")["last"]
-            verdicts.append((last["verdict"], last.get("failure")))
+        assert serve_runs(svc, client, 2) == [("PASSED", None)] * 2
     finally:
         handle.stop()
-    assert verdicts == [("PASSED", None)] * 2
 
 
 def test_a_controller_that_never_answers_still_fails_naming_the_wait(tmp_path):
@@ -149,13 +138,6 @@ def test_a_controller_that_never_answers_still_fails_naming_the_wait(tmp_path):
     failure = result.trace.failure
     assert result.verdict == "FAILED" and failure is not None and failure.stage == "start-up"
     assert "CONTROLLER_HEARTBEAT" in failure.error, failure.error
-
-
-def _device_example(name: str):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "examples" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.mark.parametrize(
@@ -175,7 +157,7 @@ def test_each_device_example_serves_runs_in_a_row(tmp_path, profile, example_nam
 
     from hil.pipeline import load_scenario, run
 
-    example = _device_example(example_name)
+    example = load_example(example_name)
     channel = private_channel(f"{profile}-runs")
     stop = threading.Event()
     if profile == "odrive":

@@ -4,7 +4,6 @@ folder, and two rigs on one machine."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import subprocess
 import sys
@@ -20,19 +19,14 @@ from drivers.can_bus import private_channel
 from drivers.config import load_toml
 from hil.pipeline import run
 from hil.run.scenario import Scenario
-from tests.helpers import ROOT
+from tests.helpers import ROOT, load_example
 from tests.zenoh_helpers import private_bench
 
 BALANCE = load_toml(ROOT / "configs/scenarios/balance.toml", Scenario)
 
 
 def example():
-    spec = importlib.util.spec_from_file_location(
-        "balance_controller", ROOT / "examples/balance_controller.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_example("balance_controller")
 
 
 class ExampleController:

@@ -545,14 +545,11 @@ def test_a_controller_on_python_canopens_basenode402_master_balances_the_robot(t
     controls): the same example with BaseNode402's state setter made a no-op (never OPERATION ENABLED)
     still sends RPDO1 every tick (no missing command), and the robot falls at 0.6 s; with the velocity
     taken as rad/s without converting from increments/s, it falls at 0.2 s."""
-    import importlib.util
 
     from hil.pipeline import load_scenario, run
+    from tests.helpers import load_example
 
-    path = Path(__file__).resolve().parents[1] / "examples" / "cia402_controller.py"
-    spec = importlib.util.spec_from_file_location("cia402_controller", path)
-    example = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(example)
+    example = load_example("cia402_controller")
     channel = private_channel("cia402-client")
     stop = threading.Event()
     thread = threading.Thread(

@@ -245,16 +245,12 @@ def test_a_controller_on_odrive_cans_own_client_balances_the_robot(tmp_path):
     (arming, setpoints, the cyclic estimates through its callback), as a lab with ODrive drives would write
     it; an external controller to the rig, here on a thread of this process on the in-process bus."""
     import asyncio
-    import importlib.util
-    from pathlib import Path
 
     from drivers.bus_config import BusConfig
     from hil.pipeline import load_scenario, run
+    from tests.helpers import load_example
 
-    path = Path(__file__).resolve().parents[1] / "examples" / "odrive_controller.py"
-    spec = importlib.util.spec_from_file_location("odrive_controller", path)
-    example = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(example)
+    example = load_example("odrive_controller")
     channel = private_channel("odrive-client")
     stop = threading.Event()
     thread = threading.Thread(

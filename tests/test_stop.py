@@ -179,15 +179,10 @@ def test_a_flood_the_bus_cannot_carry_is_refused_and_one_it_can_ends_on_rig_stop
 
 
 def test_sigterm_ends_a_served_flooded_run_and_its_folder_is_written(tmp_path):
-    pure_hil = str(Path(sys.executable).with_name("pure-hil"))
     endpoint = hub_endpoint()
-    env = {**os.environ, "PURE_HIL_RIGS": str(tmp_path / "rigs"), "PURE_HIL_HUB": endpoint}
     runs = tmp_path / "runs"
-    serve = subprocess.Popen(
-        [pure_hil, "serve", "--hub", endpoint, "--out", str(runs)], stdout=subprocess.PIPE, text=True, env=env
-    )
+    serve = _serve(tmp_path, endpoint)
     try:
-        assert f"hub {endpoint}" in serve.stdout.readline()
         client = open_session(role="member", hub_endpoint=endpoint)
         try:
             assert ask(client, "start", LONG)["ok"]

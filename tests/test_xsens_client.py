@@ -170,26 +170,20 @@ def test_a_controller_reading_the_mti_as_a_lab_would_balances_the_robot(tmp_path
     xsens bench, in lockstep, on a thread of this process on the in-process bus. Checked by hand (positive
     control): the same example reading the fields little-endian makes the supervisor take the drives at
     0.52 s (RECOVERY; the run FAILED, the robot caught by the recovery law)."""
-    import importlib.util
     import threading
-    from pathlib import Path
 
     from hil.pipeline import load_scenario, run
+    from tests.helpers import ROOT, load_example
     from tests.zenoh_helpers import private_bench
 
-    root = Path(__file__).resolve().parents[1]
-    spec = importlib.util.spec_from_file_location(
-        "xsens_controller", root / "examples" / "xsens_controller.py"
-    )
-    example = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(example)
+    example = load_example("xsens_controller")
     channel = private_channel("xsens-lab")
     stop = threading.Event()
     thread = threading.Thread(target=example.run, args=(channel, "pure_shared", BASE, stop), daemon=True)
     thread.start()
     try:
         bench = private_bench(
-            str(root / "configs" / "benches" / "xsens.toml"),
+            str(ROOT / "configs" / "benches" / "xsens.toml"),
             controller="external",
             can=BusConfig(channel=channel),
         )
