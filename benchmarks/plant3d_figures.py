@@ -86,13 +86,57 @@ def main() -> None:
     for steps in (1, 2, 4):
         err = np.abs(manoeuvre(steps) - reference).max(axis=0) / np.abs(reference).max(axis=0)
         print(f"  {steps} step(s): tilt {err[0]:.2%} {err[1]:.2%}, speed {err[2]:.2%}, yaw rate {err[3]:.2%}")
-    print("energy without friction or inputs, 10 s:")
-    print(f"  off the floor, no gravity: drift {free_energy_drift():.3%} of the kinetic energy")
+    print(
+        "energy without friction or inputs, 10 s, off the floor and without gravity (drift of the kinetic):"
+    )
+    for steps in (2, 4):
+        drifts = [free_energy_drift(seed, steps) for seed in range(STARTS)]
+        print(
+            f"  {steps} steps a tick, {STARTS} random starts: drift {min(drifts):+.2%} to "
+            f"{max(drifts):+.2%}, median {float(np.median(drifts)):+.2%}"
+        )
     lost, kinetic = floor_swing()
     print(
         f"  hanging from the ball through the floor, swinging: {lost:.2f} J lost of a {kinetic:.1f} J swing "
         "(the soft contact)"
     )
+    print("the floor's contact:")
+    print(f"  the ball sinks {sink() * 1e3:.3f} mm under the robot and the 75 kg rider at rest")
+    print(f"  spin creep under 5 Nm of yaw torque on the ball, rider aboard: {spin_creep(5.0):.4f} rad/s")
+    drift = checks.attitude_drift()
+    print(
+        "attitude against gyro, steady turn at 1.0 m/s and 1.5 rad/s, robot alone: mean gyro (as Euler "
+        f"rates) minus the attitude's rates: roll {drift[0] * 1e3:+.3f}, pitch {drift[1] * 1e3:+.3f}, "
+        f"yaw {drift[2] * 1e3:+.3f} mrad/s"
+    )
+
+
+STARTS = 8
+"""Random starts for the energy figure."""
+
+
+def sink() -> float:
+    plant = checks.plant3d()
+    for _ in range(400):
+        plant.drives.set_permission(False)  # nothing drives: the ball settles under the weight
+        plant.step()
+    return plant.robot.ball.radius - float(plant.data.qpos[2])
+
+
+def spin_creep(torque: float) -> float:
+    """The ball's spin about the vertical under a constant yaw torque on it, with the 75 kg rider aboard and
+    no drive friction (the chassis does not turn with it): the contact's creep below its spin friction."""
+    plant = checks.plant3d(robot(friction=NO_FRICTION))
+    d = plant.data
+    ball = checks.mujoco.mj_name2id(plant.model, checks.mujoco.mjtObj.mjOBJ_BODY, "ball")
+    balancer = checks.TruthBalancer(plant)
+    rates = []
+    for _ in range(800):
+        d.xfrc_applied[ball, 5] = torque
+        balancer.drive()
+        plant.step()
+        rates.append(float(d.qvel[5]))
+    return float(np.mean(rates[400:]))
 
 
 def manoeuvre(steps: int) -> np.ndarray:
@@ -109,18 +153,22 @@ def manoeuvre(steps: int) -> np.ndarray:
     return np.array(rows)
 
 
-def free_energy_drift() -> float:
-    plant = checks.plant3d(robot(friction=NO_FRICTION), tilt=(deg(20.0), deg(-20.0)))
+def free_energy_drift(seed: int, steps: int) -> float:
+    """Largest |ΔE| / E0 over 10 s from a random start (tilts, limp torso, every joint's rate in ±1.5)."""
+    rng = np.random.default_rng(seed)
+    tilt = tuple(float(a) for a in rng.uniform(-deg(25.0), deg(25.0), 2))
+    plant = checks.plant3d(robot(friction=NO_FRICTION), tilt=tilt, mujoco=MujocoParams(steps_per_tick=steps))
     plant.torso = None
     m, d = plant.model, plant.data
     m.opt.gravity[:] = 0.0
     m.geom_conaffinity[:] = 0
-    d.qvel[:] = np.linspace(-1.5, 1.5, m.nv)
+    d.qvel[:] = rng.uniform(-1.5, 1.5, m.nv)
     checks.mujoco.mj_forward(m, d)
     e0, drift = plant.energy(), 0.0
     for _ in range(4000):
         plant.step()
-        drift = max(drift, abs(plant.energy() - e0))
+        e = plant.energy() - e0
+        drift = e if abs(e) > abs(drift) else drift
     return drift / e0
 
 
@@ -128,6 +176,7 @@ def floor_swing() -> tuple[float, float]:
     plant = checks.plant3d(robot(friction=NO_FRICTION), rider=None, tilt=(deg(150.0), deg(-20.0)))
     m = plant.model
     m.geom_contype[checks.mujoco.mj_name2id(m, checks.mujoco.mjtObj.mjOBJ_GEOM, "chassis_rim")] = 0
+    plant._settle()  # settled with the rim, below the floor here, carrying the robot
     for _ in range(10):
         plant.step()
     e0, kinetic = plant.energy(), 0.0

@@ -237,6 +237,15 @@ CellNoise = Annotated[
     float,
     Meta(ge=0.0, le=100.0, description="N, 1σ; a load cell of a seat's range (a few kN) within a few %"),
 ]
+CellRange = Annotated[
+    float,
+    Meta(
+        ge=100.0,
+        le=3000.0,
+        description="N, each cell's full scale; a seat's cells are 1-3 kN, and three at full scale stay "
+        "within the wire's ±10 kN",
+    ),
+]
 CalibrationError = Annotated[
     float, Meta(ge=0.0, le=0.5, description="relative, 1σ; a calibration off by half is none")
 ]

@@ -95,6 +95,44 @@ def tilt_quaternion(pitch: float, roll: float) -> tuple[float, float, float, flo
     return cp * cr, cp * sr, sp * cr, -sp * sr
 
 
+class DryFriction(NamedTuple):
+    """Dry and viscous friction across the drive joint about one direction, ball-equivalent (the robot
+    file's values, as the planar plant reads them), as the damping MuJoCo integrates implicitly.
+
+    Stuck (rate below `stick`): a damping of breakaway / stick, so the torque that holds the joint reaches
+    the breakaway torque at the band's edge and a torque T below it leaves a creep of T/breakaway × stick at
+    most. Sliding: viscous + kinetic / rate, the kinetic torque exactly, and, implicit, it can slow the joint
+    to rest within a step but never turn it back (an explicit Coulomb torque chatters about zero)."""
+
+    viscous: float
+    kinetic: float
+    breakaway: float
+    stick: float
+
+    def damping(self, rate: float) -> float:
+        """Nm s/rad at |rate| (rad/s)."""
+        if rate < self.stick:
+            return self.viscous + self.breakaway / self.stick
+        return self.viscous + self.kinetic / rate
+
+
+class DriveFriction(NamedTuple):
+    """The drives' friction (docs/physics.md §11.2): in the tilt plane on the relative rate's magnitude, so
+    the same in every direction (MuJoCo's per-axis `frictionloss` is a box, √2 times as strong on a
+    diagonal), and about yaw."""
+
+    tilt: DryFriction
+    yaw: DryFriction
+
+    @staticmethod
+    def of(robot: RobotParams) -> DriveFriction:
+        f = robot.friction
+        return DriveFriction(
+            DryFriction(f.drivetrain_viscous, f.drivetrain_coulomb, f.drivetrain_stiction, f.stick_velocity),
+            DryFriction(f.yaw_viscous, f.yaw_coulomb, f.yaw_stiction, f.stick_velocity),
+        )
+
+
 @mypyc_attr(allow_interpreted_subclasses=True)  # benchmarks/lockstep.py times its step in a subclass
 class Plant3D(PlantCore):
     """PURE ballbot + rider in 3-D. Per tick: `drives.set_commands(...)`, `step()`, then sample or read
@@ -144,6 +182,11 @@ class Plant3D(PlantCore):
         self._floor_z = float(m.geom_pos[self._floor][2])
         motors = self._motors
         self._motor_1, self._motor_2, self._motor_3 = motors[0], motors[1], motors[2]
+        self._friction = DriveFriction.of(robot)
+        self._drive_damping = m.dof_damping[self._drive_v : self._drive_v + 3]
+        self._chassis_quat = d.xquat[self._chassis_body]
+        self._quaternions = tuple(np.zeros(n) for n in (4, 4, 3, 4))
+        self._h = float(m.opt.timestep)
         self._torso_body = -1
         self._lean_q: list[int] = []
         self._lean_v: list[int] = []
@@ -165,6 +208,7 @@ class Plant3D(PlantCore):
         pitch, roll = initial_tilt
         d.qpos[3:7] = tilt_quaternion(pitch, roll)  # the ball turned with the chassis: encoders read zero
         mujoco.mj_kinematics(m, d)
+        self._after_step()  # the drives' friction at rest: stuck
         self._set_hip_controls()  # the rider holds their torso from the start
         self._settle()
         self._forward_current = True
@@ -212,13 +256,15 @@ class Plant3D(PlantCore):
         self._set_hip_controls()
         self._apply_external()
         before = self._motor_rates
-        if self._forward_current:
+        if self._forward_current:  # the last tick's closing forward pass holds this state's forces
             mujoco.mj_step2(m, d)
+            self._after_step()
             steps = self._steps - 1
         else:
             steps = self._steps
-        if steps:
-            mujoco.mj_step(m, d, nstep=steps)
+        for _ in range(steps):
+            mujoco.mj_step(m, d)
+            self._after_step()
         mujoco.mj_forward(m, d)
         self._forward_current = True
         self.tick += 1
@@ -230,6 +276,36 @@ class Plant3D(PlantCore):
         for i in range(3):
             self.motor_angles[i] += half * (before[i] + after[i])
         self._check_fall()
+
+    def _after_step(self) -> None:
+        """After each MuJoCo step: the chassis turned by its own rate, and the drives' friction for the next
+        step."""
+        self._turn_chassis_by_its_rate()
+        f, rates = self._friction, self._qvel[self._drive_v : self._drive_v + 3].tolist()
+        damping = self._drive_damping
+        damping[0] = damping[1] = f.tilt.damping(math.hypot(rates[0], rates[1]))
+        damping[2] = f.yaw.damping(abs(rates[2]))
+
+    def _turn_chassis_by_its_rate(self) -> None:
+        """Make the step's turn of the chassis exp(h ω_c), ω_c its own rate at the step's end (the gyro's).
+
+        MuJoCo turns the ball by its rate and the chassis on it by the drive joint's, one after the other;
+        the chassis' turn then differs from its own rate's by h/2 ω_ball × ω_rel, a drift of its attitude
+        against its gyro that grows with speed times yaw rate (2.6 mrad/s at 0.64 m/s and 0.96 rad/s, above
+        the gyro's modelled bias). The joint's angle is seen by nothing (a sphere, the encoders count rates),
+        so it takes the difference."""
+        q, v, dq, dv = self._qpos, self._qvel, self._drive_q, self._drive_v
+        relative, inverse, rate, turned = self._quaternions
+        inverse[:] = q[dq : dq + 4]
+        inverse[1:] *= -1.0
+        mujoco.mju_rotVecQuat(rate, v[3:6], inverse)  # the ball's rate, chassis frame
+        rate += v[dv : dv + 3]
+        turned[:] = self._chassis_quat  # the chassis before the step (the step's kinematics)
+        mujoco.mju_quatIntegrate(turned, rate, self._h)
+        inverse[:] = q[3:7]
+        inverse[1:] *= -1.0
+        mujoco.mju_mulQuat(relative, inverse, turned)
+        q[dq : dq + 4] = relative
 
     def _set_hip_controls(self) -> None:
         """The rider's hip torques for this tick: the engine adds the PD's terms in the lean's state."""

@@ -12,6 +12,8 @@ become bodies, joints, actuators and sensors here, and MuJoCo simulates them (do
 - The rider's thighs and shanks ride with the chassis; the torso (HAT) is a body on the seat with two
   hinges at the hip (forward lean about y, then sideways lean about x), driven by the rider's hip torques.
 - Sensors: gyro, accelerometer and orientation at the IMU site on the chassis.
+- The floor and every geom that touches it carry the same `solref`: MuJoCo mixes two geoms' values, so a
+  floor left at its default would make the contact's time constant the mean of the two.
 
 Per-degree-of-freedom values the MJCF has only one number for per joint (the drives' reflected inertia,
 friction and damping differ between the tilt axes and yaw) are set on the compiled model by
@@ -167,7 +169,7 @@ def build_model(robot: RobotParams, rider: RiderParams | None, engine: MujocoPar
   <default><geom contype="0" conaffinity="0"/></default>
   <worldbody>
     <geom name="{FLOOR}" type="plane" size="0 0 1" contype="0" conaffinity="{_FLOOR_AFFINITY}"
-          friction="0 0 0" rgba="0.8 0.8 0.8 1"/>
+          friction="0 0 0" {solref} rgba="0.8 0.8 0.8 1"/>
     <body name="{BALL}" pos="0 0 {r!r}">
       <freejoint name="{BALL}"/>
       <inertial pos="0 0 0" mass="{ball.mass!r}" diaginertia="{_f(*(ball_inertia,) * 3)}"/>
@@ -311,7 +313,9 @@ def drive_inertia(robot: RobotParams) -> DriveInertia:
 
 
 def apply_dof_parameters(model: object, robot: RobotParams) -> None:
-    """Per-axis values of the drive joint and the ball's rolling resistance, on the compiled model."""
+    """The drive joint's armature and the ball's rolling resistance, on the compiled model. The drives'
+    friction is not MuJoCo's per-axis `frictionloss` (a box, √2 times as strong on a diagonal): Plant3D sets
+    it as the drive joint's damping before every step (DriveFriction)."""
     import mujoco
 
     m = model
@@ -320,7 +324,5 @@ def apply_dof_parameters(model: object, robot: RobotParams) -> None:
     drive = m.jnt_dofadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, DRIVE_JOINT)]
     ball = m.jnt_dofadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, BALL)]
     m.dof_armature[drive : drive + 3] = drive_inertia(robot).armature
-    m.dof_damping[drive : drive + 3] = (f.drivetrain_viscous, f.drivetrain_viscous, f.yaw_viscous)
-    m.dof_frictionloss[drive : drive + 3] = (f.drivetrain_coulomb, f.drivetrain_coulomb, f.yaw_coulomb)
     # Rolling resistance b_φ on the ball's rotation (its free joint's angular dofs, 3..5).
     m.dof_damping[ball + 3 : ball + 6] = f.rolling_viscous

@@ -26,6 +26,7 @@ from drivers.bounds import (
     CalibrationError,
     CellNoise,
     CellRadius,
+    CellRange,
     ChassisBottom,
     ChassisRadius,
     ComHeight,
@@ -229,6 +230,9 @@ class Tes(_Record, frozen=True):
     """Azimuth of the first pair of cells from body +x, deg; the others at +120°, +240°."""
     cell_noise: CellNoise = 0.5
     """1σ white noise per load cell, N."""
+    cell_range: CellRange = 2000.0
+    """Each cell's full scale, N: a reading saturates there (a fall's impact, a hard push) [EST: a 200 kg
+    cell, four times the share of a 150 kg rider's weight each vertical cell carries]."""
     calibration_error: CalibrationError = 0.0
     """Relative 1σ error of each entry of the calibration matrix (0: perfect calibration)."""
 
@@ -317,8 +321,10 @@ class MujocoParams(_Record, frozen=True):
     """MuJoCo steps per bus tick (the drives' and the rider's torques are held over a tick)."""
     contact_time_constant: Positive = 0.005
     """Time constant of the ball-floor contact, s (MuJoCo's solref; at least two steps)."""
-    integrator: Literal["implicitfast", "RK4", "Euler", "implicit"] = "implicitfast"
-    """MuJoCo's integrator (its option of that name)."""
+    integrator: Literal["implicitfast", "implicit", "Euler"] = "implicitfast"
+    """MuJoCo's integrator (its option of that name). Each integrates damping implicitly, which the drives'
+    friction needs (its stuck band is a stiff damper); RK4 does not, and the plant's first step of a tick
+    reuses the last tick's forward pass, which MuJoCo's RK4 cannot."""
     impratio: Annotated[float, msgspec.Meta(ge=1)] = 10.0
     """Ratio of frictional to normal constraint impedance: higher holds the rolling contact tighter."""
 

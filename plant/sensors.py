@@ -239,7 +239,10 @@ class TesModel:
         # numpy's products, not scalar sums: OpenBLAS's kernel (fused multiply-adds, its own order) rounds
         # them, and the seat's readings must stay those of earlier runs bit for bit.
         cells = np.dot(self.to_cells, wrench) + self.p.cell_noise * self.noise.draw_array()
-        return self._report(cells)
+        # A cell's amplifier saturates at its full scale: what a fall's impact puts on the seat is read as
+        # that, not as tens of kN.
+        limit = self.p.cell_range
+        return self._report(np.clip(cells, -limit, limit))
 
     def from_cells(self, cells: Sequence[float] | np.ndarray) -> TesSample:
         """What the seat reports for these cell readings (N): wrench through its calibration, and COP."""

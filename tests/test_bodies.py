@@ -312,7 +312,8 @@ def test_run_mcap_has_each_bodys_pose_at_100_hz_equal_to_the_plants(ride):
         assert (b["translation"]["x"], b["translation"]["y"]) == tuple(row[position])
         roll, pitch, _ = euler_zyx(as_pose(c)[1])
         assert abs(pitch - row[tilt][0]) < 1e-9 and abs(roll - row[tilt][1]) < 1e-9
-    assert rows[-1, tilt][0] > 0.01 and abs(rows[-1, lean][0]) > 0.01, "the robot tilted and the rider leaned"
+    moved = rows[-1, tilt][0] > 0.005 and abs(rows[-1, lean][0]) > 0.01
+    assert moved, "the robot tilted and the rider leaned"
 
 
 def schema_mismatch(value, schema: dict, where: str = "") -> str | None:

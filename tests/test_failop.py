@@ -154,9 +154,9 @@ def test_the_chassis_takes_the_pairs_torque_reversed_with_a_riders_legs_and_more
     assert level < 0.0 and back < level
 
 
-def two_wheel_run(rules, dead=0, fault=1.0, end=7.0):
-    """The 3-D plant and a 73 kg rider leaning 8 deg forward, held by the truth balancer rolling at 0.25
-    m/s; at `fault` drive `dead` (0-2) stops making torque and the recovery law, its estimator fed the
+def two_wheel_run(rules, lean, dead=0, fault=1.0, end=7.0):
+    """The 3-D plant and a 73 kg rider leaning `lean` deg forward, held by the truth balancer rolling at
+    0.25 m/s; at `fault` drive `dead` (0-2) stops making torque and the recovery law, its estimator fed the
     sensors' samples (the wire's values), balances on the other two, its command applied the next tick.
     Returns how it ended and the peak yaw rate."""
     from hil.run.truth_balancer import TruthBalancer
@@ -168,7 +168,7 @@ def two_wheel_run(rules, dead=0, fault=1.0, end=7.0):
 
     rider = load_toml(ROOT / "configs/riders/s07_abi_73kg_176.toml", RiderParams)
     robot = load_toml(ROOT / "configs/robot/pure.toml", RobotParams)
-    plant = Plant3D(robot, rider, SimParams(), RiderIntent(pitch=[Ramp(to=8.0, duration=0.5)]))
+    plant = Plant3D(robot, rider, SimParams(), RiderIntent(pitch=[Ramp(to=lean, duration=0.5)]))
     geometry = load_toml(ROOT / "configs/robot/pure.toml", RobotGeometry)
     estimate, law = IsolatedEstimator(geometry, rules, plant.sim.dt), RecoveryLaw(geometry, rules)
     law.design(rider.mass * 9.80665)
@@ -194,14 +194,16 @@ def two_wheel_run(rules, dead=0, fault=1.0, end=7.0):
 
 
 def test_on_two_wheels_a_coupled_plane_that_follows_the_chassis_and_the_yaw_keeps_the_robot_up():
-    """Drive 1 dead under a rider who holds an 8 deg lean (3-D plant): the law stays up turning at about 2
+    """Drive 1 dead under a rider who holds a 12 deg lean (3-D plant): the law stays up turning at under 2
     rad/s. Positive control: the same law with the coupled plane as a plane of its own (no product of
-    inertia, no yaw in its velocity feedback) spins the robot up to over 10 rad/s and it falls."""
-    fallen, peak = two_wheel_run(CFG.recovery)
-    assert fallen is None and peak < 3.0
+    inertia, no yaw in its velocity feedback) spins the robot up more than twice as fast. (Before the
+    plant's drives had stiction, 2026-12-07, the control spun past 10 rad/s and fell; the drives' breakaway
+    now holds it.)"""
+    fallen, peak = two_wheel_run(CFG.recovery, 12.0)
+    assert fallen is None and peak < 2.0
     control = msgspec.structs.replace(CFG.recovery, coupled_velocity_share=1.0, rider_roll_yaw_product=0.0)
-    fallen, peak = two_wheel_run(control)
-    assert fallen is not None and peak > 10.0
+    _, control_peak = two_wheel_run(control, 12.0)
+    assert control_peak > 2.0 * peak and control_peak > 3.0
 
 
 # ------------------------------------------------------------------------------------------ whole runs

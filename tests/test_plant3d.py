@@ -16,10 +16,10 @@ from drivers.config import ConfigError, load_toml
 from hil.run.truth_balancer import TruthBalancer
 from plant.anthropometry import robot_body_segment
 from plant.ballbot import Plant, RiderIntent
-from plant.ballbot3d import Plant3D
+from plant.ballbot3d import Plant3D, euler_rates
 from plant.model3d import drive_inertia
 from plant.omniwheel import motor_jacobian
-from plant.params import RobotParams
+from plant.params import RobotParams, SimParams
 from plant.plane import G0
 from plant.rider import Hold, Ramp, Sine
 from tests.helpers import NO_FRICTION, RIDER_75, deg, robot, sim
@@ -169,6 +169,7 @@ def test_on_the_floor_energy_never_grows_and_friction_takes_it():
         plant = plant3d(robot(friction=friction), rider=None, tilt=(deg(150.0), deg(-20.0)))
         m = plant.model
         m.geom_contype[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "chassis_rim")] = 0
+        plant._settle()  # the plant settled the ball with the rim, below the floor here, carrying it
         for _ in range(10):  # the contact finds its depth under the swinging load
             plant.step()
         e, kinetic = [plant.energy()], 0.0
@@ -195,8 +196,9 @@ def test_friction_dissipates_energy():
 
 
 # ------------------------------------------------------------------------------- a steady turn
-def steady_turn(rider, speed, yaw_rate, seconds=6.0):
-    """Hold a speed and a yaw rate on the true state; the rider (if any) stays upright on a stiff trunk."""
+def steady_turn(rider, speed, yaw_rate, seconds=6.0, each=None):
+    """Hold a speed and a yaw rate on the true state; the rider (if any) stays upright on a stiff trunk.
+    each(plant): called after every tick."""
     if rider is not None:
         rider = msgspec.structs.replace(rider, trunk_stiffness=2.0e4, trunk_damping=400.0)
     plant = plant3d(robot(friction=NO_FRICTION), rider=rider)
@@ -211,6 +213,8 @@ def steady_turn(rider, speed, yaw_rate, seconds=6.0):
         balancer.set_velocity(speed * ramp, -lateral)
         balancer.drive()
         plant.step()
+        if each is not None:
+            each(plant)
         truth = plant.truth()
         rows.append((truth.tilt[1], truth.tilt[0], math.hypot(*truth.velocity), truth.yaw_rate))
     rows = np.array(rows)
@@ -296,6 +300,33 @@ def test_the_gyro_carries_the_yaw_rate_times_the_tilt():
     assert gyro[2] == pytest.approx(yaw_rate * math.cos(roll) * math.cos(pitch), rel=0.01)
 
 
+def attitude_drift():
+    """In a steady turn at 1 m/s and 1.5 rad/s (robot alone): the mean of the gyro's rates as Euler rates
+    minus the attitude's own mean rates over the last second, (roll, pitch, yaw) rad/s."""
+    attitude, rates = [], []
+
+    def record(plant):
+        (roll, pitch, yaw), gyro, _ = plant.imu_truth()
+        attitude.append((roll, pitch, yaw))
+        rates.append(euler_rates(roll, pitch, gyro))
+
+    _, (_, _, speed, yaw_rate), _ = steady_turn(None, 1.0, 1.5, seconds=4.0, each=record)
+    assert speed == pytest.approx(1.0, abs=0.02) and yaw_rate == pytest.approx(1.5, abs=0.02)
+    attitude, rates = np.array(attitude[-400:]), np.array(rates[-400:])
+    return 0.5 * (rates[1:] + rates[:-1]).mean(axis=0) - np.diff(attitude, axis=0).mean(axis=0) / DT
+
+
+def test_the_attitude_turns_at_the_gyros_rate_in_a_fast_turn():
+    # The IMU's attitude and its gyro come from one rigid body, so they agree on average. MuJoCo turning
+    # the ball and then the chassis on it drifts the attitude by h/2 ω_ball × ω_rel (8 mrad/s here) unless
+    # the plant keeps the chassis' turn its own.
+    assert np.abs(attitude_drift()).max() < 0.5e-3
+    # Positive control: MuJoCo's own composition drifts.
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(Plant3D, "_turn_chassis_by_its_rate", lambda self: None)
+        assert np.abs(attitude_drift()).max() > 4e-3
+
+
 # -------------------------------------------------------------------------------------- rolling
 MANOEUVRE = RiderIntent(
     pitch=[Hold(duration=0.5), Ramp(to=10.0, duration=1.0), Hold(duration=2.0)],
@@ -326,6 +357,82 @@ def test_the_ball_slips_past_the_friction_limit():
     plant = ride(plant3d(slippery, intent=MANOEUVRE), seconds=2.0)
     assert plant.slip_ticks > 40
     assert plant.max_slip > 0.05
+
+
+# ---------------------------------------------------------------------------- the floor's contact
+@pytest.mark.parametrize("time_constant", [0.005, 0.01])
+def test_the_floor_contact_has_the_configured_time_constant(time_constant):
+    # MuJoCo mixes the two geoms' solref: the floor's must be the bench's too, or the contact is softer.
+    engine = msgspec.structs.replace(sim().mujoco, contact_time_constant=time_constant)
+    plant = plant3d(rider=None, mujoco=engine)
+    plant.step()
+    (contact,) = plant.data.contact
+    assert tuple(contact.solref) == (time_constant, 1.0)
+
+
+# ----------------------------------------------------------------------------- the drives' friction
+def spin_in_the_air(friction, torque, seconds=0.5):
+    """The chassis held 0.3 m up, the ball free to turn under it: a constant ball-equivalent torque
+    (chassis frame) across the drives. Returns the relative rate (chassis frame) every tick."""
+    plant = plant3d(robot(friction=msgspec.structs.replace(friction, rolling_viscous=0.0)), rider=None)
+    m, d = plant.model, plant.data
+    d.qpos[2] += 0.3
+    mujoco.mj_forward(m, d)
+    plant._hold()
+    d.eq_active[plant._holds[0]] = 0  # only the chassis
+    motor = np.linalg.solve(np.array(plant._g).T, torque)
+    rates = []
+    for _ in range(int(seconds * 400)):
+        plant.drives.set_commands(tuple(motor.tolist()), True, plant.t)
+        plant.step()
+        rates.append(-d.qvel[plant._drive_v : plant._drive_v + 3].copy())  # the ball's on the chassis
+    return plant, np.array(rates)
+
+
+def air_inertia(plant):
+    """The ball's inertia about its centre with the chassis held, the drives' share with it (model3d)."""
+    drives = drive_inertia(plant.robot)
+    return plant.robot.ball.inertia + drives.ball + np.array(drives.armature)
+
+
+STICKY = msgspec.structs.replace(
+    RobotParams().friction, drivetrain_coulomb=1.0, drivetrain_stiction=2.0, yaw_coulomb=0.5, yaw_stiction=0.8
+)
+
+
+@pytest.mark.parametrize("axis", [(1.0, 0.0, 0.0), (0.0, 0.0, 1.0)], ids=["tilt", "yaw"])
+def test_a_torque_below_breakaway_holds_the_drives_and_one_above_turns_them(axis):
+    axis = np.array(axis)
+    tilt = axis[2] == 0.0
+    breakaway = STICKY.drivetrain_stiction if tilt else STICKY.yaw_stiction
+    stick = STICKY.stick_velocity
+    _, held = spin_in_the_air(STICKY, 0.8 * breakaway * axis)
+    assert np.abs(held).max() < stick, "stuck: it creeps within the stick band"
+    # Positive control: the same torque with the breakaway lowered under it turns the ball.
+    lower = {"drivetrain_stiction": 0.7 * breakaway} if tilt else {"yaw_stiction": 0.7 * breakaway}
+    lower |= {"drivetrain_coulomb": 0.5 * breakaway} if tilt else {"yaw_coulomb": 0.5 * breakaway}
+    _, moved = spin_in_the_air(msgspec.structs.replace(STICKY, **lower), 0.8 * breakaway * axis)
+    assert np.abs(moved[-1]).max() > 20 * stick
+
+
+@pytest.mark.parametrize("direction", [0.0, 45.0, 120.0])
+def test_sliding_drives_take_the_kinetic_torque_in_every_direction(direction):
+    # Past breakaway the ball speeds up at (T − τ_c − b ω) / I along the torque, whatever its direction in
+    # the tilt plane (MuJoCo's per-axis frictionloss would take √2 τ_c on a diagonal).
+    a = math.radians(direction)
+    u = np.array([math.cos(a), math.sin(a), 0.0])
+    torque = 3.0
+    plant, rates = spin_in_the_air(STICKY, torque * u)
+    f = STICKY
+    inertia = air_inertia(plant)[0]
+    along = rates @ u
+    assert np.abs(rates - np.outer(along, u)).max() < 1e-6 * along[-1]
+    # From 0.25 s (the current loop has settled): the rate of change against the torque balance.
+    t0, t1 = 100, 199
+    mean_rate = along[t0 : t1 + 1].mean()
+    slope = (along[t1] - along[t0]) / ((t1 - t0) * DT)
+    expected = (torque - f.drivetrain_coulomb - f.drivetrain_viscous * mean_rate) / inertia
+    assert slope == pytest.approx(expected, rel=0.02)
 
 
 # ------------------------------------------------------------------------------- the omniwheels
@@ -433,6 +540,16 @@ def test_an_impossible_robot_is_refused_naming_the_field(tmp_path, text, field):
     with pytest.raises(ConfigError) as err:
         load_toml(path, RobotParams)
     assert str(path) in str(err.value) and field in str(err.value)
+
+
+def test_an_integrator_the_plant_cannot_honour_is_refused(tmp_path):
+    # RK4 integrates damping explicitly (the drives' stuck band needs it implicit) and MuJoCo's RK4 cannot
+    # start from the plant's reused forward pass: refused, not silently an Euler step.
+    path = tmp_path / "sim.toml"
+    path.write_text('[mujoco]\nintegrator = "RK4"\n')
+    with pytest.raises(ConfigError) as err:
+        load_toml(path, SimParams)
+    assert str(path) in str(err.value) and "$.mujoco.integrator" in str(err.value)
 
 
 def test_both_plants_place_the_bodies_alike():

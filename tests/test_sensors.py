@@ -128,6 +128,32 @@ def test_tes_recovers_the_wrench_and_noise_propagates():
     np.testing.assert_allclose(out.mean(axis=0), wrench, atol=0.1)
 
 
+def test_a_seat_cell_saturates_at_its_full_scale():
+    # A fall's impact on the seat (18 kN through the rider's hip on the 3-D plant) reads as the cells' full
+    # scale, and the payload stays one the wire's schema takes; below full scale nothing changes.
+    from drivers.schemas import PayloadError, TesWrench, decode, encode
+
+    def wire(model, wrench):
+        s = model.sample(wrench)
+        return s, encode(
+            TesWrench(seq=1, stamp=0.0, force=s.force, moment=s.moment, cop=s.cop, cells=s.cells)
+        )
+
+    impact = [18000.0, 0.0, -9000.0, 0.0, 0.0, 0.0]
+    model = TesModel(Tes(cell_noise=0.0), 0.03, np.random.default_rng(0))
+    s, payload = wire(model, impact)
+    assert max(abs(c) for c in s.cells) == Tes().cell_range
+    assert decode(payload, TesWrench).force == s.force
+    ordinary = [150.0, -20.0, -700.0, 5.0, 20.0, -3.0]
+    np.testing.assert_allclose([*model.sample(ordinary).force, *model.sample(ordinary).moment], ordinary)
+    # Positive control: cells that never saturate read the impact as it is, and the schema refuses it.
+    boundless = TesModel(Tes(cell_noise=0.0, cell_range=1e9), 0.03, np.random.default_rng(0))
+    s, payload = wire(boundless, impact)
+    assert s.force[0] == pytest.approx(18000.0)
+    with pytest.raises(PayloadError):
+        decode(payload, TesWrench)
+
+
 def test_tes_calibration_error_biases_the_wrench():
     model = TesModel(Tes(cell_noise=0.0, calibration_error=0.02), 0.03, np.random.default_rng(4))
     s = model.sample([0.0, 0.0, -700.0, 0.0, 0.0, 0.0])
