@@ -21,6 +21,10 @@ LEG_MASS, LEG_COM, LEG_GYR, LEG_LEN = 0.061, 0.606, 0.416, 0.246
 TRUNK_LONG_GYR, TRUNK_LEN = 0.191, 0.3055
 # About its own long axis a limb segment is slender: radius of gyration ≈ 0.15 × length [EST].
 LIMB_LONG_GYR = 0.15
+# How far a seated adult's trunk bends at the hip and the lumbar spine, deg [OTHER: Troke et al. 2005,
+# Manual Therapy 10(3), 405 adults: lumbar flexion 73 -> 40, extension 29 -> 6, lateral flexion 28 -> 14 per
+# side from age 16 to 90; the young adults' values, as the hinge's hard stops].
+TRUNK_FLEXION_DEG, TRUNK_EXTENSION_DEG, TRUNK_LATERAL_DEG = 70.0, 25.0, 28.0
 HIP_ABOVE_SEAT = 0.09
 """Hip joint centre above the seat surface, m [EST, docs/physics.md §5.2]."""
 

@@ -10,7 +10,8 @@ become bodies, joints, actuators and sensors here, and MuJoCo simulates them (do
   so a positive motor torque T_i turns the ball about +G_i relative to the chassis, and the actuator's
   velocity is the motor-shaft rate G_i·ω_rel the encoder counts.
 - The rider's thighs and shanks ride with the chassis; the torso (HAT) is a body on the seat with two
-  hinges at the hip (forward lean about y, then sideways lean about x), driven by the rider's hip torques.
+  hinges at the hip (forward lean about y, then sideways lean about x), driven by the rider's hip torques
+  and stopped where a seated adult's trunk stops bending (plant/anthropometry.py).
 - Sensors: gyro, accelerometer and orientation at the IMU site on the chassis.
 - The floor and every geom that touches it carry the same `solref`: MuJoCo mixes two geoms' values, so a
   floor left at its default would make the contact's time constant the mean of the two.
@@ -27,7 +28,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plant.anthropometry import LEG_COM, SeatedRider, Segment, robot_body_segment, seat_rider
+from plant.anthropometry import (
+    LEG_COM,
+    TRUNK_EXTENSION_DEG,
+    TRUNK_FLEXION_DEG,
+    TRUNK_LATERAL_DEG,
+    SeatedRider,
+    Segment,
+    robot_body_segment,
+    seat_rider,
+)
 from plant.omniwheel import motor_jacobian, wheel_jacobian
 from plant.params import MujocoParams, RiderParams, RobotParams
 from plant.plane import G0
@@ -141,8 +151,10 @@ def build_model(robot: RobotParams, rider: RiderParams | None, engine: MujocoPar
             )
         torso = (
             f'<body name="{TORSO}" pos="{_f(seated.hip_x, 0, seated.hip_z)}">'
-            f'<joint name="{LEAN_JOINTS[0]}" type="hinge" axis="0 1 0"/>'
-            f'<joint name="{LEAN_JOINTS[1]}" type="hinge" axis="1 0 0"/>'
+            f'<joint name="{LEAN_JOINTS[0]}" type="hinge" axis="0 1 0" '
+            f'range="{_f(-math.radians(TRUNK_EXTENSION_DEG), math.radians(TRUNK_FLEXION_DEG))}"/>'
+            f'<joint name="{LEAN_JOINTS[1]}" type="hinge" axis="1 0 0" '
+            f'range="{_f(-math.radians(TRUNK_LATERAL_DEG), math.radians(TRUNK_LATERAL_DEG))}"/>'
             f'<inertial pos="0 0 {hat.com_distance!r}" mass="{hat.mass!r}" '
             f'diaginertia="{_f(hat.i_roll, hat.i_pitch, hat.i_yaw)}"/>'
             f'<geom type="capsule" fromto="0 0 0.05 0 0 {2.0 * hat.com_distance!r}" size="0.13" '

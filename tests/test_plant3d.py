@@ -14,7 +14,12 @@ from scipy.optimize import brentq
 
 from drivers.config import ConfigError, load_toml
 from hil.run.truth_balancer import TruthBalancer
-from plant.anthropometry import robot_body_segment
+from plant.anthropometry import (
+    TRUNK_EXTENSION_DEG,
+    TRUNK_FLEXION_DEG,
+    TRUNK_LATERAL_DEG,
+    robot_body_segment,
+)
 from plant.ballbot import Plant, RiderIntent
 from plant.ballbot3d import Plant3D, euler_rates
 from plant.model3d import drive_inertia
@@ -150,6 +155,7 @@ def test_energy_is_conserved_without_friction_or_inputs():
     m, d = plant.model, plant.data
     m.opt.gravity[:] = 0.0
     m.geom_conaffinity[:] = 0
+    m.jnt_limited[:] = 0  # the trunk's stops are soft constraints, which take energy at each hit
     d.qvel[:] = np.linspace(-1.5, 1.5, m.nv)
     mujoco.mj_forward(m, d)
     e0 = plant.energy()
@@ -496,6 +502,38 @@ def test_the_clamped_fixture_holds_the_chassis_while_the_torso_leans():
     assert max(abs(a) for a in truth.tilt) < deg(0.05)
     assert truth.lean[0] == pytest.approx(deg(20.0), abs=deg(0.3))
     np.testing.assert_allclose(spatial.seat_wrench(), planar.seat_wrench(), rtol=0.02, atol=1.0)
+
+
+def limp_lean(joint, start, limited=True):
+    """The torso limp on the clamped fixture, let go from `start` rad at hinge `joint` (0: forward, 1:
+    sideways): where it ends after 2 s, and its farthest, deg."""
+    plant = plant3d(fixture="clamped")
+    plant.torso = None
+    m, d = plant.model, plant.data
+    if not limited:
+        m.jnt_limited[:] = 0
+    q = plant._lean_q[joint]
+    d.qpos[q] = start
+    mujoco.mj_forward(m, d)
+    peak = 0.0
+    for _ in range(800):
+        plant.step()
+        peak = max(peak, abs(float(d.qpos[q])))
+    return math.degrees(float(d.qpos[q])), math.degrees(peak)
+
+
+@pytest.mark.parametrize(
+    ("joint", "start", "stop"),
+    [(0, 0.1, TRUNK_FLEXION_DEG), (0, -0.1, -TRUNK_EXTENSION_DEG), (1, 0.1, TRUNK_LATERAL_DEG)],
+    ids=["forward", "back", "sideways"],
+)
+def test_a_limp_torso_stops_where_a_seated_trunk_stops_bending(joint, start, stop):
+    end, peak = limp_lean(joint, start)
+    assert end == pytest.approx(stop, abs=1.0)
+    assert peak < abs(stop) + 3.0
+    # Positive control: without the stops it folds over past the seat.
+    _, peak = limp_lean(joint, start, limited=False)
+    assert peak > 90.0
 
 
 def test_power_off_at_standstill_rests_and_power_on_releases():

@@ -34,6 +34,8 @@ from plant.params import RiderParams, RobotParams
 UNKNOWNS: dict[str, tuple[float, float]] = {
     "rider.lean_amplitude_deg": (5.0, 45.0),
     "rider.lean_rate_deg": (0.5, 20.0),
+    "rider.trunk_stiffness": (100.0, 5000.0),
+    "rider.trunk_damping": (10.0, 1000.0),
     "robot.body.mass": (15.0, 60.0),
     "robot.body.com_height": (0.1, 0.5),
     "robot.body.inertia_pitch": (0.1, 4.0),
