@@ -185,7 +185,6 @@ class Plant3D(PlantCore):
         self._friction = DriveFriction.of(robot)
         self._drive_damping = m.dof_damping[self._drive_v : self._drive_v + 3]
         self._chassis_quat = d.xquat[self._chassis_body]
-        self._quaternions = tuple(np.zeros(n) for n in (4, 4, 3, 4))
         self._h = float(m.opt.timestep)
         self._torso_body = -1
         self._lean_q: list[int] = []
@@ -295,17 +294,36 @@ class Plant3D(PlantCore):
         the gyro's modelled bias). The joint's angle is seen by nothing (a sphere, the encoders count rates),
         so it takes the difference."""
         q, v, dq, dv = self._qpos, self._qvel, self._drive_q, self._drive_v
-        relative, inverse, rate, turned = self._quaternions
-        inverse[:] = q[dq : dq + 4]
-        inverse[1:] *= -1.0
-        mujoco.mju_rotVecQuat(rate, v[3:6], inverse)  # the ball's rate, chassis frame
-        rate += v[dv : dv + 3]
-        turned[:] = self._chassis_quat  # the chassis before the step (the step's kinematics)
-        mujoco.mju_quatIntegrate(turned, rate, self._h)
-        inverse[:] = q[3:7]
-        inverse[1:] *= -1.0
-        mujoco.mju_mulQuat(relative, inverse, turned)
-        q[dq : dq + 4] = relative
+        # Python floats: a third of the time of MuJoCo's quaternion functions on numpy views.
+        rw, rx, ry, rz = q[dq : dq + 4].tolist()  # the chassis on the ball
+        bw, bx, by, bz = q[3:7].tolist()  # the ball in the world
+        ax, ay, az = v[3:6].tolist()  # the ball's rate, its frame
+        # The chassis' rate, its frame: the ball's turned by the joint's inverse, plus the joint's.
+        tx, ty, tz = 2.0 * (rz * ay - ry * az), 2.0 * (rx * az - rz * ax), 2.0 * (ry * ax - rx * ay)
+        ux, uy, uz = v[dv : dv + 3].tolist()
+        wx = ax + rw * tx + rz * ty - ry * tz + ux
+        wy = ay + rw * ty + rx * tz - rz * tx + uy
+        wz = az + rw * tz + ry * tx - rx * ty + uz
+        # The chassis before the step (the step's kinematics) turned by exp(h ω_c).
+        cw, cx, cy, cz = self._chassis_quat.tolist()
+        rate = math.sqrt(wx * wx + wy * wy + wz * wz)
+        if rate > 0.0:
+            half = 0.5 * self._h * rate
+            k = math.sin(half) / rate
+            ew, ex, ey, ez = math.cos(half), wx * k, wy * k, wz * k
+            cw, cx, cy, cz = (
+                cw * ew - cx * ex - cy * ey - cz * ez,
+                cw * ex + cx * ew + cy * ez - cz * ey,
+                cw * ey - cx * ez + cy * ew + cz * ex,
+                cw * ez + cx * ey - cy * ex + cz * ew,
+            )
+        # The joint: the ball's inverse times the chassis.
+        q[dq : dq + 4] = (
+            bw * cw + bx * cx + by * cy + bz * cz,
+            bw * cx - bx * cw - by * cz + bz * cy,
+            bw * cy + bx * cz - by * cw - bz * cx,
+            bw * cz - bx * cy + by * cx - bz * cw,
+        )
 
     def _set_hip_controls(self) -> None:
         """The rider's hip torques for this tick: the engine adds the PD's terms in the lean's state."""
