@@ -4,7 +4,7 @@ law, its estimator fed the sensors' samples (the values the wire carries), balan
 rig, no controller, no diagnosis: the law's own physics, case by case, against the same law with its
 coupled plane taken as a plane of its own (no product of inertia, no yaw in its feedback).
 
-    python benchmarks/dead_drive.py            # about a minute (70 s on 2 loaded cores)
+    python benchmarks/dead_drive.py            # 7 s on a quiet machine, 70 s on 2 loaded cores
 
 Not timings: the figures are the models', the same on every machine and build. The campaign's dead-drive
 cases (configs/campaigns/diagnostics.toml) are the rig's figures: the diagnosis, the controller before it
