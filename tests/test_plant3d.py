@@ -27,7 +27,7 @@ from plant.omniwheel import motor_jacobian
 from plant.params import RobotParams, SimParams
 from plant.plane import G0
 from plant.rider import Hold, Ramp, Sine
-from tests.helpers import NO_FRICTION, RIDER_75, deg, robot, sim
+from tests.helpers import NO_FRICTION, RIDER_75, ROOT, deg, robot, sim
 
 DT = 1.0 / 400.0
 DEBUG = False
@@ -307,8 +307,8 @@ def test_the_gyro_carries_the_yaw_rate_times_the_tilt():
 
 
 def attitude_drift():
-    """In a steady turn at 1 m/s and 1.5 rad/s (robot alone): the mean of the gyro's rates as Euler rates
-    minus the attitude's own mean rates over the last second, (roll, pitch, yaw) rad/s."""
+    """In a steady turn at 1 m/s and 1.5 rad/s (robot alone), over the last second: how fast the gyro's
+    rates as Euler rates run from the attitude's own, (roll, pitch, yaw) rad/s."""
     attitude, rates = [], []
 
     def record(plant):
@@ -318,8 +318,16 @@ def attitude_drift():
 
     _, (_, _, speed, yaw_rate), _ = steady_turn(None, 1.0, 1.5, seconds=4.0, each=record)
     assert speed == pytest.approx(1.0, abs=0.02) and yaw_rate == pytest.approx(1.5, abs=0.02)
-    attitude, rates = np.array(attitude[-400:]), np.array(rates[-400:])
-    return 0.5 * (rates[1:] + rates[:-1]).mean(axis=0) - np.diff(attitude, axis=0).mean(axis=0) / DT
+    return drift_rate(attitude[-400:], rates[-400:])
+
+
+def drift_rate(attitude, rates):
+    """How fast the attitude runs from the integral of its rates (rad/s per column): the slope of their
+    difference, so whatever the motion does in the window falls out."""
+    attitude, rates = np.array(attitude), np.array(rates)
+    integral = np.vstack([np.zeros(rates.shape[1]), np.cumsum(0.5 * (rates[1:] + rates[:-1]) * DT, axis=0)])
+    t = np.arange(len(attitude)) * DT
+    return -np.polyfit(t, attitude - attitude[0] - integral, 1)[0]
 
 
 def test_the_attitude_turns_at_the_gyros_rate_in_a_fast_turn():
@@ -331,6 +339,42 @@ def test_the_attitude_turns_at_the_gyros_rate_in_a_fast_turn():
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(Plant3D, "_turn_chassis_by_its_rate", lambda self: None)
         assert np.abs(attitude_drift()).max() > 4e-3
+
+
+def wire_attitude_drift():
+    """attitude_drift's check from the IMU's CAN frames (noise, bias and the DBC's scaling, through
+    cantools), roll and pitch over the last two seconds: the gyro's turn-on bias (0.1 mrad/s, 1σ) and its
+    1 mrad/s resolution are in it."""
+    import cantools
+
+    db = cantools.database.load_file(ROOT / "configs/can/pure.dbc")
+    attitude_frame, rate_frame = db.get_message_by_name("IMU_ATTITUDE"), db.get_message_by_name("IMU_RATE")
+    attitude, rates = [], []
+
+    def record(plant):
+        imu = plant.sample_imu()
+        roll, pitch, yaw = imu.attitude
+        a = attitude_frame.decode(
+            attitude_frame.encode(
+                {"Roll": roll, "Pitch": pitch, "Yaw": yaw, "Valid": 1, "Counter": 0, "Crc": 0}
+            )
+        )
+        x, y, z = imu.rate
+        r = rate_frame.decode(
+            rate_frame.encode({"RateX": x, "RateY": y, "RateZ": z, "Valid": 1, "Counter": 0, "Crc": 0})
+        )
+        attitude.append((a["Roll"], a["Pitch"]))
+        rates.append(euler_rates(a["Roll"], a["Pitch"], (r["RateX"], r["RateY"], r["RateZ"]))[:2])
+
+    steady_turn(None, 1.0, 1.5, seconds=5.0, each=record)
+    return drift_rate(attitude[-800:], rates[-800:])
+
+
+def test_the_attitude_on_the_wire_turns_at_the_gyros_rate():
+    assert np.abs(wire_attitude_drift()).max() < 0.5e-3
+    with pytest.MonkeyPatch.context() as patch:  # positive control, as above
+        patch.setattr(Plant3D, "_turn_chassis_by_its_rate", lambda self: None)
+        assert np.abs(wire_attitude_drift()).max() > 4e-3
 
 
 # -------------------------------------------------------------------------------------- rolling
