@@ -52,28 +52,63 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-class AnonymousPeak:
-    """The process's peak anonymous memory (RssAnon), sampled every 0.1 s: what it holds itself. Peak RSS
-    also counts file pages it maps (the run's trace.npy is read back through a memory map), which the
-    kernel may drop at any time."""
+class AnonymousMemory:
+    """Anonymous memory (RssAnon) of this process and every process it started (the logs process, a
+    spawned controller or supervisor), sampled every 0.1 s: what they hold themselves. RSS would also count
+    file pages mapped (trace.npy is read back through a memory map), which the kernel may drop at any time.
+    Keeps the peak and one sample a second, so a 10-minute run shows whether memory stays flat while it
+    runs, apart from the outputs' stage at its end (plots of every tick)."""
 
     def __init__(self):
-        self.mb = 0.0
+        self.peak = 0.0
+        self.series: list[tuple[float, float]] = []
+        """(seconds since the start, MB), one a second."""
+        self._start = time.monotonic()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._sample, name="memory-sampler", daemon=True)
         self._thread.start()
 
-    def _sample(self) -> None:
-        while not self._stop.wait(0.1):
-            with open("/proc/self/status") as status:
+    @staticmethod
+    def _tree(pid: int) -> list[int]:
+        pids, todo = [], [pid]
+        while todo:
+            p = todo.pop()
+            pids.append(p)
+            try:
+                for task in os.listdir(f"/proc/{p}/task"):
+                    with open(f"/proc/{p}/task/{task}/children") as children:
+                        todo += [int(c) for c in children.read().split()]
+            except OSError:
+                continue  # gone meanwhile
+        return pids
+
+    @staticmethod
+    def _anonymous_mb(pid: int) -> float:
+        try:
+            with open(f"/proc/{pid}/status") as status:
                 for line in status:
                     if line.startswith("RssAnon:"):
-                        self.mb = max(self.mb, int(line.split()[1]) / 1024)
+                        return int(line.split()[1]) / 1024
+        except OSError:
+            pass
+        return 0.0
+
+    def _sample(self) -> None:
+        while not self._stop.wait(0.1):
+            mb = sum(self._anonymous_mb(p) for p in self._tree(os.getpid()))
+            self.peak = max(self.peak, mb)
+            t = time.monotonic() - self._start
+            if not self.series or t - self.series[-1][0] >= 1.0:
+                self.series.append((t, mb))
 
     def stop(self) -> float:
         self._stop.set()
         self._thread.join()
-        return self.mb
+        return self.peak
+
+    def at(self, seconds: float) -> float:
+        """MB at the first sample from `seconds` on (the last one if none)."""
+        return next((mb for t, mb in self.series if t >= seconds), self.series[-1][1] if self.series else 0.0)
 
 
 class Probe:
@@ -203,7 +238,7 @@ def full(args) -> None:
     )
     bench = msgspec.structs.replace(bench, clock="realtime", realtime=realtime)
     with tempfile.TemporaryDirectory(prefix="realtime-bench-") as tmp:
-        anonymous = AnonymousPeak()
+        anonymous = AnonymousMemory()
         t0 = time.perf_counter()
         try:
             result = run(scenario, bench, out=Path(tmp))
@@ -234,6 +269,8 @@ def full(args) -> None:
         "failure": None if tr.failure is None else str(tr.failure),
         "peak_rss_mb": peak_rss_mb(),
         "peak_anonymous_mb": peak_anonymous,
+        # In the run, by its scenario's clock (a few seconds of start-up before it): flat memory reads alike.
+        "anonymous_mb_at": {f"{share:.0%}": anonymous.at(share * args.seconds) for share in (0.1, 0.5, 0.9)},
         "wall_s": wall,
         "policy": timing.realtime_policy,
         "bench": bench.name,
@@ -267,8 +304,12 @@ def full(args) -> None:
     period_floors = 1e6 / args.hz / floor_us
     print(f"  floor (bare python-can, 12 frames) {floor_us:.0f} us: the period is {period_floors:.1f} floors")
     print(
-        f"  peak memory {figures['peak_rss_mb']:.0f} MB (anonymous {peak_anonymous:.0f} MB); "
-        f"whole command {wall:.1f} s (outputs included)"
+        f"  peak memory {figures['peak_rss_mb']:.0f} MB (anonymous {peak_anonymous:.0f} MB, this process and "
+        f"those it started); whole command {wall:.1f} s (outputs included)"
+    )
+    print(
+        "  anonymous memory at "
+        + ", ".join(f"{share} of the run {mb:.0f} MB" for share, mb in figures["anonymous_mb_at"].items())
     )
     if probe is not None:
         work = figures["probe_us"]["done"]["p50"] - figures["probe_us"]["wake"]["p50"]
