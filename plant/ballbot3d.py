@@ -207,7 +207,7 @@ class Plant3D(PlantCore):
         pitch, roll = initial_tilt
         d.qpos[3:7] = tilt_quaternion(pitch, roll)  # the ball turned with the chassis: encoders read zero
         mujoco.mj_kinematics(m, d)
-        self._after_step()  # the drives' friction at rest: stuck
+        self._set_drive_friction()  # at rest: stuck
         self._set_hip_controls()  # the rider holds their torso from the start
         self._settle()
         self._forward_current = True
@@ -280,6 +280,10 @@ class Plant3D(PlantCore):
         """After each MuJoCo step: the chassis turned by its own rate, and the drives' friction for the next
         step."""
         self._turn_chassis_by_its_rate()
+        self._set_drive_friction()
+
+    def _set_drive_friction(self) -> None:
+        """The drives' friction for the next step, from the drive joint's rates now (DriveFriction)."""
         f, rates = self._friction, self._qvel[self._drive_v : self._drive_v + 3].tolist()
         damping = self._drive_damping
         damping[0] = damping[1] = f.tilt.damping(math.hypot(rates[0], rates[1]))

@@ -16,9 +16,9 @@ become bodies, joints, actuators and sensors here, and MuJoCo simulates them (do
 - The floor and every geom that touches it carry the same `solref`: MuJoCo mixes two geoms' values, so a
   floor left at its default would make the contact's time constant the mean of the two.
 
-Per-degree-of-freedom values the MJCF has only one number for per joint (the drives' reflected inertia,
-friction and damping differ between the tilt axes and yaw) are set on the compiled model by
-`apply_dof_parameters`.
+Per-degree-of-freedom values the MJCF has only one number for per joint (the drives' reflected inertia
+differs between the tilt axes and yaw) are set on the compiled model by `apply_dof_parameters`; the drives'
+friction, which depends on the joint's rate, by the plant before every step (plant/ballbot3d.py).
 """
 
 from __future__ import annotations
