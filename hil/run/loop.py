@@ -202,13 +202,9 @@ def _series(rows: np.ndarray, layout: Layout = LAYOUT) -> dict[str, Any]:
 
 
 def _announced_events(rig: Rig) -> list[Event]:
-    """An external supervisor's transitions, from its pure/safety/state announcements."""
-    events, previous = [], "NORMAL"
-    for s in rig.safety_states.drain() if rig.safety_states is not None else ():
-        if s.state != previous:
-            events.append(Event(s.since, "transition", previous, s.state, s.reason.split(" ")[0]))
-            previous = s.state
-    return events
+    """An external supervisor's transitions, from its pure/safety/state announcements (the last ones too)."""
+    rig.hear_announcements()
+    return list(rig.announced)
 
 
 def _supervisor_speed(rig: Rig) -> float:
