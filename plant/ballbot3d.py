@@ -95,7 +95,7 @@ def tilt_quaternion(pitch: float, roll: float) -> tuple[float, float, float, flo
     return cp * cr, cp * sr, sp * cr, -sp * sr
 
 
-class DryFriction(NamedTuple):
+class StickSlip(NamedTuple):
     """Dry and viscous friction across the drive joint about one direction, ball-equivalent (the robot
     file's values, as the planar plant reads them), as the damping MuJoCo integrates implicitly.
 
@@ -121,15 +121,15 @@ class DriveFriction(NamedTuple):
     the same in every direction (MuJoCo's per-axis `frictionloss` is a box, √2 times as strong on a
     diagonal), and about yaw."""
 
-    tilt: DryFriction
-    yaw: DryFriction
+    tilt: StickSlip
+    yaw: StickSlip
 
     @staticmethod
     def of(robot: RobotParams) -> DriveFriction:
         f = robot.friction
         return DriveFriction(
-            DryFriction(f.drivetrain_viscous, f.drivetrain_coulomb, f.drivetrain_stiction, f.stick_velocity),
-            DryFriction(f.yaw_viscous, f.yaw_coulomb, f.yaw_stiction, f.stick_velocity),
+            StickSlip(f.drivetrain_viscous, f.drivetrain_coulomb, f.drivetrain_stiction, f.stick_velocity),
+            StickSlip(f.yaw_viscous, f.yaw_coulomb, f.yaw_stiction, f.stick_velocity),
         )
 
 

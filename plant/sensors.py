@@ -242,7 +242,7 @@ class TesModel:
         # A cell's amplifier saturates at its full scale: what a fall's impact puts on the seat is read as
         # that, not as tens of kN.
         limit = self.p.cell_range
-        return self._report(np.clip(cells, -limit, limit))
+        return self._report(np.clip(cells, -limit, limit, out=cells))
 
     def from_cells(self, cells: Sequence[float] | np.ndarray) -> TesSample:
         """What the seat reports for these cell readings (N): wrench through its calibration, and COP."""

@@ -76,9 +76,10 @@ def test_survives_heavy_stiction(tmp_path):
     assert np.abs(np.degrees(tr.tilt[tr.t > 4.5])).max() < 1.0
     # It met the stiction on the default plant: the drivetrain stuck (ψ̇ = φ̇ − θ̇ in the stick band) and the
     # controller's torque broke it loose.
+    shipped = RobotParams()
     psi_rate = tr.ball_rate[:, 0] - np.gradient(tr.tilt[:, 0], tr.t)
-    stuck = np.abs(psi_rate) < RobotParams().friction.stick_velocity
-    ball_torque = tr.motor_torque @ motor_jacobian(RobotParams().ball.radius, RobotParams().drivetrain)
+    stuck = np.abs(psi_rate) < shipped.friction.stick_velocity
+    ball_torque = tr.motor_torque @ motor_jacobian(shipped.ball.radius, shipped.drivetrain)
     peak = np.abs(ball_torque[:, 1]).max()
     print(f"\nheavy stiction: stuck {stuck.sum()} of {len(stuck)} ticks, |τ_y| up to {peak:.1f} Nm")
     assert stuck.sum() >= 20
