@@ -114,16 +114,21 @@ class AnonymousMemory:
 class Probe:
     """Where a real-time tick's time goes, tick by tick (--probe): each stage's end after the tick's
     scheduled start. wake: the clock's wake-up; taken: the last tick's commands taken in (hil/run/rig.py
-    `_close_tick`); sync: SYNC sent (a driven controller's poll starts); answered: a driven controller has
-    answered (the rig expects the next commands); supervised: the supervisor's part done; done: the loop's
-    own work done, before it sleeps. From a Rig and a clock subclassed by the build (a compiled Rig cannot be
-    patched)."""
+    `_close_tick`); sampled: the plant stepped and its sensors sampled; frames: the sensors' CAN frames sent;
+    sync: SYNC sent; published: the tick's zenoh puts (after SYNC in real time); answered: a driven
+    controller has answered (the rig expects the next commands); supervised: the supervisor's part done;
+    done: the loop's own work done, before it sleeps. Beside them, how often the scheduler took the core
+    from the rig's thread between its wake-up and SYNC (involuntary switches, getrusage). From a Rig and a
+    clock subclassed by the build (a compiled Rig cannot be patched)."""
 
-    STAGES = ("wake", "taken", "sync", "answered", "supervised", "done")
+    STAGES = ("wake", "taken", "sampled", "frames", "sync", "published", "answered", "supervised", "done")
+    PREEMPTED = len(STAGES)
+    """Rows' column: involuntary switches of the rig's thread from its wake-up to SYNC."""
 
     def __init__(self):
         self.rows: list[list[float]] = []
         self.scheduled = 0.0
+        self._switches = 0
 
     def install(self) -> None:
         import hil.run.build as build_module
@@ -137,15 +142,15 @@ class Probe:
             def start(self):
                 super().start()
                 probe.scheduled = self._next
-                probe.row(0)
+                probe.row("wake")
 
             def wait_next(self):
-                probe.row(5)
+                probe.row("done")
                 super().wait_next()
                 probe.scheduled = self._next
-                probe.row(0)
+                probe.row("wake")
 
-        def after(stage: int, method):
+        def after(stage: str, method):
             def wrapper(self, *a, **kw):
                 try:
                     return method(self, *a, **kw)
@@ -155,36 +160,38 @@ class Probe:
             return wrapper
 
         def expect(self, *a, **kw):
-            if self.poll_dut is None:
-                probe.row(2)  # nothing driven: SYNC just went out
-            probe.row(3)
+            probe.row("answered")
             return rig._expect(self, *a, **kw)
 
         class ProbedRig(rig):
-            def __init__(self, *a, **kw):
-                super().__init__(*a, **kw)
-                poll = self.poll_dut
-                if poll is not None:
+            pass
 
-                    def polled():
-                        probe.row(2)
-                        poll()
-
-                    self.poll_dut = polled
-
-        ProbedRig._close_tick = after(1, rig._close_tick)
+        ProbedRig._close_tick = after("taken", rig._close_tick)
+        ProbedRig._sample = after("sampled", rig._sample)
+        ProbedRig._send_sensors = after("frames", rig._send_sensors)
+        ProbedRig._send_sync = after("sync", rig._send_sync)
+        ProbedRig._publish_tes = after("published", rig._publish_tes)
         ProbedRig._expect = expect
-        ProbedRig._supervise = after(4, rig._supervise)
+        ProbedRig._supervise = after("supervised", rig._supervise)
         loop_module.RealtimeClock = ProbedClock
         build_module.Rig = ProbedRig
 
-    def row(self, stage: int) -> None:
-        if stage == 0:
-            self.rows.append([math.nan] * len(self.STAGES))
-        if self.rows:
-            self.rows[-1][stage] = (time.perf_counter() - self.scheduled) * 1e6
+    def row(self, stage: str) -> None:
+        now = (time.perf_counter() - self.scheduled) * 1e6
+        if stage == "wake":
+            self.rows.append([math.nan] * (len(self.STAGES) + 1))
+        if not self.rows:
+            return
+        self.rows[-1][self.STAGES.index(stage)] = now
+        if stage in ("wake", "sync"):
+            switches = resource.getrusage(resource.RUSAGE_THREAD).ru_nivcsw
+            if stage == "sync":
+                self.rows[-1][self.PREEMPTED] = switches - self._switches
+            self._switches = switches
 
-    def report(self) -> dict[str, dict[str, float]]:
+    def report(self, late_us: float) -> dict[str, dict[str, float]]:
+        """Each stage's percentiles; the preemptions before SYNC a tick, and a tick whose SYNC was later
+        than `late_us` after its scheduled start."""
         import numpy as np
 
         a = np.array(self.rows[:-1])
@@ -197,6 +204,12 @@ class Probe:
                     for name, p in (("p50", 50), ("p99", 99), ("p99.9", 99.9))
                 }
                 out[name] = {**q, "max": float(col.max())}
+        switches = a[:, self.PREEMPTED]
+        late = a[:, self.STAGES.index("sync")] > late_us
+        out["preempted_before_sync"] = {
+            "per_tick": float(np.nanmean(switches)),
+            "per_late_sync": float(np.nanmean(switches[late])) if late.any() else 0.0,
+        }
         return out
 
 
@@ -274,7 +287,7 @@ def full(args) -> None:
         "wall_s": wall,
         "policy": timing.realtime_policy,
         "bench": bench.name,
-        "probe_us": probe.report() if probe is not None else None,
+        "probe_us": probe.report(1e6 * realtime.sync_allowance / args.hz) if probe is not None else None,
     }
     if probe is not None and args.probe_rows is not None:
         import numpy as np
@@ -316,7 +329,13 @@ def full(args) -> None:
         print(f"  the tick's work (wake to done, medians) {work:.0f} us = {work / floor_us:.1f} floors")
         print("  each stage's end after the tick's scheduled start, us   p50     p99   p99.9     max")
         for name, q in figures["probe_us"].items():
-            print(f"    {name:<50}" + "".join(f"{q[p]:8.0f}" for p in ("p50", "p99", "p99.9", "max")))
+            if name in Probe.STAGES:
+                print(f"    {name:<50}" + "".join(f"{q[p]:8.0f}" for p in ("p50", "p99", "p99.9", "max")))
+        pre = figures["probe_us"]["preempted_before_sync"]
+        print(
+            f"  the rig's thread preempted between its wake-up and SYNC: {pre['per_tick']:.2f} times a tick, "
+            f"{pre['per_late_sync']:.2f} on a tick whose SYNC was late"
+        )
 
 
 def in_a_loopback_namespace(argv: list[str]) -> int:
@@ -358,7 +377,7 @@ def main() -> None:
         type=Path,
         default=None,
         help="--probe: also save every tick's stage ends (µs after its scheduled start) to this .npy file, "
-        "one row a tick, columns as Probe.STAGES",
+        "one row a tick, columns as Probe.STAGES, then the preemptions before SYNC",
     )
     args = p.parse_args()
     if args.external:

@@ -128,12 +128,12 @@ def held_run(monkeypatch, *, hold: bool, silent: range = HELD):
             super().__init__(*args, **kwargs)
             self.poll_dut = None  # the controller answers from its own thread
 
-        def _publish_tes(self, k, s):
+        def _send_sensors(self, k, *args):
             if k in silent:
                 duts[0].pause()  # it will not answer this tick's SYNC
                 if hold:
                     time.sleep(HOLD)  # the rig's own work made long: its SYNC goes out late
-            super()._publish_tes(k, s)
+            super()._send_sensors(k, *args)
 
         def _close_tick(self, take_queued=True):
             super()._close_tick(take_queued)

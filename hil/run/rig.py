@@ -320,19 +320,16 @@ class Rig:
         k = plant.tick
         faults.update(k, plant.t)
         feedback, imu, tes, silent = self._sample()
-        # zenoh first: its delivery to the controller overlaps with sending the CAN frames.
-        self._publish_sc_request(k)
-        self._publish_operator()
-        self._publish_tes(k, tes)
-        if faults:
-            self._publish_fault_traffic(k)
-        if lockstep:
+        if lockstep:  # the fence counts the tick's puts: they go before it, and it before SYNC
+            self._publish_zenoh(k, tes)
             self.link.put_fence(k, plant.t)
         self._send_sensors(k, feedback, imu, silent)
         faults.flush(plant.t)
-        self.can.send(MessageName.SYNC, {"Tick": k % TICK_MODULO})
-        if sync_due != math.inf:
-            self.lateness.sync(k, plant.t, plant.dt, time.monotonic() - sync_due)
+        self._send_sync(k, sync_due)
+        if not lockstep:
+            # After SYNC: a put wakes zenoh's sending thread, which takes the rig's core from it at once
+            # (perf sched, docs/performance.md "Real time"); the controller reads the newest seat sample.
+            self._publish_zenoh(k, tes)
         guard = time.monotonic() + self.command_guard if deadline is None else deadline
         if self.poll_dut is not None:
             self.poll_dut()  # driven: what it answers is queued when poll() returns, or it is not coming
@@ -436,6 +433,21 @@ class Rig:
     def _next_seq(self, key: str) -> int:
         self._seq[key] += 1
         return self._seq[key]
+
+    def _send_sync(self, k: int, due: float) -> None:
+        """SYNC(k), and whether it went out after `due` (time.monotonic(); inf in lockstep)."""
+        self.can.send(MessageName.SYNC, {"Tick": k % TICK_MODULO})
+        if due != math.inf:
+            plant = self.plant
+            self.lateness.sync(k, plant.t, plant.dt, time.monotonic() - due)
+
+    def _publish_zenoh(self, k: int, tes: TesSample) -> None:
+        """The tick's zenoh puts: the SC request, operator actions, the seat's wrench, fault traffic."""
+        self._publish_sc_request(k)
+        self._publish_operator()
+        self._publish_tes(k, tes)
+        if self.faults:
+            self._publish_fault_traffic(k)
 
     def _publish_tes(self, k: int, s: TesSample) -> None:
         """Publish the seat sample of tick k (as seat faults alter it)."""
