@@ -39,12 +39,16 @@ from plant.params import RiderParams, RobotParams, SimParams
 from plant.rider import Sine
 
 
-def paced(seconds: float, hz: float, work, fifo: bool, cpu: int | None):
+def paced(seconds: float, hz: float, work, fifo: bool, cpu: int | None, late_wakes: list | None = None):
+    """`work` every tick on the rig's clock; `late_wakes` gets each wake-up's lateness after its scheduled
+    start, µs."""
     clock = RealtimeClock(1.0 / hz, priority=50 if fifo else 0, cpu=cpu)
     clock.start()
     for _ in range(int(seconds * hz)):
         work()
         clock.wait_next()
+        if late_wakes is not None:
+            late_wakes.append((time.perf_counter() - clock._next) * 1e6)
     return clock.stats()
 
 
@@ -235,7 +239,8 @@ def full(args) -> None:
 
     # The machine's own stalls: the same clock with no work. On a shared VM a few wake-ups a minute come
     # late by a whole period or more, which no work in the loop can avoid.
-    idle = paced(min(args.seconds, 30.0), 400.0, lambda: None, False, None)
+    idle_wakes: list[float] = []
+    idle = paced(min(args.seconds, 30.0), 400.0, lambda: None, False, None, idle_wakes)
     scenario = msgspec.structs.replace(load_scenario(args.scenario), duration=args.seconds)
     bench = load_bench("processes" if args.processes or args.external else "embedded")
     controller = None
@@ -289,6 +294,15 @@ def full(args) -> None:
         "bench": bench.name,
         "probe_us": probe.report(1e6 * realtime.sync_allowance / args.hz) if probe is not None else None,
     }
+    if probe is not None:
+        # The machine's own share of late SYNCs: idle wake-ups later than the slack the rig's work leaves
+        # before SYNC is due (the allowance less the median wake-up to SYNC).
+        q = figures["probe_us"]
+        slack = 1e6 * realtime.sync_allowance / args.hz - (q["sync"]["p50"] - q["wake"]["p50"])
+        figures["idle_wakes_past_slack"] = {
+            "slack_us": slack,
+            "per_10k": 1e4 * sum(w > slack for w in idle_wakes) / max(len(idle_wakes), 1),
+        }
     if probe is not None and args.probe_rows is not None:
         import numpy as np
 
@@ -331,6 +345,13 @@ def full(args) -> None:
         for name, q in figures["probe_us"].items():
             if name in Probe.STAGES:
                 print(f"    {name:<50}" + "".join(f"{q[p]:8.0f}" for p in ("p50", "p99", "p99.9", "max")))
+        past = figures["idle_wakes_past_slack"]
+        late_syncs = tr.lateness.ticks
+        print(
+            f"  late SYNCs {1e4 * late_syncs / max(stats.ticks, 1):.1f} per 10k ticks; the idle loop's "
+            f"wake-ups later than the slack the rig's work leaves before SYNC is due "
+            f"({past['slack_us']:.0f} us): {past['per_10k']:.1f} per 10k ticks"
+        )
         pre = figures["probe_us"]["preempted_before_sync"]
         print(
             f"  the rig's thread preempted between its wake-up and SYNC: {pre['per_tick']:.2f} times a tick, "
