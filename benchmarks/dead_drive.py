@@ -26,6 +26,7 @@ import msgspec
 import mujoco
 import numpy as np
 
+from drivers.bounds import G0
 from drivers.config import load_toml
 from hil.run.truth_balancer import TruthBalancer
 from plant.ballbot import RiderIntent
@@ -36,7 +37,6 @@ from safety.config import RecoveryRules, RobotGeometry, SupervisorConfig
 from safety.recovery import IsolatedEstimator, RecoveryLaw
 
 ROOT = Path(__file__).resolve().parents[1]
-G0 = 9.80665
 
 
 @dataclass(frozen=True)

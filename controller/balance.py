@@ -18,7 +18,8 @@ import numpy as np
 
 from controller.config import SpeedPi
 from controller.estimator import PlaneState
-from controller.model import G0, PlaneModel
+from controller.model import PlaneModel
+from drivers.bounds import G0
 
 
 def equilibrium(

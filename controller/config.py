@@ -22,6 +22,8 @@ from drivers.bounds import (
     CountsPerRev,
     GearRatio,
     MotorSign,
+    NonNegative,
+    Positive,
     RiderHeight,
     RotorInertia,
     SeatHeight,
@@ -33,9 +35,6 @@ from drivers.bounds import (
     WheelRadius,
     ZenithDeg,
 )
-
-Positive = Annotated[float, msgspec.Meta(gt=0)]
-NonNegative = Annotated[float, msgspec.Meta(ge=0)]
 
 
 class _Lenient(msgspec.Struct, frozen=True, kw_only=True):

@@ -17,7 +17,8 @@ from controller.balance import PlaneBalancer, equilibrium
 from controller.command import CommandSpeed, YawCommand
 from controller.config import ControllerConfig, RiderInfo, RobotModel
 from controller.estimator import PITCH, ROLL, Estimate, Estimator
-from controller.model import G0, PlaneModel, lqr_gain, motor_jacobian, plane_model, seat_load_height
+from controller.model import PlaneModel, lqr_gain, motor_jacobian, plane_model, seat_load_height
+from drivers.bounds import G0
 from drivers.schemas import ScCommand
 
 PLANES = ("pitch", "roll")

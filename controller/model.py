@@ -16,8 +16,8 @@ import numpy as np
 import scipy.linalg
 
 from controller.config import Lqr, RobotModel
+from drivers.bounds import G0
 
-G0 = 9.80665
 RIDER_COM_ABOVE_HIP = 0.104  # × height
 RIDER_GYRATION = 0.19  # × height
 HIP_ABOVE_SEAT = 0.09

@@ -12,9 +12,16 @@ Declarations only: the one module of drivers/ the plant may import (tests/test_b
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Final, Literal
 
 from msgspec import Meta
+
+G0: Final = 9.80665
+"""m/s²: standard gravity (3rd CGPM, 1901), the one physical constant every package reads."""
+
+Positive = Annotated[float, Meta(gt=0)]
+"""A number whose only bound is its sign, where a file's field has no tighter bound of its own."""
+NonNegative = Annotated[float, Meta(ge=0)]
 
 MAX_DURATION = 86400.0
 """s: one day of simulated time bounds a run, a fault's start and its length (a run folder grows by ~0.5 MB

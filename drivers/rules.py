@@ -13,12 +13,9 @@ The reference supervisor's rules (safety/config.py) extend these sections, so ea
 
 from __future__ import annotations
 
-from typing import Annotated
-
 import msgspec
 
-Positive = Annotated[float, msgspec.Meta(gt=0)]
-NonNegative = Annotated[float, msgspec.Meta(ge=0)]
+from drivers.bounds import NonNegative, Positive
 
 
 class SpeedLimits(msgspec.Struct, frozen=True, kw_only=True):

@@ -14,11 +14,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from mypy_extensions import mypyc_attr
 
+from drivers.bounds import G0
 from plant.anthropometry import SeatedRider, composite, robot_body_segment, seat_rider, yaw_inertia
 from plant.drives import DriveArray
 from plant.omniwheel import motor_jacobian, wheel_inertia_equivalents
 from plant.params import RiderParams, RobotParams, SimParams
-from plant.plane import G0, STICK_TIME_CONSTANT, HipPolicy, PlaneDynamics, PlaneParams, Wrench
+from plant.plane import STICK_TIME_CONSTANT, HipPolicy, PlaneDynamics, PlaneParams, Wrench
 from plant.rider import LeanStyle, Profile, Segment, Step
 from plant.sensors import (
     DriveFeedback,

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.bounds import G0
 from plant.anthropometry import (
     LEG_COM,
     TRUNK_EXTENSION_DEG,
@@ -40,7 +41,6 @@ from plant.anthropometry import (
 )
 from plant.omniwheel import motor_jacobian, wheel_jacobian
 from plant.params import MujocoParams, RiderParams, RobotParams
-from plant.plane import G0
 
 FLOOR, BALL, CHASSIS, TORSO = "floor", "ball", "chassis", "torso"
 DRIVE_JOINT = "drive"

@@ -47,6 +47,7 @@ from drivers.bounds import (
     LeanDeg,
     LeanRateDeg,
     MotorSign,
+    Positive,
     ReactionTime,
     RiderHeight,
     RiderMass,
@@ -71,8 +72,6 @@ from drivers.bounds import (
     WordBits,
     ZenithDeg,
 )
-
-Positive = Annotated[float, msgspec.Meta(gt=0)]
 
 
 class _Record(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):

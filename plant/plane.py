@@ -31,9 +31,9 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from drivers.bounds import G0
 from plant.anthropometry import Composite
 
-G0 = 9.80665
 STICK_TIME_CONSTANT = 0.005
 """While stuck, residual ψ̇ inside the Karnopp band decays with this time constant, s."""
 

@@ -24,6 +24,8 @@ from drivers.bounds import (
     GearRatio,
     ImuHeight,
     MotorSign,
+    NonNegative,
+    Positive,
     SeatHeight,
     StreamTimeout,
     TopHeight,
@@ -32,7 +34,7 @@ from drivers.bounds import (
     WordBits,
     ZenithDeg,
 )
-from drivers.rules import MotionLimits, NonNegative, Positive, SpeedLimits, StopLimits
+from drivers.rules import MotionLimits, SpeedLimits, StopLimits
 
 Fraction = Annotated[float, msgspec.Meta(gt=0, le=1)]
 

@@ -21,6 +21,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from drivers.bounds import G0
 from drivers.can_bus import Received
 from drivers.can_codec import (
     DRIVE_COMMAND,
@@ -89,7 +90,6 @@ CONTRACT_STEP: dict[str, float] = {
 """Each IMU message's resolution in the contract (the DBC): rad, rad/s, m/s². A device profile may step
 coarser (xsens: 2^-7 deg, 2^-9 rad/s, 2^-8 m/s²); the stuck check takes each stream's step from its values."""
 MOVED = 3 * ATTITUDE_LSB
-G0 = 9.80665
 Signals = dict[str, float | int]
 """A trusted frame's decoded signals (Received.signals; a dict, not a Mapping: compiled, its look-ups are
 then the dict's own)."""

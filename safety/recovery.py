@@ -27,11 +27,11 @@ from typing import cast
 import numpy as np
 from scipy.linalg import solve_continuous_are
 
+from drivers.bounds import G0
 from drivers.can_codec import ENCODERS, TILT_INPUTS
 from safety.config import RecoveryRules, RobotGeometry
 from safety.diagnostics import YawCheck, body_frame, body_up, euler_rates, heading_frame, motor_jacobian
 
-G0 = 9.80665
 ATTITUDE_WINDOW = 40
 """Ticks (100 ms) over which the IMU point's acceleration is taken for the accelerometer's tilt."""
 ATTITUDE_VOTE = 0.05

@@ -308,3 +308,39 @@ def test_positive_control_an_upward_import_and_a_circle_are_seen():
         ["hil.faults.base", "hil.run.rig"],
         ["hil.suites.campaign", "hil.suites.cluster"],
     ]
+
+
+DECLARED_ONCE = ("G0", "Positive", "NonNegative")
+"""Names every package uses, declared in DECLARATIONS and nowhere else (issue 48: one name, declared once)."""
+
+
+def top_level_assignments(source: str, names: tuple[str, ...]) -> list[tuple[int, str]]:
+    """(line, name) of each module-level assignment to one of `names`."""
+    found = []
+    for node in ast.parse(source).body:
+        targets = (
+            node.targets
+            if isinstance(node, ast.Assign)
+            else [node.target]
+            if isinstance(node, ast.AnnAssign)
+            else []
+        )
+        found += [(node.lineno, t.id) for t in targets if isinstance(t, ast.Name) and t.id in names]
+    return found
+
+
+def test_shared_constants_and_bounds_are_declared_once():
+    home = ROOT / (DECLARATIONS.replace(".", "/") + ".py")
+    where = {
+        f"{path.relative_to(ROOT)}:{line} {name}"
+        for package in SOURCES
+        for path in modules(package)
+        for line, name in top_level_assignments(path.read_text(), DECLARED_ONCE)
+    }
+    assert {w.split(":")[0] for w in where} == {str(home.relative_to(ROOT))}, sorted(where)
+    assert len(where) == len(DECLARED_ONCE), sorted(where)
+
+
+def test_positive_control_a_second_declaration_is_seen():
+    source = "G0 = 9.81\nPositive: object = float\ndef f():\n    G0 = 1\n"
+    assert top_level_assignments(source, DECLARED_ONCE) == [(1, "G0"), (2, "Positive")]

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
+from drivers.bounds import G0
 from drivers.config import ConfigError, load_toml
 from hil.run.truth_balancer import TruthBalancer
 from plant.anthropometry import (
@@ -25,7 +26,6 @@ from plant.ballbot3d import Plant3D, euler_rates
 from plant.model3d import drive_inertia
 from plant.omniwheel import motor_jacobian
 from plant.params import RobotParams, SimParams
-from plant.plane import G0
 from plant.rider import Hold, Ramp, Sine
 from tests.helpers import NO_FRICTION, RIDER_75, ROOT, deg, robot, sim
 

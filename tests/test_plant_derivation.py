@@ -5,9 +5,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from drivers.bounds import G0
 from plant.ballbot import plane_params
 from plant.params import RiderParams, RobotParams
-from plant.plane import G0, PlaneDynamics, Wrench
+from plant.plane import PlaneDynamics, Wrench
 
 sp = pytest.importorskip("sympy")
 

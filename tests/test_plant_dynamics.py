@@ -6,11 +6,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from drivers.bounds import G0
 from hil.run.truth_balancer import TruthBalancer, linearise_plane
 from plant.anthropometry import composite, robot_body_segment, seat_rider
 from plant.ballbot import Plant, RiderIntent, plane_params
 from plant.params import Drive, RobotParams
-from plant.plane import G0, PlaneDynamics, Wrench
+from plant.plane import PlaneDynamics, Wrench
 from plant.rider import Hold, Profile, Ramp
 from plant.torso import TorsoController
 from tests.helpers import NO_FRICTION, RIDER_75, deg, robot, sim

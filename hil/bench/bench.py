@@ -17,6 +17,7 @@ from typing import Annotated, Literal
 
 import msgspec
 
+from drivers.bounds import Positive
 from drivers.bus_config import BusConfig
 from drivers.config import ConfigError, load_toml
 from drivers.devices import Devices
@@ -26,7 +27,6 @@ from drivers.zenoh_link import ZenohConfigError, check_endpoint
 from plant.params import PlantName
 
 Where = Literal["embedded", "spawned", "external"]
-Positive = Annotated[float, msgspec.Meta(gt=0)]
 
 
 class _Part(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):

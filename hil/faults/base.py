@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Annotated, Any, ClassVar, Literal, Protocol, c
 import msgspec
 import numpy as np
 
-from drivers.bounds import MAX_DURATION
+from drivers.bounds import MAX_DURATION, NonNegative, Positive
 from drivers.vocabulary import Cause, ReactionStateName
 
 if TYPE_CHECKING:
@@ -43,9 +43,6 @@ class FaultTarget(Protocol):
     supervisor: Supervisor | None
     """The supervisor when it runs in the rig's process (None elsewhere)."""
 
-
-NonNegative = Annotated[float, msgspec.Meta(ge=0)]
-Positive = Annotated[float, msgspec.Meta(gt=0)]
 
 Limit = Callable[[Any, "FaultTarget | None"], "tuple[float, str] | None"]
 """A bound that depends on the fault's other parameters or on the rig: (fault, rig or None) -> (the bound,

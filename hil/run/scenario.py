@@ -25,7 +25,6 @@ from plant.model3d import MAX_SINK, lowest_fall_geom, releasable_share
 from plant.params import RiderParams, RobotParams
 from plant.rider import LeanStyle, Segment, beyond_reach
 
-Positive = Annotated[float, msgspec.Meta(gt=0)]
 TickRate = Annotated[float, msgspec.Meta(gt=0, le=100_000)]
 Duration = Annotated[float, msgspec.Meta(gt=0, le=MAX_DURATION)]
 Seed = Annotated[int, msgspec.Meta(ge=0)]
