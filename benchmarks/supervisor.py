@@ -34,13 +34,14 @@ from drivers.can_bus import CanNode, open_bus, private_channel
 from drivers.config import load_toml
 from drivers.resources import find
 from drivers.schemas import EstopCommand, TesWrench
+from drivers.vocabulary import ControllerState
 from drivers.zenoh_link import ZenohLink, free_loopback_endpoint, open_session
 from hil.run.truth_balancer import TruthBalancer
 from plant.ballbot import Plant, RiderIntent
 from plant.params import RiderParams, RobotParams, SimParams
 from plant.rider import Ramp
 from safety.config import RobotGeometry, SupervisorConfig
-from safety.machine import BALANCING, FAULT, Supervisor
+from safety.machine import Supervisor
 from safety.monitors import Monitors
 from safety.recovery import RecoveryLaw
 
@@ -92,7 +93,7 @@ def recorded_ticks(n: int) -> list[tuple[list, TesWrench]]:
         msgs += [
             (f"DRIVE{i}_COMMAND", {"Torque": q, "Tick": k, "Enable": 1}) for i, q in enumerate(torques, 1)
         ]
-        msgs.append(("CONTROLLER_HEARTBEAT", {"State": BALANCING, "Mode": 0}))
+        msgs.append(("CONTROLLER_HEARTBEAT", {"State": ControllerState.BALANCING, "Mode": 0}))
         frames = [rx.decode(tx.message(name, values)) for name, values in msgs]
         seat = TesWrench(seq=k, stamp=plant.t, force=tes.force, moment=tes.moment, cop=tes.cop)
         out.append((frames, seat))
@@ -159,7 +160,7 @@ def reaction_latency(trips: int) -> None:
     thread = SupervisorThread(node).start()
     bus = open_bus(config)
     robot = CanNode(bus, name="robot")
-    state = {"heartbeat": BALANCING, "tripped_at": None, "permitted": True, "bus": True}
+    state = {"heartbeat": ControllerState.BALANCING, "tripped_at": None, "permitted": True, "bus": True}
     latencies: list[float] = []
     done = threading.Event()
     lock = threading.Lock()
@@ -181,7 +182,7 @@ def reaction_latency(trips: int) -> None:
             robot.send("IMU_RATE", {"RateX": 0.0, "RateY": 0.0, "RateZ": 0.0, "Valid": 1})
             with lock:
                 hb = state["heartbeat"]
-                if hb == FAULT and state["tripped_at"] is None:
+                if hb == ControllerState.FAULT and state["tripped_at"] is None:
                     state["tripped_at"] = time.perf_counter()
             robot.send("CONTROLLER_HEARTBEAT", {"State": hb, "Mode": 0})
             robot.send("SYNC", {"Tick": tick % 65536})
@@ -204,9 +205,9 @@ def reaction_latency(trips: int) -> None:
                 reacted = rx is not None and rx.name == "SUPERVISOR_ESTOP"
                 if reacted and (rx.signals["Estop"] or rx.signals["Takeover"]):
                     with lock:
-                        if state["tripped_at"] is not None and state["heartbeat"] == FAULT:
+                        if state["tripped_at"] is not None and state["heartbeat"] == ControllerState.FAULT:
                             latencies.append(time.perf_counter() - state["tripped_at"])
-                            state["heartbeat"] = BALANCING
+                            state["heartbeat"] = ControllerState.BALANCING
 
     t = threading.Thread(target=feeder, daemon=True)
     t.start()
@@ -214,10 +215,10 @@ def reaction_latency(trips: int) -> None:
     for n in range(trips):
         time.sleep(random.uniform(0.05, 0.15))
         with lock:
-            state["heartbeat"], state["tripped_at"] = FAULT, None
+            state["heartbeat"], state["tripped_at"] = ControllerState.FAULT, None
         while True:
             with lock:
-                if state["heartbeat"] == BALANCING:
+                if state["heartbeat"] == ControllerState.BALANCING:
                     break
             time.sleep(0.001)
         time.sleep(0.1)

@@ -20,18 +20,11 @@ from controller.estimator import PITCH, ROLL, Estimate, Estimator
 from controller.model import PlaneModel, lqr_gain, motor_jacobian, plane_model, seat_load_height
 from drivers.bounds import G0
 from drivers.schemas import ScCommand
+from drivers.vocabulary import ControllerState
 
 PLANES = ("pitch", "roll")
 YAW_RATE_GAIN = 20.0
 """Nm of ball yaw torque per rad/s of yaw-rate error."""
-
-
-class State(IntEnum):
-    INIT = 0
-    DISABLED = 1
-    PARKED = 2
-    BALANCING = 3
-    FAULT = 4
 
 
 class Fault(IntEnum):
@@ -59,7 +52,7 @@ class Output:
         self,
         motor_torque: tuple[float, float, float],
         enable: bool,
-        state: State,
+        state: ControllerState,
         fault: Fault,
         command_speed: tuple[float, float] = (0.0, 0.0),
         tilt_command: tuple[float, float] = (0.0, 0.0),
@@ -93,7 +86,7 @@ class Controller:
         hacs = config.hacs_for(rider.name)
         self.commands = (CommandSpeed(hacs, self.dt), CommandSpeed(hacs, self.dt))
         self.yaw = YawCommand(hacs, self.dt)
-        self.state = State.INIT
+        self.state = ControllerState.INIT
         self.fault = Fault.NONE
         self.enable_requested = False
         self.ever_stopped = False
@@ -126,20 +119,20 @@ class Controller:
         self, t: float, wrench: Wrench | None, wrench_age: float, sc: ScCommand | None, estop: bool
     ) -> Output:
         if estop:
-            if self.state is State.BALANCING:
+            if self.state is ControllerState.BALANCING:
                 self.ever_stopped = True
-            self.state, self.fault, self.enable_requested = State.DISABLED, Fault.ESTOP, False
+            self.state, self.fault, self.enable_requested = ControllerState.DISABLED, Fault.ESTOP, False
             return self._off()
         estimate = self.estimator.estimate(t)
         if estimate.fault is not None:
-            if self.state is State.BALANCING:
+            if self.state is ControllerState.BALANCING:
                 self.ever_stopped = True
-                self.state, self.fault = State.FAULT, Fault.SENSOR_TIMEOUT
+                self.state, self.fault = ControllerState.FAULT, Fault.SENSOR_TIMEOUT
             return self._off()
-        if self.state is not State.BALANCING:
+        if self.state is not ControllerState.BALANCING:
             if not (self.enable_requested or (self.config.auto_enable and not self.ever_stopped)):
-                if self.state is State.INIT:
-                    self.state = State.DISABLED
+                if self.state is ControllerState.INIT:
+                    self.state = ControllerState.DISABLED
                 return self._off()
             self._start(t, estimate)
 
@@ -191,7 +184,7 @@ class Controller:
         return Output((0.0, 0.0, 0.0), False, self.state, self.fault)
 
     def _start(self, t: float, estimate: Estimate) -> None:
-        self.state, self.fault, self.enable_requested = State.BALANCING, Fault.NONE, False
+        self.state, self.fault, self.enable_requested = ControllerState.BALANCING, Fault.NONE, False
         self.balancing_since = t
         for b, plane in zip(self.balancers, estimate.planes, strict=True):
             b.reset(plane.ball_rate)

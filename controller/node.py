@@ -16,12 +16,13 @@ import threading
 import time
 from typing import Any, Final
 
-from controller.core import Controller, Fault, Output, State, Wrench
+from controller.core import Controller, Fault, Output, Wrench
 from drivers.can_bus import CanNode, Received
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, PARTS, MessageName
 from drivers.contract import CONTRACT_VERSION
 from drivers.keys import Keys
 from drivers.schemas import TICK_MODULO, ControllerCommand, ControllerTelemetry, ScCommand, TesWrench
+from drivers.vocabulary import ControllerState, State
 from drivers.zenoh_link import Fence, Subscription, ZenohLink
 
 log = logging.getLogger(__name__)
@@ -114,7 +115,7 @@ class ControllerNode:
             self.supervisor_seen = t
             if int(s["Reason"]) in self._seat_flags:
                 self.seat_flagged = True
-            elif int(s["State"]) == 0:  # NORMAL again (a reset)
+            elif int(s["State"]) == State.NORMAL:  # a reset
                 self.seat_flagged = False
 
     def _time(self) -> float:
@@ -140,8 +141,8 @@ class ControllerNode:
             out = self.controller.step(t, wrench, age, sc, self.estop or self.stopped_alone)
         except Exception:  # a bug in the controller must fail safe (drives off), not kill the node
             log.exception("controller step failed at tick %d: drives disabled", self.tick)
-            self.controller.state, self.controller.fault = State.FAULT, Fault.INTERNAL
-            out = Output((0.0, 0.0, 0.0), False, State.FAULT, Fault.INTERNAL)
+            self.controller.state, self.controller.fault = ControllerState.FAULT, Fault.INTERNAL
+            out = Output((0.0, 0.0, 0.0), False, ControllerState.FAULT, Fault.INTERNAL)
         enable = int(out.enable)
         for motor, name in enumerate(DRIVE_COMMAND):
             self.can.send(name, {"Torque": out.motor_torque[motor], "Tick": raw_tick, "Enable": enable})
@@ -177,7 +178,7 @@ class ControllerNode:
         if self.supervisor_seen is None or t - self.supervisor_seen <= self._permission_timeout:
             self._still_since = None
             return False
-        if not self.stopped_alone and self.controller.state is State.BALANCING:
+        if not self.stopped_alone and self.controller.state is ControllerState.BALANCING:
             estimate = self.controller.estimator.estimate(t)
             pitch, roll = estimate.planes
             speed = self.controller.robot.ball.radius * math.hypot(pitch.ball_rate, roll.ball_rate)
@@ -217,7 +218,7 @@ class ControllerNode:
         declared, so a rig that starts on it finds them)."""
         mode = self.controller.config.mode
         boot = {
-            "State": int(State.INIT),
+            "State": int(ControllerState.INIT),
             "Mode": int(mode == "ihacs"),
             "FaultCode": 0,
             "Contract": CONTRACT_VERSION,

@@ -97,6 +97,9 @@ class SafetyState(Payload, frozen=True, kw_only=True):
     estop_by: Text = ""
     """Whose operator e-stop is latched ('' none): the source of the last e-stop or cut_power taken in,
     in any state, until a valid reset. An operator tool confirms its own e-stop by it."""
+    reset_refused: Text = ""
+    """Why the supervisor refused the reset it just took in ('' none: no reset, or taken). An operator tool
+    reads a refusal here; `reason` says it too, for people."""
 
 
 class EstopCommand(Payload, frozen=True, kw_only=True):

@@ -1,8 +1,9 @@
 """The supervisor's vocabulary on the wire, declared once: its states and causes (SUPERVISOR_ESTOP.State and
-.Reason, the CAN database's value tables that every controller and tool reads; tests/test_vocabulary.py checks
-they are exactly the DBC's), the names a SafetyState payload carries, the operator's stops and actions, and
-the events a supervisor reports. Any supervisor, the controller and the rig speak it; safety/ is one
-supervisor that does."""
+.Reason) and the controller's heartbeat states it acts on (CONTROLLER_HEARTBEAT.State): the CAN database's
+value tables that every controller and tool reads (tests/test_vocabulary.py checks they are exactly the
+DBC's); the names a SafetyState payload carries, the operator's stops and actions, and the events a
+supervisor reports. Any supervisor, the controller and the rig speak it; safety/ is one supervisor that
+does."""
 
 from __future__ import annotations
 
@@ -21,6 +22,16 @@ class State(IntEnum):
     RECOVERY = 4
     """The supervisor's own recovery law holds the drives (Takeover) and brings the robot to rest; then
     ESTOP at rest. Latched: the controller gets the drives back only through ESTOP and a reset."""
+
+
+class ControllerState(IntEnum):
+    """CONTROLLER_HEARTBEAT.State: what the controller says it is doing (docs/contract.md)."""
+
+    INIT = 0
+    DISABLED = 1
+    PARKED = 2
+    BALANCING = 3
+    FAULT = 4
 
 
 class Cause(IntEnum):

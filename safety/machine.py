@@ -39,7 +39,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from drivers.schemas import ScCommand, ScRequest
-from drivers.vocabulary import Cause, Event, State
+from drivers.vocabulary import Cause, ControllerState, Event, State
 from safety.config import SupervisorConfig
 
 CONTROLLED = frozenset(
@@ -106,8 +106,6 @@ FINDINGS = (
 makes its cross-checks disagree, a drive fault makes its torque mismatch."""
 
 STREAMS = ("drives", "imu", "heartbeat", "wrench", "sc")
-BALANCING, FAULT = 3, 4
-"""CONTROLLER_HEARTBEAT.State values the supervisor acts on."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -329,7 +327,7 @@ class Supervisor:
                 f"drive {tripped}'s command watchdog tripped and the heartbeat is "
                 f"{heartbeat_age * 1e3:.1f} ms old: the controller is silent"
             )
-        if obs.controller_state == FAULT:
+        if obs.controller_state == ControllerState.FAULT:
             return Cause.CONTROLLER_FAULT, ""
         if silent(ages, "drives", w.drives, armed):
             return Cause.DRIVES_SILENT, ""
@@ -396,7 +394,7 @@ class Supervisor:
 
     def _stop(self, cause: Cause, detail: str, obs: Observation) -> None:
         """A controlled stop if the controller is balancing on inputs it can trust; else the recovery law."""
-        healthy = obs.controller_state == BALANCING and obs.speed is not None
+        healthy = obs.controller_state == ControllerState.BALANCING and obs.speed is not None
         if healthy and cause not in TAKEOVER_CAUSES:
             self._enter(State.STOPPING, cause, obs, detail)
         else:
@@ -580,7 +578,7 @@ class Supervisor:
         for stream, timeout in timeouts.items():
             if obs.ages.get(stream, math.inf) > timeout:
                 return f"{stream} silent"
-        if obs.controller_state == FAULT:
+        if obs.controller_state == ControllerState.FAULT:
             return "controller reports a fault"
         if obs.e2e_errors >= c.integrity.e2e_max_errors:
             return "E2E errors above the limit"

@@ -223,6 +223,7 @@ class SupervisorNode:
                     cap=d.cap,
                     since=max(d.since, 0.0),
                     estop_by=d.estop_by,
+                    reset_refused=refused,
                 ),
             )
             self._state_sent = t

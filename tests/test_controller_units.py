@@ -8,11 +8,12 @@ import pytest
 from controller.balance import equilibrium
 from controller.command import CommandSpeed, deadband
 from controller.config import ControllerConfig, Hacs, Lqr, RiderInfo, RiderProfile, RobotModel
-from controller.core import Controller, Fault, State, Wrench
+from controller.core import Controller, Fault, Wrench
 from controller.estimator import Estimator
 from controller.model import lqr_gain, motor_jacobian, plane_model
 from drivers.config import load_toml
 from drivers.schemas import ScCommand
+from drivers.vocabulary import ControllerState
 from plant.ballbot import Plant, plane_params
 from plant.params import RobotParams
 from tests.helpers import RIDER_75, ROOT, sim
@@ -231,15 +232,15 @@ def test_sc_idle_and_limit():
 
 def test_estop_disables_and_reset_does_not_re_enable():
     c = Controller(ControllerConfig(), ROBOT, RiderInfo())
-    assert run_ticks(c, 0, 10).state is State.BALANCING
+    assert run_ticks(c, 0, 10).state is ControllerState.BALANCING
     out = run_ticks(c, 10, 5, estop=True)
-    assert (out.state, out.enable, out.motor_torque) == (State.DISABLED, False, (0.0, 0.0, 0.0))
+    assert (out.state, out.enable, out.motor_torque) == (ControllerState.DISABLED, False, (0.0, 0.0, 0.0))
     assert out.fault is Fault.ESTOP
     out = run_ticks(c, 15, 50)  # e-stop released (reset): permitted, not caused
-    assert out.state is State.DISABLED and not out.enable
+    assert out.state is ControllerState.DISABLED and not out.enable
     c.request_enable()
     out = run_ticks(c, 65, 1)
-    assert out.state is State.BALANCING and out.enable
+    assert out.state is ControllerState.BALANCING and out.enable
 
 
 def test_sensor_silence_faults_and_holds_the_drives_off():
@@ -248,9 +249,9 @@ def test_sensor_silence_faults_and_holds_the_drives_off():
     out = c.step(
         0.1, SEATED, 0.0, ScCommand(seq=0, stamp=0.1, mode="free", speed_cap=0.0, source="supervisor"), False
     )  # no frames for 75 ms
-    assert (out.state, out.fault, out.enable) == (State.FAULT, Fault.SENSOR_TIMEOUT, False)
+    assert (out.state, out.fault, out.enable) == (ControllerState.FAULT, Fault.SENSOR_TIMEOUT, False)
     out = run_ticks(c, 41, 10)  # sensors back: still down until an explicit enable
-    assert out.state is State.FAULT and not out.enable
+    assert out.state is ControllerState.FAULT and not out.enable
 
 
 def test_ihacs_weighs_the_rider_and_personalises_gains():

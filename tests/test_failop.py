@@ -13,13 +13,12 @@ import pytest
 
 from drivers.can_codec import Catalog, MessageName
 from drivers.config import load_toml
-from drivers.vocabulary import Cause, State
+from drivers.vocabulary import Cause, ControllerState, State
 from hil import pipeline
 from hil.faults import parse_fault
 from hil.run.scenario import Scenario
 from safety.config import RobotGeometry, SupervisorConfig
 from safety.machine import (
-    BALANCING,
     CUT_POWER,
     IMMEDIATE,
     TAKEOVER_CAUSES,
@@ -328,7 +327,7 @@ def test_a_controller_that_balances_at_standstill_on_healthy_inputs_is_never_tak
     tr = run(BRAKING, [], tmp_path)
     assert tr.stats.recovery_commands == 0 and tr.stats.overridden_commands == 0
     assert not any(e.to_state == "RECOVERY" for e in tr.safety_events)
-    assert BALANCING in tr.stats.controller_states
+    assert ControllerState.BALANCING in tr.stats.controller_states
 
 
 # ------------------------------------------------------------------------------------------ isolation

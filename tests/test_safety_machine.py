@@ -11,13 +11,11 @@ from hypothesis import strategies as st
 
 from drivers.config import load_toml
 from drivers.schemas import ScRequest
-from drivers.vocabulary import Cause, State
+from drivers.vocabulary import Cause, ControllerState, State
 from safety.config import SupervisorConfig
 from safety.machine import (
-    BALANCING,
     CONTROLLED,
     CUT_POWER,
-    FAULT,
     FINDINGS,
     IMMEDIATE,
     STREAMS,
@@ -47,7 +45,7 @@ CONFIRM = CFG.drives.confirm
 
 
 def obs(t=1.0, speed=0.0, tilt=0.0, ages=None, **kw) -> Observation:
-    kw.setdefault("controller_state", BALANCING)
+    kw.setdefault("controller_state", ControllerState.BALANCING)
     kw.setdefault("seat_load", 600.0)
     kw.setdefault("request", FREE)
     kw.setdefault("drives", OFF3)
@@ -129,7 +127,7 @@ def test_requests_are_forwarded_clamped_to_the_cap(request_, expected):
 # ----------------------------------------------------------------------------------- immediate causes
 IMMEDIATE_CASES = {
     Cause.HEARTBEAT_LOST: dict(ages={"heartbeat": CFG.watchdogs.heartbeat + DT}),
-    Cause.CONTROLLER_FAULT: dict(controller_state=FAULT),
+    Cause.CONTROLLER_FAULT: dict(controller_state=ControllerState.FAULT),
     Cause.DRIVES_SILENT: dict(ages={"drives": CFG.watchdogs.drives + DT}),
     Cause.IMU_SILENT: dict(ages={"imu": CFG.watchdogs.imu + DT}),
     Cause.TILT: dict(tilt=math.radians(CFG.motion.tilt_limit_deg) + 1e-3),
@@ -475,7 +473,7 @@ UNSAFE_FOR_RESET = {
     "imu silent": dict(ages={"imu": 1.0}),
     "heartbeat silent": dict(ages={"heartbeat": 1.0}),
     "wrench silent": dict(ages={"wrench": 1.0}),
-    "controller fault": dict(controller_state=FAULT),
+    "controller fault": dict(controller_state=ControllerState.FAULT),
     "bus errors": dict(e2e_errors=CFG.integrity.e2e_max_errors),
     "a drive still on": dict(drives=drives(1, enabled=True)),
     "a sensor check failing": dict(findings=(Finding(Cause.SENSOR_DISAGREE, "yaw"),)),

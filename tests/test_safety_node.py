@@ -11,11 +11,11 @@ import pytest
 from drivers.bus_config import BusConfig
 from drivers.can_bus import CanNode, open_bus, private_channel
 from drivers.schemas import EstopCommand, ScCommand, ScRequest, TesWrench
+from drivers.vocabulary import ControllerState
 from drivers.zenoh_link import ZenohLink, open_session
 from hil.bench.rigs import HUB_VARIABLE, announce
 from hil.cli import main
 from safety.config import SupervisorConfig, Watchdogs
-from safety.machine import BALANCING
 from safety.node import SupervisorNode, SupervisorThread
 from tests.helpers import wait_for
 from tests.zenoh_helpers import hub_endpoint, wait_matching
@@ -55,7 +55,7 @@ class StandInRobot:
             send("IMU_ATTITUDE", {"Roll": 0.0, "Pitch": 0.0, "Yaw": 0.0, "Valid": 1})
             send("IMU_RATE", {"RateX": 0.0, "RateY": 0.0, "RateZ": 0.0, "Valid": 1})
             if self.heartbeat:
-                send("CONTROLLER_HEARTBEAT", {"State": BALANCING, "Mode": 0, "FaultCode": 0})
+                send("CONTROLLER_HEARTBEAT", {"State": ControllerState.BALANCING, "Mode": 0, "FaultCode": 0})
             send("SYNC", {"Tick": tick % 65536})
             self.link.put(
                 self.link.keys.tes_wrench,
@@ -167,7 +167,9 @@ def test_reset_refused_while_the_controller_is_silent(bench, capsys):
     assert wait_for(lambda: node.machine.cause.name == "HEARTBEAT_LOST", 2.0)
     assert robot.frames and wait_for(lambda: robot.frames[-1][1]["Estop"] == 1, 1.0)
     assert main(["estop", "--reset", "--hub", endpoint]) == 1
-    assert "reset refused: heartbeat silent" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    # The refusal is the state's typed field (SafetyState.reset_refused), answered at once, not a timeout.
+    assert "reset refused: heartbeat silent" in out and "nothing confirmed" not in out, out
     robot.heartbeat = True
     time.sleep(0.2)
     assert main(["estop", "--reset", "--hub", endpoint]) == 0

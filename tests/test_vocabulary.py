@@ -10,7 +10,7 @@ import pytest
 
 from drivers.can_codec import Catalog, MessageName
 from drivers.schemas import ScCommand, ScMode, ScRequest
-from drivers.vocabulary import Cause, OperatorCommand, ReactionStateName, State, StateName
+from drivers.vocabulary import Cause, ControllerState, OperatorCommand, ReactionStateName, State, StateName
 
 ROOT = Path(__file__).resolve().parents[1]
 SOURCES = ("hil", "plant", "drivers", "safety", "controller", "examples", "benchmarks")
@@ -30,14 +30,21 @@ FILE_FORMATS = {
 sent."""
 
 
-def _value_table(signal: str) -> dict[str, int]:
-    choices = Catalog()[MessageName.SUPERVISOR_ESTOP].message.get_signal_by_name(signal).choices or {}
+def _value_table(signal: str, message: str = MessageName.SUPERVISOR_ESTOP) -> dict[str, int]:
+    choices = Catalog()[message].message.get_signal_by_name(signal).choices or {}
     return {str(name): int(value) for value, name in choices.items()}
 
 
-@pytest.mark.parametrize(("enum", "signal"), [(State, "State"), (Cause, "Reason")])
-def test_states_and_causes_are_exactly_the_dbcs_value_tables(enum, signal):
-    assert {m.name: m.value for m in enum} == _value_table(signal)
+@pytest.mark.parametrize(
+    ("enum", "signal", "message"),
+    [
+        (State, "State", MessageName.SUPERVISOR_ESTOP),
+        (Cause, "Reason", MessageName.SUPERVISOR_ESTOP),
+        (ControllerState, "State", MessageName.CONTROLLER_HEARTBEAT),
+    ],
+)
+def test_states_and_causes_are_exactly_the_dbcs_value_tables(enum, signal, message):
+    assert {m.name: m.value for m in enum} == _value_table(signal, message)
 
 
 def test_state_names_are_states():

@@ -39,6 +39,6 @@ def command(link: ZenohLink, action: OperatorCommand, source: str, timeout: floa
             last = state
             if action != "reset" and state.estop_by == source:
                 return Answer(heard=True, confirmed=True, state=state)
-            if action == "reset" and (state.state == "NORMAL" or "reset refused" in state.reason):
+            if action == "reset" and (state.state == "NORMAL" or state.reset_refused):
                 return Answer(heard=True, confirmed=state.state == "NORMAL", state=state)
     return Answer(heard=True, confirmed=False, state=last)

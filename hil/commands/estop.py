@@ -53,7 +53,7 @@ def handle(args: argparse.Namespace) -> int:
             "it ends in ESTOP and waits for a reset"
         )
         return 0
-    refused = answer.state is not None and "reset refused" in answer.state.reason
+    refused = answer.state is not None and bool(answer.state.reset_refused)
     if action == "reset" and (answer.confirmed or refused):
         print(f"pure-hil estop: reset by {source} on {rig}: {answer.seen()}")
         return 0 if answer.confirmed else 1

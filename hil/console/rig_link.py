@@ -315,7 +315,7 @@ class RigLink:
             with self._lock:
                 self.latch.reset()
             self._publish_latch()
-        if answer.confirmed or (answer.state is not None and "reset refused" in answer.state.reason):
+        if answer.confirmed or (answer.state is not None and answer.state.reset_refused):
             return {
                 "ok": answer.confirmed,
                 "action": action,
