@@ -520,10 +520,16 @@ class Responder:
 
 
 class PermittedRig(Rig):
-    """No supervisor here: permission is not the subject."""
+    """No supervisor here: permission is not the subject. Keeps what drive 1 held under each tick's step."""
 
     def apply_permission(self):
         pass
+
+    def _sample(self):
+        # Right after the step: the command it ran under (the answer to the previous SYNC may come in at the
+        # end of a tick or as the next one starts; either way it holds for the next step).
+        self.held_in_step.append((self.plant.tick - 1, self.plant.drives.motors[0].command))
+        return super()._sample()
 
 
 def applied_commands(session, fault, ticks=80):
@@ -531,20 +537,18 @@ def applied_commands(session, fault, ticks=80):
     import time
 
     bench = Bench(session, [fault] if fault else [], rig=PermittedRig)
+    bench.rig.held_in_step = []
     responder = Responder(bench)
     bench.plant.drives.set_permission(True)
-    out = []
     try:
         for _ in range(ticks + 1):
-            # Real time: the commands of tick k are taken in as tick k + 1 starts, before its step.
+            # Real time: the commands of tick k are taken in by the time tick k + 1 steps.
             bench.rig.tick(deadline=time.monotonic() + 1.0, lockstep=False)
-            if bench.plant.tick > 1:
-                out.append((bench.plant.tick - 1, bench.plant.drives.motors[0].command))
             responder.wait_answer(bench.plant.tick)
     finally:
         responder.close()
         bench.close()
-    return out
+    return [(k, c) for k, c in bench.rig.held_in_step if k >= 1]
 
 
 def test_loop_delay_hands_each_command_to_the_drives_that_much_later(session):
