@@ -41,7 +41,7 @@ from plant.ballbot import Plant, RiderIntent
 from plant.params import RiderParams, RobotParams, SimParams
 from plant.rider import Ramp
 from safety.config import RobotGeometry, SupervisorConfig
-from safety.machine import Supervisor
+from safety.machine import SafetyMachine
 from safety.monitors import Monitors
 from safety.recovery import RecoveryLaw
 
@@ -109,7 +109,7 @@ def decision_cost(ticks: int) -> None:
     law = RecoveryLaw(geometry, config.recovery)
     best = dict.fromkeys(stages, float("inf"))
     for _ in range(5):
-        monitors, machine = Monitors(config, geometry), Supervisor(config, robot.drive.torque_limit)
+        monitors, machine = Monitors(config, geometry), SafetyMachine(config, robot.drive.torque_limit)
         for stage in stages:
             stages[stage] = 0.0
         for k, (frames, seat) in enumerate(recorded, 1):

@@ -236,7 +236,7 @@ def silent(ages: Mapping[str, float], stream: str, timeout: float, armed: bool) 
     return age > timeout and (armed or age != math.inf)
 
 
-class Supervisor:
+class SafetyMachine:
     def __init__(
         self,
         config: SupervisorConfig | None = None,

@@ -40,7 +40,7 @@ from drivers.schemas import (
 from drivers.vocabulary import OPERATOR_ACTIONS_KEPT, Cause, Event, OperatorRecord, State, StateName
 from drivers.zenoh_link import Fence, ZenohLink
 from safety.config import RobotGeometry, SupervisorConfig
-from safety.machine import Decision, Observation, Supervisor
+from safety.machine import Decision, Observation, SafetyMachine
 from safety.monitors import Monitors
 from safety.recovery import RecoveryLaw
 
@@ -65,7 +65,7 @@ class SupervisorNode:
         self.config = config = config or SupervisorConfig()
         robot = robot or RobotGeometry()
         self.can, self.link, self.keys = can, link, link.keys
-        self.machine = Supervisor(
+        self.machine = SafetyMachine(
             config, robot.drive.torque_limit, robot.drive.watchdog_timeout, stage_read_back=stage_read_back
         )
         self.monitors = Monitors(config, robot, tick_hz)

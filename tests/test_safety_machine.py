@@ -23,7 +23,7 @@ from safety.machine import (
     DriveReport,
     Finding,
     Observation,
-    Supervisor,
+    SafetyMachine,
 )
 
 
@@ -59,13 +59,13 @@ def drives(i: int, **report) -> tuple[DriveReport, ...]:
     )
 
 
-def supervisor(config=CFG, request=FREE) -> Supervisor:
-    s = Supervisor(config, LIMIT)
+def supervisor(config=CFG, request=FREE) -> SafetyMachine:
+    s = SafetyMachine(config, LIMIT)
     s.update(obs(t=0.0, request=request))
     return s
 
 
-def hold(s: Supervisor, start: float, duration: float, **kw):
+def hold(s: SafetyMachine, start: float, duration: float, **kw):
     """Observations every tick from `start` for `duration` s; returns the last decision and the end time."""
     t, d = start, None
     while t <= start + duration + 1e-9:
@@ -74,12 +74,12 @@ def hold(s: Supervisor, start: float, duration: float, **kw):
     return d, t
 
 
-def to_stopping(s: Supervisor, speed=1.0) -> None:
+def to_stopping(s: SafetyMachine, speed=1.0) -> None:
     s.update(obs(t=1.0, speed=speed, operator="estop"))
     assert s.state is State.STOPPING
 
 
-def to_estop(s: Supervisor) -> None:
+def to_estop(s: SafetyMachine) -> None:
     s.update(obs(t=1.0, ages={"heartbeat": 1.0}))
     assert (s.state, s.cause) == (State.ESTOP, Cause.HEARTBEAT_LOST)
 
@@ -96,7 +96,7 @@ def test_every_cause_has_a_stop_category_or_is_not_a_stop():
 
 # ------------------------------------------------------------------------------------------- NORMAL
 def test_starts_normal_and_permits_the_drives():
-    d = Supervisor(CFG, LIMIT).update(obs(t=0.0))
+    d = SafetyMachine(CFG, LIMIT).update(obs(t=0.0))
     assert (d.state, d.cause, d.drives_permitted, d.cap) == (
         State.NORMAL,
         Cause.NONE,
@@ -282,7 +282,7 @@ def test_drives_that_cannot_confirm_their_stage_off_get_the_contactor_opened_on_
     both paths act on every e-stop (docs/safety.md "The second shutdown path")."""
     cut = tuple(DriveReport(enabled=False, bus_powered=False) for _ in range(3))
     for read_back in (False, True):
-        s = Supervisor(CFG, LIMIT, stage_read_back=read_back)
+        s = SafetyMachine(CFG, LIMIT, stage_read_back=read_back)
         s.update(obs(t=0.0))
         to_estop(s)
         assert s.update(obs(t=1.0 + CONFIRM - DT)).contactor_closed, "within the bound"
@@ -387,7 +387,7 @@ def test_limiting_that_never_gets_under_the_cap_stops():
 
 
 def test_silent_sc_agent_lowers_the_cap_until_it_speaks_again():
-    s = Supervisor(CFG, LIMIT)
+    s = SafetyMachine(CFG, LIMIT)
     s.update(obs(t=0.0, ages={"sc": math.inf}, request=None))
     assert s.update(obs(ages={"sc": math.inf}, request=None)).state is State.NORMAL, "never heard: no agent"
     s.update(obs(t=1.0, ages={"sc": 0.0}))
@@ -508,7 +508,7 @@ def test_reset_outside_estop_does_nothing():
 
 # --------------------------------------------------------------------------------------------- start
 def test_never_heard_streams_are_faults_only_after_the_grace():
-    s = Supervisor(CFG, LIMIT)
+    s = SafetyMachine(CFG, LIMIT)
     never = dict(
         ages=dict.fromkeys(STREAMS, math.inf), speed=None, tilt=None, controller_state=None, request=None
     )
@@ -582,7 +582,7 @@ steps = st.lists(
 @settings(max_examples=300, deadline=None)
 @given(steps, st.booleans())
 def test_properties_over_any_observation_sequence(sequence, stage_read_back):
-    s = Supervisor(CFG, LIMIT, stage_read_back=stage_read_back)
+    s = SafetyMachine(CFG, LIMIT, stage_read_back=stage_read_back)
     t = 0.0
     closed, taken, latched = True, False, ""
     for step in sequence:
