@@ -87,6 +87,8 @@ RUNNING_STATES = frozenset({"NORMAL", "LIMITING"})
 """State's names, as SafetyState.state carries them (tests/test_vocabulary.py checks they are State's)."""
 
 OperatorCommand = Literal["estop", "cut_power", "reset"]
+STOP_COMMANDS: frozenset[OperatorCommand] = frozenset({"estop", "cut_power"})
+"""The operator's commands that stop the robot (a reset permits motion again; it stops nothing)."""
 """What an operator asks of the supervisor (pure/safety/estop's `action`): stop, stop with power cut at once
 (category 0), or reset. A wired button's press is an `estop`."""
 
@@ -105,9 +107,14 @@ class OperatorRecord:
     supervisor was in when it came (before it acted on it)."""
 
     t: float
-    action: str
+    action: OperatorCommand
     source: str
     supervisor_state: str
+
+
+EventKind = Literal["transition", "reset_refused", "contactor_opened"]
+"""What a supervisor's event is: a change of state, a refused reset, or the main contactor opened by the rule
+for drives that cannot confirm their power stage off (opened by DRIVE_NOT_DISABLED it is a transition)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -115,9 +122,7 @@ class Event:
     """A transition or a refused reset, with the values that decided it."""
 
     t: float
-    kind: str
-    """'transition', 'reset_refused' or 'contactor_opened' (the rule for drives that cannot confirm their
-    power stage off; opened by DRIVE_NOT_DISABLED it is a transition)."""
+    kind: EventKind
     from_state: str
     to_state: str
     cause: str

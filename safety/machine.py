@@ -39,7 +39,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from drivers.schemas import ScCommand, ScRequest
-from drivers.vocabulary import Cause, ControllerState, Event, State
+from drivers.vocabulary import Cause, ControllerState, Event, EventKind, State
 from safety.config import SupervisorConfig
 
 CONTROLLED = frozenset(
@@ -611,7 +611,9 @@ class SafetyMachine:
             self._over_since = None
         self._log(obs, "transition", previous, previous_cause, detail)
 
-    def _log(self, obs: Observation, kind: str, previous: State, previous_cause: Cause, detail: str) -> None:
+    def _log(
+        self, obs: Observation, kind: EventKind, previous: State, previous_cause: Cause, detail: str
+    ) -> None:
         self.events.append(
             Event(
                 obs.t,

@@ -37,7 +37,15 @@ from drivers.schemas import (
     TesWrench,
     encode,
 )
-from drivers.vocabulary import OPERATOR_ACTIONS_KEPT, Cause, Event, OperatorRecord, State, StateName
+from drivers.vocabulary import (
+    OPERATOR_ACTIONS_KEPT,
+    Cause,
+    Event,
+    OperatorCommand,
+    OperatorRecord,
+    State,
+    StateName,
+)
 from drivers.zenoh_link import Fence, ZenohLink
 from safety.config import RobotGeometry, SupervisorConfig
 from safety.machine import Decision, Observation, SafetyMachine
@@ -136,7 +144,7 @@ class SupervisorNode:
             if self._button:
                 self._operator_action(t, "estop", BUTTON)
 
-    def _operator_action(self, t: float, action: str, source: str) -> None:
+    def _operator_action(self, t: float, action: OperatorCommand, source: str) -> None:
         if len(self.operator_actions) >= OPERATOR_ACTIONS_KEPT:
             self.operator_actions_dropped += 1
             return

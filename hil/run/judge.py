@@ -9,7 +9,7 @@ import math
 from dataclasses import dataclass, field
 
 from drivers.rules import JudgedRules
-from drivers.vocabulary import OPERATOR_STOPS, RUNNING_STATES, State
+from drivers.vocabulary import OPERATOR_STOPS, RUNNING_STATES, STOP_COMMANDS, State
 from hil.run.fault_verdicts import fault_verdicts
 from hil.run.lateness import REACTION_AFTER
 from hil.run.measurements import MEASUREMENTS, measure, summary_metrics, unavailable
@@ -23,8 +23,6 @@ SCRIPTED_WITHIN = 0.5
 another process takes it in on its own clock)."""
 STOPS = frozenset({"STOPPING", "RECOVERY", "ESTOP"})
 """States a stop is in."""
-STOP_ACTIONS = frozenset({"estop", "cut_power"})
-"""Operator actions that stop the robot (a reset permits motion again, it stops nothing)."""
 SUPERVISOR_LOST = "SUPERVISOR_LOST"
 """The stop of a supervisor gone silent: the drives lose their permission with nobody deciding it."""
 EXIT_CODES = {"PASSED": 0, "FAILED": 1, "ESTOPPED": 3, "INCONCLUSIVE": 4, "STOPPED": 130}
@@ -86,7 +84,7 @@ class RunResult:
         as the supervisor took it in, whatever its state, or as a stop it entered for an operator's cause
         (a wired button beside a supervisor in another process)."""
         for action in self.operator_actions():
-            if action["action"] in STOP_ACTIONS and not action["scheduled"]:
+            if action["action"] in STOP_COMMANDS and not action["scheduled"]:
                 return action["t"]
         scripted = [e.at for e in self.scenario.operator if e.action == "estop"]
         for event in self.trace.safety_events:
