@@ -169,6 +169,24 @@ TorqueLimit = Annotated[
         "tens of Nm at most",
     ),
 ]
+StallTorque = Annotated[
+    float,
+    Meta(
+        gt=0.0,
+        le=200.0,
+        description="Nm at the motor's shaft at standstill on the full bus voltage (k_t V / R), at least the "
+        "torque limit; PURE's estimate 16.3",
+    ),
+]
+NoLoadSpeed = Annotated[
+    float,
+    Meta(
+        ge=10.0,
+        le=327.0,
+        description="rad/s at the motor's shaft where its back-EMF equals the bus voltage (V / k_e); at most "
+        "327: DRIVEn_FEEDBACK.Velocity carries ±327.67 rad/s (a faster motor needs a new contract scaling)",
+    ),
+]
 CurrentLoopTau = Annotated[
     float, Meta(ge=1e-5, le=0.05, description="s; a drive's current loop closes in 0.05-5 ms")
 ]

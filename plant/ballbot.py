@@ -376,8 +376,9 @@ class Plant(PlantCore):
         held = self.clamped or self.resting
         pitch, roll = self.planes
         g, h, x = self._g, self.h, self.x
+        _, speeds = self.motor_angles_and_rates()  # as the tick starts: the drives' torque-speed line
         for i in range(self.sim.substeps):
-            motor = self.drives.advance(h, self.t + (i + 1) * h)
+            motor = self.drives.advance(h, self.t + (i + 1) * h, speeds)
             self.ball_torque = tau = (
                 g[0][0] * motor[0] + g[1][0] * motor[1] + g[2][0] * motor[2],
                 g[0][1] * motor[0] + g[1][1] * motor[1] + g[2][1] * motor[2],

@@ -246,7 +246,7 @@ class Plant3D(PlantCore):
         self._rider_decides()
         self._update_rest()
         m, d = self.model, self.data
-        motor = self.drives.advance(self.dt, self.t + self.dt)
+        motor = self.drives.advance(self.dt, self.t + self.dt, self._motor_rates)
         ctrl = self._ctrl
         ctrl[self._motor_1] = motor[0]
         ctrl[self._motor_2] = motor[1]

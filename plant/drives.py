@@ -1,5 +1,5 @@
-"""Motor drives: torque command -> current-loop lag -> torque limit, with enable and a command watchdog;
-and the main contactor in their power feed.
+"""Motor drives: torque command -> torque limit and the motor's torque-speed line -> current-loop lag, with
+enable and a command watchdog; and the main contactor in their power feed.
 
 Two ways to remove torque, as two-channel stops are built (IEC 60204-1, ISO 13849): each drive's own
 power stage (disabled by its enable, its watchdog or the loss of the supervisor's permission: safe torque
@@ -12,6 +12,7 @@ ratio and direction live in the omniwheel map.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -58,8 +59,22 @@ class MotorDrive:
         self.last_command_time = now
         self.state = DriveState.ENABLED if enable or self.stuck_enabled else DriveState.DISABLED
 
-    def advance(self, dt: float, now: float) -> float:
-        """Advance the current loop by dt ending at `now`; returns the torque held over the interval."""
+    def available(self, torque: float, speed: float) -> float:
+        """`torque` (within the current limit) as the motor can make it at `speed` (rad/s, its shaft).
+        Driving (torque and speed of one sign) the back-EMF k_e·ω leaves V - k_e·ω for the current: at most
+        stall_torque (1 - |ω| / no_load_speed), none at the top speed, and past it the current reverses (a
+        brake, within the current limit). Braking, the back-EMF helps the supply: the current limit holds."""
+        if torque * speed <= 0.0:
+            return torque
+        p = self.params
+        most = max(p.stall_torque * (1.0 - abs(speed) / p.no_load_speed), -p.torque_limit)
+        if abs(torque) <= most:
+            return torque
+        return most if torque > 0.0 else -most  # a negative `most` is a brake against the motion
+
+    def advance(self, dt: float, now: float, speed: float = 0.0) -> float:
+        """Advance the current loop by dt ending at `now`, the motor turning at `speed` (rad/s) as it starts;
+        returns the torque held over the interval."""
         if self.stuck_enabled:
             self.state = DriveState.ENABLED
         elif self.state is DriveState.ENABLED and now - self.last_command_time > self.params.watchdog_timeout:
@@ -69,7 +84,7 @@ class MotorDrive:
             self.torque = 0.0
             return 0.0
         limit = self.params.torque_limit
-        target = min(max(self.command * self.gain, -limit), limit)
+        target = self.available(min(max(self.command * self.gain, -limit), limit), speed)
         start = self.torque
         decay = math.exp(-dt / self.params.current_loop_tau)
         self.torque = target + (start - target) * decay
@@ -104,9 +119,10 @@ class DriveArray:
         for m, t in zip(self.motors, torques, strict=True):
             m.set_command(t, enable, now)
 
-    def advance(self, dt: float, now: float) -> tuple[float, float, float]:
+    def advance(self, dt: float, now: float, speeds: Sequence[float]) -> tuple[float, float, float]:
+        """The three drives over dt ending at `now`, their motors turning at `speeds` (rad/s) as it starts."""
         a, b, c = self.motors
-        return a.advance(dt, now), b.advance(dt, now), c.advance(dt, now)
+        return a.advance(dt, now, speeds[0]), b.advance(dt, now, speeds[1]), c.advance(dt, now, speeds[2])
 
     def set_permission(self, permitted: bool) -> None:
         for m in self.motors:

@@ -47,6 +47,7 @@ from drivers.bounds import (
     LeanDeg,
     LeanRateDeg,
     MotorSign,
+    NoLoadSpeed,
     Positive,
     ReactionTime,
     RiderHeight,
@@ -56,6 +57,7 @@ from drivers.bounds import (
     SeatHeight,
     SensorRateHz,
     SpinFriction,
+    StallTorque,
     StickVelocity,
     StreamTimeout,
     SupervisorLostGrace,
@@ -149,7 +151,12 @@ class Drivetrain(_Record, frozen=True):
 
 class Drive(_Record, frozen=True):
     torque_limit: TorqueLimit = 3.75
-    """Motor-shaft torque limit, Nm (× gear ratio at the wheel)."""
+    """Motor-shaft torque limit, Nm (× gear ratio at the wheel): the drive's current limit."""
+    stall_torque: StallTorque = 16.3
+    no_load_speed: NoLoadSpeed = 282.0
+    """The motor's top speed: driving (torque and speed of one sign), the torque available falls from
+    `stall_torque` at rest to 0 at `no_load_speed`, the back-EMF taking the bus voltage; braking, the whole
+    `torque_limit` (plant/drives.py, docs/physics.md "The drives")."""
     current_loop_tau: CurrentLoopTau = 0.0005
     """First-order lag of the torque (current) loop, s."""
     watchdog_timeout: StreamTimeout = 0.02
@@ -167,6 +174,13 @@ class Drive(_Record, frozen=True):
     """1σ of the measured-torque feedback, Nm."""
     velocity_noise: VelocityNoise = 0.05
     """1σ of the motor velocity feedback, rad/s."""
+
+    def __post_init__(self) -> None:
+        if self.stall_torque < self.torque_limit:
+            raise ValueError(
+                f"stall_torque = {self.stall_torque} Nm is below torque_limit = {self.torque_limit} Nm: the "
+                "current limit could never be reached (stall_torque must be at least torque_limit)"
+            )
 
 
 class Friction(_Record, frozen=True):

@@ -24,9 +24,11 @@ from drivers.bounds import (
     GearRatio,
     ImuHeight,
     MotorSign,
+    NoLoadSpeed,
     NonNegative,
     Positive,
     SeatHeight,
+    StallTorque,
     StreamTimeout,
     TopHeight,
     TorqueLimit,
@@ -85,6 +87,10 @@ class Drivetrain(_Lenient, frozen=True):
 
 class DriveLimits(_Lenient, frozen=True):
     torque_limit: TorqueLimit = 3.75
+    stall_torque: StallTorque = 16.3
+    no_load_speed: NoLoadSpeed = 282.0
+    """The motor's torque-speed line: a drive near its top speed makes less than it is told, and is not
+    faulty for it (safety/diagnostics.py TorqueCheck)."""
     watchdog_timeout: StreamTimeout = 0.02
     """The drives' own command watchdog, s (for the root-cause rule: it trips before the heartbeat's)."""
 

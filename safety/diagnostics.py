@@ -318,17 +318,42 @@ class TorqueCheck(Check):
 
     cause: ClassVar[Cause] = Cause.ACTUATOR_MISMATCH
 
-    def __init__(self, index: int, tolerance: float, relative: float, samples: int, limit: float):
+    def __init__(
+        self,
+        index: int,
+        tolerance: float,
+        relative: float,
+        samples: int,
+        limit: float,
+        stall: float = math.inf,
+        top_speed: float = math.inf,
+    ):
+        """limit: the drive's current limit; stall, top_speed: its motor's torque-speed line (Nm, rad/s)."""
         super().__init__(f"drive {index} torque", (f"Drive{index}",))
         self.tolerance, self.relative, self.samples, self.limit = tolerance, relative, samples, limit
+        self.stall, self.top_speed = stall, top_speed
         self.over = 0
 
-    def sample(self, measured: float, commanded: float | None, producing: bool) -> Finding | None:
+    def expected(self, commanded: float, speed: float) -> float:
+        """What a healthy drive makes of `commanded` at `speed` (rad/s): within its current limit and,
+        driving, below its motor's line (stall at rest, none at the top speed, a brake past it: the
+        back-EMF; plant/drives.py)."""
+        torque = min(max(commanded, -self.limit), self.limit)
+        if torque * speed > 0.0:
+            most = max(self.stall * (1.0 - abs(speed) / self.top_speed), -self.limit)
+            if abs(torque) > most:
+                torque = most if torque > 0.0 else -most  # negative: a brake against the motion
+        return torque
+
+    def sample(
+        self, measured: float, commanded: float | None, producing: bool, speed: float = 0.0
+    ) -> Finding | None:
         """`commanded`: the torque the drive was last told (None: not yet); `producing`: it reports itself
-        enabled on a live bus, and that command asked it to enable (else it must make none)."""
+        enabled on a live bus, and that command asked it to enable (else it must make none); `speed`: its
+        motor's reported velocity, rad/s."""
         if commanded is None:
             return None
-        expected = min(max(commanded, -self.limit), self.limit) if producing else 0.0
+        expected = self.expected(commanded, speed) if producing else 0.0
         bound = self.tolerance + self.relative * abs(expected)
         self.over = self.over + 1 if self.exceeds(measured - expected, bound) else 0
         if self.over < self.samples:

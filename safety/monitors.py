@@ -109,6 +109,8 @@ class Drive:
             rules.torque_relative,
             rules.torque_samples,
             robot.drive.torque_limit,
+            robot.drive.stall_torque,
+            robot.drive.no_load_speed,
         )
         self.stuck = Stuck(sensors.stuck_samples, 3 * self.rad_per_count)
         self.velocity = 0.0
@@ -154,7 +156,7 @@ class Drive:
     def measured(self, torque: float) -> None:
         producing = self.enabled and self.bus_powered and self.command is not None and self.command[1]
         commanded = None if self.command is None else self.command[0]
-        self.findings["torque"] = self.torque.sample(torque, commanded, producing)
+        self.findings["torque"] = self.torque.sample(torque, commanded, producing, self.velocity)
 
     def dead_to_the_law(self, t: float, held: bool, confirm: float) -> bool:
         """Held by the recovery law (`held`), the drive has reported itself off, its watchdog tripped or

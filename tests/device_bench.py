@@ -42,7 +42,7 @@ class DevicesOnABench:
     def _tick(self) -> None:
         self.k += 1
         self.t += TICK
-        self.drives.advance(TICK, self.t)
+        self.drives.advance(TICK, self.t, (0.0, 0.0, 0.0))  # a bench with the wheels held
         for name, m in zip(DRIVE_FEEDBACK, self.drives.motors, strict=True):
             self.node.send(
                 name,

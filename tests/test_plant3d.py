@@ -618,6 +618,8 @@ def test_runs_are_deterministic():
         ("[drivetrain]\nwheel_radius = 0.2\n[ball]\nradius = 0.05\n", "ball.radius"),
         ("[friction]\nrolling_viscous = -1.0\n", "$.friction.rolling_viscous"),
         ("[ball]\nfloor_friction = 0.0\n", "$.ball.floor_friction"),
+        ("[drive]\nstall_torque = 2.0\n", "$.drive"),  # below the current limit: never reached
+        ("[drive]\nno_load_speed = 400.0\n", "$.drive.no_load_speed"),  # beyond the wire's ±327.67
     ],
 )
 def test_an_impossible_robot_is_refused_naming_the_field(tmp_path, text, field):
@@ -647,3 +649,53 @@ def test_both_plants_place_the_bodies_alike():
         np.testing.assert_allclose(a[body][0], b[body][0], atol=1e-3)  # the soft contact's sink
         np.testing.assert_allclose(a[body][1], b[body][1], atol=1e-9)
     assert {"ball", "chassis", "torso", "thigh_left", "shank_right"} <= set(a)
+
+
+# ------------------------------------------------------------------------------- the drives' top speed
+def spin_up(drive, seconds=3.0):
+    """The chassis held in the air, no friction anywhere, every drive told its whole current limit one way:
+    the three motor speeds every tick. With nothing to turn against, a motor stops accelerating only where
+    its back-EMF takes the whole bus voltage: at its no-load speed, from below."""
+    plant = plant3d(robot(friction=NO_FRICTION, drive=drive), rider=None)
+    m, d = plant.model, plant.data
+    d.qpos[2] += 0.3
+    mujoco.mj_forward(m, d)
+    plant._hold()
+    d.eq_active[plant._holds[0]] = 0  # only the chassis
+    speeds = []
+    for _ in range(int(seconds * 400)):
+        plant.drives.set_commands((drive.torque_limit,) * 3, True, plant.t)
+        plant.step()
+        speeds.append(plant.motor_angles_and_rates()[1])
+    return np.array(speeds)
+
+
+def test_a_motor_with_nothing_to_turn_against_stops_at_its_no_load_speed():
+    drive = RobotParams().drive
+    top = drive.no_load_speed
+    speeds = spin_up(drive)
+    assert speeds.max() <= top * (1 + 1e-3), "past the speed its back-EMF allows only by a tick's step"
+    assert np.all(np.abs(speeds[-1] / top - 1.0) < 1e-3), speeds[-1]
+    # Below the corner the current limit rules (the stall torque is above it): the speed rises by equal
+    # steps; past it by ever smaller ones (the line), the last of them nothing.
+    corner = top * (1.0 - drive.torque_limit / drive.stall_torque)
+    steps = np.diff(speeds[:, 0])
+    below = steps[1 : int(np.argmax(speeds[:, 0] > corner)) - 1]
+    assert len(below) >= 3 and np.ptp(below) < 0.01 * below.mean(), below
+    assert np.ptp(speeds[-40:, 0]) < 1e-3 * top
+    # Positive control: a motor whose line lies beyond the wire's range keeps accelerating past it.
+    fast = msgspec.structs.replace(drive, stall_torque=1000.0, no_load_speed=327.0)
+    assert spin_up(fast, seconds=3.0)[-1].min() > 1.05 * top
+
+
+def test_braking_keeps_the_whole_current_limit_at_the_top_speed():
+    from plant.drives import MotorDrive
+
+    drive = MotorDrive(RobotParams().drive)
+    top, limit = drive.params.no_load_speed, drive.params.torque_limit
+    assert 0.0 < drive.available(limit, 0.999 * top) < 0.01 * limit, "driving: almost nothing left"
+    assert drive.available(limit, 1.01 * top) < 0.0, "past the top speed the current reverses: a brake"
+    assert drive.available(limit, 2.0 * top) == -limit, "within the current limit"
+    assert drive.available(-limit, 0.999 * top) == -limit, "braking: the back-EMF helps the bus"
+    assert drive.available(limit, -top) == limit and drive.available(-limit, -0.5 * top) == -limit
+    assert drive.available(-limit, -0.9 * top) == pytest.approx(-0.1 * drive.params.stall_torque)

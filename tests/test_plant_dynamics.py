@@ -258,11 +258,11 @@ def test_torque_limit_and_current_lag():
     drive = Drive(torque_limit=3.0, current_loop_tau=0.001, watchdog_timeout=0.02)
     plant = Plant(robot(drive=drive), None, sim(fixture="clamped"))
     plant.drives.set_commands((10.0, -10.0, 1.0), True, 0.0)
-    plant.drives.advance(0.001, 0.001)
+    plant.drives.advance(0.001, 0.001, (0.0, 0.0, 0.0))
     # One time constant: 63 % of the limited setpoint.
     assert plant.drives.torques[0] == pytest.approx(3.0 * (1 - math.exp(-1.0)), rel=1e-9)
     for k in range(2, 11):
-        held = plant.drives.advance(0.001, k * 0.001)
+        held = plant.drives.advance(0.001, k * 0.001, (0.0, 0.0, 0.0))
     assert plant.drives.torques[0] <= 3.0 and plant.drives.torques[0] == pytest.approx(3.0, rel=1e-3)
     assert held[1] == pytest.approx(-3.0, rel=1e-3) and held[2] == pytest.approx(1.0, rel=1e-3)
 

@@ -290,6 +290,26 @@ def test_measured_torque_must_follow_the_command():
     assert found[2].parts == ("Drive1",)
 
 
+def test_a_drive_at_its_top_speed_makes_less_than_it_is_told_and_is_not_named_for_it():
+    """Near its no-load speed a motor's back-EMF leaves less torque than commanded (plant/drives.py): a
+    physical limit, not a fault. The check expects what the motor's line allows at the reported speed."""
+    from plant.drives import MotorDrive
+    from plant.params import RobotParams
+
+    params = RobotParams().drive
+    plant_drive = MotorDrive(params)
+    check = TorqueCheck(1, 0.15, 0.1, 3, params.torque_limit, params.stall_torque, params.no_load_speed)
+    for speed in np.linspace(-1.2 * params.no_load_speed, 1.2 * params.no_load_speed, 41):
+        for told in (-params.torque_limit, -1.0, 0.5, params.torque_limit):
+            made = plant_drive.available(told, speed)
+            assert [check.sample(made, told, True, speed) for _ in range(4)] == [None] * 4, (speed, told)
+    # Positive control: the same shortfall at rest is a drive that fails to follow.
+    top = 0.98 * params.no_load_speed
+    made = plant_drive.available(params.torque_limit, top)
+    found = [check.sample(made, params.torque_limit, True, 0.0) for _ in range(3)]
+    assert found[2] is not None and found[2].cause is Cause.ACTUATOR_MISMATCH
+
+
 # --------------------------------------------------------------------------------------------- seat
 def seated(check, n=400, load=600.0, **kw):
     return [
