@@ -113,7 +113,8 @@ class Drive:
             robot.drive.no_load_speed,
         )
         self.stuck = Stuck(sensors.stuck_samples, 3 * self.rad_per_count)
-        self.velocity = 0.0
+        self.velocity = self.velocity_before = 0.0
+        """rad/s: the motor's last two reported velocities."""
         self.counts: int | None = None
         self.seen = -math.inf
         self.enabled = self.watchdog = self.fault = False
@@ -130,6 +131,7 @@ class Drive:
         if t - self.seen > 8 * self.period + 1e-9:
             self.encoder.reset()  # a gap the window must not span
         moved = 0.0 if self.counts is None else abs(counts - self.counts) * self.rad_per_count
+        self.velocity_before = self.velocity
         self.velocity, self.counts, self.seen = float(s["Velocity"]), counts, t
         self.enabled, self.watchdog = bool(s["Enabled"]), bool(s["WatchdogTripped"])
         self.fault, self.bus_powered = bool(s["Fault"]), bool(s["BusPowered"])
@@ -156,7 +158,9 @@ class Drive:
     def measured(self, torque: float) -> None:
         producing = self.enabled and self.bus_powered and self.command is not None and self.command[1]
         commanded = None if self.command is None else self.command[0]
-        self.findings["torque"] = self.torque.sample(torque, commanded, producing, self.velocity)
+        self.findings["torque"] = self.torque.sample(
+            torque, commanded, producing, self.velocity, self.velocity_before
+        )
 
     def dead_to_the_law(self, t: float, held: bool, confirm: float) -> bool:
         """Held by the recovery law (`held`), the drive has reported itself off, its watchdog tripped or

@@ -303,6 +303,14 @@ def test_a_drive_at_its_top_speed_makes_less_than_it_is_told_and_is_not_named_fo
         for told in (-params.torque_limit, -1.0, 0.5, params.torque_limit):
             made = plant_drive.available(told, speed)
             assert [check.sample(made, told, True, speed) for _ in range(4)] == [None] * 4, (speed, told)
+    # Spinning up, the drive set its torque at the speed the tick began with, and reports the next one.
+    fresh = TorqueCheck(3, 0.15, 0.1, 3, params.torque_limit, params.stall_torque, params.no_load_speed)
+    before, now = 241.0, 249.5
+    made = plant_drive.available(params.torque_limit, before)
+    assert [fresh.sample(made, params.torque_limit, True, now, before) for _ in range(4)] == [None] * 4
+    alone = TorqueCheck(3, 0.15, 0.1, 3, params.torque_limit, params.stall_torque, params.no_load_speed)
+    named = [alone.sample(made, params.torque_limit, True, now) for _ in range(3)][-1]
+    assert named is not None, "judged at the reported speed alone, a healthy drive spinning up was named"
     # Positive control: the same shortfall at rest is a drive that fails to follow.
     top = 0.98 * params.no_load_speed
     made = plant_drive.available(params.torque_limit, top)
