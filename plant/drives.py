@@ -72,7 +72,7 @@ class MotorDrive:
             return torque
         return most if torque > 0.0 else -most  # a negative `most` is a brake against the motion
 
-    def advance(self, dt: float, now: float, speed: float = 0.0) -> float:
+    def advance(self, dt: float, now: float, speed: float) -> float:
         """Advance the current loop by dt ending at `now`, the motor turning at `speed` (rad/s) as it starts;
         returns the torque held over the interval."""
         if self.stuck_enabled:

@@ -156,7 +156,7 @@ class Drive(_Record, frozen=True):
     no_load_speed: NoLoadSpeed = 282.0
     """The motor's top speed: driving (torque and speed of one sign), the torque available falls from
     `stall_torque` at rest to 0 at `no_load_speed`, the back-EMF taking the bus voltage; braking, the whole
-    `torque_limit` (plant/drives.py, docs/physics.md "The drives")."""
+    `torque_limit` (plant/drives.py, docs/physics.md §3.6)."""
     current_loop_tau: CurrentLoopTau = 0.0005
     """First-order lag of the torque (current) loop, s."""
     watchdog_timeout: StreamTimeout = 0.02
