@@ -46,8 +46,11 @@ COMPILED = [
     "controller/command.py",
     "controller/core.py",
     "controller/node.py",
-    # The rig's tick (hil/run/rig.py: Rig allows Python subclasses, which tests and the benchmark use).
+    # The rig's tick and its drives' port (Rig and DrivesPort allow Python subclasses, which tests and the
+    # benchmarks use).
     "hil/run/rig.py",
+    "hil/run/drives_port.py",
+    "hil/run/agents.py",
     # The plant: its tick and outputs, drives, rider's torso, planar dynamics, sensors and wheel maps (Plant
     # and MotorDrive allow Python subclasses, which benchmarks/lockstep.py and tests/test_failop.py use:
     # @mypyc_attr). Not plant/rider.py: msgspec does not see the class keywords (tag=..., frozen=True)

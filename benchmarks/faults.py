@@ -27,7 +27,8 @@ from drivers.keys import Keys
 from drivers.resources import find
 from drivers.zenoh_link import LOOPBACK, ZenohLink, free_loopback_endpoint, open_session
 from hil.faults import FaultSet, parse_fault
-from hil.run.rig import Rig
+from hil.run.drives_port import DrivesPort
+from hil.run.rig import Rig, RigParts
 from hil.suites.campaign import expand, load_campaign, run_campaign
 from plant.ballbot import Plant
 from plant.params import RiderParams, RobotParams, SimParams
@@ -47,7 +48,8 @@ def tick_cost(session, faults, ticks: int) -> float:
     plant = Plant(robot, rider, SimParams(seed=0))
     bus = open_bus(BusConfig(channel=private_channel()))
     link = ZenohLink(session, Keys(private_channel("bench").replace("-", "")))
-    rig = Rig(plant, CanNode(bus, name="rig"), link, faults=FaultSet([parse_fault(f) for f in faults]))
+    port = DrivesPort(plant, CanNode(bus, name="rig"))
+    rig = Rig(RigParts(port, link, faults=FaultSet([parse_fault(f) for f in faults])))
     rig.faults.attach(rig)
     try:
         for _ in range(50):

@@ -56,9 +56,8 @@ STAGES = {
     "_sample": "sample the sensors (drives, IMU, seat)",
     "_send_sensors": "7 frames out (drives, IMU)",
     "_publish_tes": "seat wrench -> zenoh",
-    "_publish_sc_request": "SC request -> zenoh",
     "controller": "controller (driven: frames, step, out)",
-    "_collect_commands": "collect the controller's answer",
+    "port.collect": "collect the controller's answer",
     "_supervise": "supervisor (frames, decide, emit)",
 }
 RIG_STAGES = tuple(name for name in STAGES if name.startswith("_"))
@@ -184,6 +183,9 @@ def instrument(totals: dict[str, float]) -> None:
         "TimedRig", (rig,), {name: timed(totals, name, getattr(rig, name)) for name in RIG_STAGES}
     )
     build_module.Rig = timed_rig
+    port = build_module.DrivesPort
+    collect = timed(totals, "port.collect", port.collect)
+    build_module.DrivesPort = type("TimedPort", (port,), {"collect": collect})
 
     def timed_plant(robot, rider, sim, intent=None, initial_tilt=(0.0, 0.0)):
         if sim.plant == "3d":

@@ -117,10 +117,11 @@ class AnonymousMemory:
 
 class Probe:
     """Where a real-time tick's time goes, tick by tick (--probe): each stage's end after the tick's
-    scheduled start. wake: the clock's wake-up; taken: the last tick's commands taken in (hil/run/rig.py
-    `_close_tick`); sampled: the plant stepped and its sensors sampled; frames: the sensors' CAN frames sent;
-    sync: SYNC sent; published: the tick's zenoh puts (after SYNC in real time); answered: a driven
-    controller has answered (the rig expects the next commands); supervised: the supervisor's part done;
+    scheduled start. wake: the clock's wake-up; taken: the last tick's commands taken in
+    (hil/run/drives_port.py `close_tick`); sampled: the plant stepped and its sensors sampled; frames: the
+    sensors' CAN frames sent; sync: SYNC sent; published: the tick's zenoh puts (after SYNC in real time);
+    answered: a driven controller has answered (the rig expects the next commands); supervised: the
+    supervisor's part done;
     done: the loop's own work done, before it sleeps. Beside them, how often the scheduler took the core
     from the rig's thread between its wake-up and SYNC (involuntary switches, getrusage). From a Rig and a
     clock subclassed by the build (a compiled Rig cannot be patched)."""
@@ -140,7 +141,7 @@ class Probe:
 
         probe = self
         clock = loop_module.RealtimeClock
-        rig = build_module.Rig
+        rig, port = build_module.Rig, build_module.DrivesPort
 
         class ProbedClock(clock):
             def start(self):
@@ -165,20 +166,24 @@ class Probe:
 
         def expect(self, *a, **kw):
             probe.row("answered")
-            return rig._expect(self, *a, **kw)
+            return port.expect(self, *a, **kw)
 
         class ProbedRig(rig):
             pass
 
-        ProbedRig._close_tick = after("taken", rig._close_tick)
+        class ProbedPort(port):
+            pass
+
+        ProbedPort.close_tick = after("taken", port.close_tick)
+        ProbedPort.expect = expect
         ProbedRig._sample = after("sampled", rig._sample)
         ProbedRig._send_sensors = after("frames", rig._send_sensors)
         ProbedRig._send_sync = after("sync", rig._send_sync)
         ProbedRig._publish_tes = after("published", rig._publish_tes)
-        ProbedRig._expect = expect
         ProbedRig._supervise = after("supervised", rig._supervise)
         loop_module.RealtimeClock = ProbedClock
         build_module.Rig = ProbedRig
+        build_module.DrivesPort = ProbedPort
 
     def row(self, stage: str) -> None:
         now = (time.perf_counter() - self.scheduled) * 1e6

@@ -163,11 +163,11 @@ class LiveStream:
 
     def _rig(self, rig, t: float, sample: dict) -> None:
         """The rig's side: its view of the supervisor, the controller's heartbeats, missed commands."""
-        if sample["supervisor"] is None and rig.safety_state >= 0:
-            sample["supervisor"] = State(rig.safety_state).name
+        if sample["supervisor"] is None and rig.port.safety_state >= 0:
+            sample["supervisor"] = State(rig.port.safety_state).name
         if self._heartbeat_names is None:
             self._heartbeat_names = rig.can.catalog[MessageName.CONTROLLER_HEARTBEAT].values("State")
-        beats = rig.stats.controller_states
+        beats = rig.port.stats.controller_states
         new = beats - self._beats  # the states heard since the last sample
         if t > self._beat_t:
             self._beat_rate = sum(new.values()) / (t - self._beat_t)
@@ -178,7 +178,7 @@ class LiveStream:
         self._beats = Counter(beats)
         sample["heartbeat_hz"] = round(self._beat_rate, 1)
         sample["controller"] = self._beat_state if self._beat_rate > 0 else "SILENT"
-        sample["missing_commands"] = rig.stats.missing_commands
+        sample["missing_commands"] = rig.port.stats.missing_commands
         supervisor = rig.supervisor
         if supervisor is not None:
             events = supervisor.events

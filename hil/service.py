@@ -16,7 +16,7 @@
 Every reply is JSON with "ok" and either the result or an "error" that says what was wrong, with
 "refused": true when the request itself is wrong (a bad file, parameter or fault number: a client exits 2;
 a file's bytes are the one exception: raw, with the JSON in the attachment; its errors are error replies).
-`stop` ends a run at its next tick, also under any fault (no wait for a frame outlasts hil/run/rig.py
+`stop` ends a run at its next tick, also under any fault (no wait for a frame outlasts hil/run/drives_port.py
 STOP_POLL); `close()` waits until its folder is written. Queryable
 callbacks only validate and hand over; runs happen on a worker thread, so zenoh's threads never block.
 Every run is written to the output folder's history (hil/history.py) as it begins and ends.

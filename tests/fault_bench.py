@@ -13,7 +13,8 @@ from drivers.keys import Keys
 from drivers.schemas import ScRequest, TesWrench
 from drivers.zenoh_link import ZenohLink
 from hil.faults import FaultSet, parse_fault
-from hil.run.rig import Rig
+from hil.run.drives_port import DrivesPort
+from hil.run.rig import Rig, RigParts
 from plant.ballbot import Plant
 from plant.params import RiderParams, RobotParams, SimParams
 from tests.helpers import ROOT, wait_for
@@ -24,15 +25,25 @@ DT = 1.0 / 400
 
 
 class Bench:
-    def __init__(self, session, faults=(), seed: int = 0, prefix: str | None = None, rig: type[Rig] = Rig):
-        """rig: the Rig or a test's subclass of it (the compiled build's Rig cannot be patched)."""
+    def __init__(
+        self,
+        session,
+        faults=(),
+        seed: int = 0,
+        prefix: str | None = None,
+        rig: type[Rig] = Rig,
+        port: type[DrivesPort] = DrivesPort,
+    ):
+        """rig, port: the Rig and its DrivesPort or a test's subclasses (the compiled build's cannot be
+        patched)."""
         self.plant = Plant(ROBOT, RIDER, SimParams(seed=seed))
         self.bus_config = config = BusConfig(channel=private_channel())
         self.bus, self.listen_bus = open_bus(config), open_bus(config)
         self.listener = CanNode(self.listen_bus, name="listener")
         self.link = ZenohLink(session, Keys(prefix or private_channel("bench").replace("-", "")))
         specs = [parse_fault(f) if isinstance(f, dict) else f for f in faults]
-        self.rig = rig(self.plant, CanNode(self.bus, name="rig"), self.link, faults=FaultSet(specs, seed))
+        drives = port(self.plant, CanNode(self.bus, name="rig"))
+        self.rig = rig(RigParts(drives, self.link, faults=FaultSet(specs, seed)))
         self.rig.faults.attach(self.rig)
         keys = self.link.keys
         self.tes = self.link.subscribe(keys.tes_wrench, TesWrench, capacity=1 << 14)

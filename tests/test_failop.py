@@ -407,7 +407,7 @@ def test_the_drives_never_follow_two_masters_in_one_tick(tmp_path, monkeypatch):
     # goes on commanding (a wheel that lies): before the announcement only the controller's, from it on
     # only the recovery law's (the controller's are counted and dropped), never both in one tick after it.
     from hil.run import build
-    from hil.run.rig import Rig
+    from hil.run.drives_port import DrivesPort
     from plant.drives import MotorDrive
 
     applied: list[tuple[int, str, bool]] = []
@@ -415,11 +415,11 @@ def test_the_drives_never_follow_two_masters_in_one_tick(tmp_path, monkeypatch):
 
     class WatchedDrive(MotorDrive):  # a subclass: the compiled build's MotorDrive cannot be patched
         def set_command(self, torque, enable, now):
-            rig = sender["rig"]
-            applied.append((rig.plant.tick, sender["who"], rig.takeover))
+            port = sender["port"]
+            applied.append((port.plant.tick, sender["who"], port.takeover))
             super().set_command(torque, enable, now)
 
-    class WatchedRig(Rig):  # a subclass: the compiled build's Rig cannot be patched
+    class WatchedPort(DrivesPort):  # a subclass: the compiled build's DrivesPort cannot be patched
         def __init__(self, plant, *args, **kwargs):
             drives = plant.drives
             drives.motors = tuple(
@@ -428,15 +428,11 @@ def test_the_drives_never_follow_two_masters_in_one_tick(tmp_path, monkeypatch):
             )
             super().__init__(plant, *args, **kwargs)
 
-        def _command(self, drive, torque, enable):
-            sender.update(rig=self, who="controller")
-            super()._command(drive, torque, enable)
+        def _drive(self, index, torque, enable, recovery=False):
+            sender.update(port=self, who="recovery" if recovery else "controller")
+            super()._drive(index, torque, enable, recovery)
 
-        def _recover(self, signals):
-            sender.update(rig=self, who="recovery")
-            super()._recover(signals)
-
-    monkeypatch.setattr(build, "Rig", WatchedRig)
+    monkeypatch.setattr(build, "DrivesPort", WatchedPort)
     flip = [{"kind": "sensor.sign_flip", "channel": "drive2.velocity", "at": 4.0}]
     tr = run(BRAKING, flip, tmp_path, duration=5.0)
     assert tr.stats.overridden_commands > 0, "the controller went on commanding during the takeover"

@@ -13,6 +13,7 @@ from drivers.e2e import E2EStatus
 from drivers.zenoh_link import LOOPBACK, open_session
 from hil.faults import CATALOG, FAMILIES, parse_fault
 from hil.faults.frames import RX_MESSAGES
+from hil.run.drives_port import DrivesPort
 from hil.run.rig import Rig
 from tests.fault_bench import DT, Bench
 from tests.zenoh_helpers import hub_endpoint
@@ -519,11 +520,15 @@ class Responder:
         self.node.bus.shutdown()
 
 
-class PermittedRig(Rig):
-    """No supervisor here: permission is not the subject. Keeps what drive 1 held under each tick's step."""
+class PermittedPort(DrivesPort):
+    """No supervisor here: permission is not the subject."""
 
     def apply_permission(self):
         pass
+
+
+class PermittedRig(Rig):
+    """Keeps what drive 1 held under each tick's step."""
 
     def _sample(self):
         # Right after the step: the command it ran under (the answer to the previous SYNC may come in at the
@@ -536,7 +541,7 @@ def applied_commands(session, fault, ticks=80):
     """(tick, the torque drive 1 holds after it) with a responder that answers every tick."""
     import time
 
-    bench = Bench(session, [fault] if fault else [], rig=PermittedRig)
+    bench = Bench(session, [fault] if fault else [], rig=PermittedRig, port=PermittedPort)
     bench.rig.held_in_step = []
     responder = Responder(bench)
     bench.plant.drives.set_permission(True)

@@ -4,9 +4,9 @@ and the verdict it leads to, on synthetic traces (every branch, no timing)."""
 
 from __future__ import annotations
 
+from hil.run.drives_port import TickStats
 from hil.run.judge import EXIT_CODES
 from hil.run.lateness import TAIL_TICKS, WINDOWS_KEPT, Lateness
-from hil.run.rig import TickStats
 from hil.run.scenario import Criterion
 from tests.test_verdicts import judged, stop, trace
 
@@ -120,12 +120,13 @@ def held_run(monkeypatch, *, hold: bool, silent: range = HELD):
     import hil.run.build as build_module
     from hil.pipeline import load_scenario, run
     from hil.run.build import RunOptions
+    from hil.run.drives_port import DrivesPort
     from hil.run.rig import Rig
     from tests.zenoh_helpers import private_bench
 
     class HeldRig(Rig):
-        def __init__(self, *args, **kwargs):
-            super().__init__(*args, **kwargs)
+        def __init__(self, parts):
+            super().__init__(parts)
             self.poll_dut = None  # the controller answers from its own thread
 
         def _send_sensors(self, k, *args):
@@ -135,11 +136,13 @@ def held_run(monkeypatch, *, hold: bool, silent: range = HELD):
                     time.sleep(HOLD)  # the rig's own work made long: its SYNC goes out late
             super()._send_sensors(k, *args)
 
-        def _close_tick(self, take_queued=True):
-            super()._close_tick(take_queued)
+    class HeldPort(DrivesPort):
+        def close_tick(self, take_queued=True):
+            super().close_tick(take_queued)
             duts[0].resume()
 
     monkeypatch.setattr(build_module, "Rig", HeldRig)
+    monkeypatch.setattr(build_module, "DrivesPort", HeldPort)
     spec_of = build_module.controller_spec
     monkeypatch.setattr(
         build_module, "controller_spec", lambda b, s, at: spec_of(b, s, dataclasses.replace(at, driven=False))

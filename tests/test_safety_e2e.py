@@ -19,6 +19,7 @@ from hil.faults.processes import Kill
 from hil.pipeline import run
 from hil.run import build
 from hil.run.build import RunOptions
+from hil.run.drives_port import DrivesPort
 from hil.run.rig import Rig
 from hil.run.scenario import OperatorEntry, Scenario
 from plant.params import RobotParams
@@ -169,11 +170,11 @@ def external_supervisor_run(scenario: Scenario, stall_at: int | None = None, rx_
         bus.shutdown()
 
 
-class NotWaitingRig(Rig):
-    """A rig that never waits for a supervisor elsewhere (a subclass: the compiled build's Rig cannot be
-    patched)."""
+class NotWaitingPort(DrivesPort):
+    """A drives' port that never waits for a supervisor elsewhere (a subclass: the compiled build's cannot
+    be patched)."""
 
-    def _await_supervisor(self, deadline):
+    def await_supervisor(self, k, deadline):
         pass
 
 
@@ -186,7 +187,7 @@ def test_a_lockstep_rig_waits_for_a_slow_supervisor_instead_of_taking_it_for_dea
     result = external_supervisor_run(scenario, stall_at=200)
     assert result.trace.stats.supervisor_lost_at == []
     assert transitions(result.trace) == []  # and the supervisor saw nothing wrong either
-    monkeypatch.setattr(build, "Rig", NotWaitingRig)  # control: no waiting
+    monkeypatch.setattr(build, "DrivesPort", NotWaitingPort)  # control: no waiting
     assert external_supervisor_run(scenario, stall_at=200).trace.stats.supervisor_lost_at
 
 
@@ -219,10 +220,6 @@ def test_a_supervisor_behind_the_rig_judges_each_zenoh_input_at_the_tick_it_was_
                 time.sleep(0.3)  # ordering only: the held supervisor updates before SYNC k is sent
             super()._send_sensors(tick, *args)
 
-        def _await_supervisor(self, deadline):
-            if self.plant.tick != k - 1:  # the supervisor waits for the rig here, not the other way round
-                super()._await_supervisor(deadline)
-
     def held_at_the_tick_before(msg):
         if msg.arbitration_id == SYNC.frame_id and SYNC.decode(msg.data)["Tick"] == k - 1:
             put.wait(10.0)
@@ -231,7 +228,14 @@ def test_a_supervisor_behind_the_rig_judges_each_zenoh_input_at_the_tick_it_was_
     scenario = Scenario(
         name="estop", rider=str(REF), duration=1.2, operator=[OperatorEntry(at=k * TICK, action="estop")]
     )
+
+    class AheadPort(DrivesPort):
+        def await_supervisor(self, tick, deadline):
+            if tick != k - 1:  # the supervisor waits for the rig here, not the other way round
+                super().await_supervisor(tick, deadline)
+
     monkeypatch.setattr(build, "Rig", AheadRig)
+    monkeypatch.setattr(build, "DrivesPort", AheadPort)
     stop = first(external_supervisor_run(scenario, rx_hook=held_at_the_tick_before).trace, "OPERATOR_ESTOP")
     assert stop.t == pytest.approx(k * TICK)
 

@@ -58,11 +58,12 @@ def test_a_stop_ends_a_ticks_wait_for_a_silent_controller_and_the_start_ups(sess
         rig = bench.rig
         # Positive control: unasked, a lockstep tick waits its guard out for a controller that never answers.
         rig.tick(deadline=time.monotonic() + 0.2, lockstep=True)
-        assert rig.stats.guards_expired == 1
-        rig.stop = threading.Event()
-        rig.stop.set()
+        assert rig.port.stats.guards_expired == 1
+        rig.port.stop = threading.Event()
+        rig.port.stop.set()
         assert ended(rig.tick, time.monotonic() + 600.0, True), "a ten-minute guard outlasted the stop"
-        assert rig.stats.ticks == 2 and rig.stats.guards_expired == 1, "left at the stop, not at the guard"
+        stats = rig.port.stats
+        assert stats.ticks == 2 and stats.guards_expired == 1, "left at the stop, not at the guard"
         missing: list[str] = []
         assert ended(lambda: missing.append(rig.await_boot(600.0))), "the start-up's wait outlasted the stop"
         assert "CONTROLLER_HEARTBEAT" in missing[0], "it ended because of the stop: nobody booted"
@@ -92,8 +93,8 @@ def test_a_stop_while_the_start_up_waits_for_a_supervisors_subscription_ends_it_
         def wait_for_subscriber(self, key, timeout=10.0):
             if key == self.keys.sc_request:
                 waited.append(key)
-                self.stop = threading.Event()
-                self.stop.set()
+                self.port.stop = threading.Event()
+                self.port.stop.set()
             return super().wait_for_subscriber(key, timeout)
 
     monkeypatch.setattr(build_module, "Rig", StoppedWhileWaiting)
@@ -129,7 +130,7 @@ def test_a_stop_while_the_start_up_waits_for_a_supervisors_subscription_ends_it_
             built = build(bench, scenario, scenario.seed, RunOptions(session=session), None, None, stack)
             assert ended(start, built, bench), "the start-up's wait outlasted the stop"
             assert waited == [built.rig.keys.sc_request], "it stopped in the supervisor's wait"
-            assert outcome == ["returned"] and built.rig.stopping
+            assert outcome == ["returned"] and built.rig.port.stopping
     finally:
         done.set()
         thread.join()
@@ -206,6 +207,15 @@ def test_sigterm_ends_a_served_flooded_run_and_its_folder_is_written(tmp_path):
     assert summary["verdict"] == "STOPPED" and (folder / "plots.png").exists(), "the whole folder"
 
 
+def next_line(process: subprocess.Popen) -> str:
+    """The process's next line of output, or '' after ENDS (a bare readline waits for ever on a hung one)."""
+    line: list[str] = []
+    reader = threading.Thread(target=lambda: line.append(process.stdout.readline()), daemon=True)
+    reader.start()
+    reader.join(ENDS)
+    return line[0] if line else ""
+
+
 def _serve(tmp_path, endpoint: str) -> subprocess.Popen:
     pure_hil = str(Path(sys.executable).with_name("pure-hil"))
     env = {**os.environ, "PURE_HIL_RIGS": str(tmp_path / "rigs"), "PURE_HIL_HUB": endpoint}
@@ -250,7 +260,8 @@ def test_a_second_ctrl_c_leaves_at_once_and_the_runs_history_row_is_completed(tm
         finally:
             client.close()
         serve.send_signal(signal.SIGINT)
-        assert "stopping the run" in serve.stdout.readline()
+        said = next_line(serve)
+        assert "stopping the run" in said, f"{said!r}: the run had not started, or the stop hung"
         serve.send_signal(signal.SIGINT)
         out, _ = serve.communicate(timeout=ENDS)
     finally:

@@ -42,7 +42,9 @@ from hil.devices import rig_node
 from hil.faults import FaultError, FaultSet
 from hil.outputs.inputs_log import InputsLog
 from hil.outputs.run_logs import McapSpec, RunLogs, open_logs
-from hil.run.rig import SCENARIO_SOURCE, AgentLinks, OperatorStep, Rig, ScStep
+from hil.run.agents import SCENARIO_SOURCE, AgentLinks, OperatorStep, ScStep
+from hil.run.drives_port import DrivesPort
+from hil.run.rig import Rig, RigParts
 from hil.run.scenario import Scenario
 from hil.run.trace import ControllerUnavailable
 from plant.ballbot import PlantCore, RiderIntent
@@ -213,29 +215,32 @@ def build(
         logs.clock = lambda: plant.t
     recorder = _recorder(wire.bus_config, logs, stack)  # before the parts: their boot-up too
     parts = _start_parts(bench, scenario, plant, wire, lockstep, stack)
-    rig = Rig(
+    port = DrivesPort(
         plant,
         rig_node(wire.bus, bench.devices, plant.robot.encoder.counts_per_rev, plant.sim.tick_hz),
-        wire.link,
-        tuple(
-            ScStep(
-                scenario.tick_of(e.at),
-                ScRequest(seq=0, stamp=0.0, mode=e.mode, speed_cap=e.cap, source=SCENARIO_SOURCE),
-            )
-            for e in scenario.sc
-        ),
-        supervisor=parts.supervisor,
-        operator=tuple(OperatorStep(scenario.tick_of(e.at), e.action) for e in scenario.operator),
-        faults=faults,
-        bitrate=wire.bus_config.bitrate,
-        agent_link=wire.agent_link,
         recovery_in_commands=not bench.devices.pure,
-        dut=parts.dut,
-        driven=bench.controller.where == "embedded",
-        recorder=recorder,
-        inputs=_inputs(out, logs, stack),
+        stop=options.stop,
     )
-    rig.stop = options.stop
+    request = [
+        ScRequest(seq=0, stamp=0.0, mode=e.mode, speed_cap=e.cap, source=SCENARIO_SOURCE) for e in scenario.sc
+    ]
+    sc = tuple(ScStep(scenario.tick_of(e.at), r) for e, r in zip(scenario.sc, request, strict=True))
+    rig = Rig(
+        RigParts(
+            port,
+            wire.link,
+            sc,
+            supervisor=parts.supervisor,
+            operator=tuple(OperatorStep(scenario.tick_of(e.at), e.action) for e in scenario.operator),
+            faults=faults,
+            bitrate=wire.bus_config.bitrate,
+            agent_link=wire.agent_link,
+            dut=parts.dut,
+            driven=bench.controller.where == "embedded",
+            recorder=recorder,
+            inputs=_inputs(out, logs, stack),
+        )
+    )
     faults.attach(rig)
     trace = None if out is None else out / "trace.npy"
     law = law_of(bench, scenario)
@@ -478,7 +483,7 @@ def start_up(built: Built, bench: Bench) -> None:
     where = bench.controller.where
     timeout = bench.controller.boot_timeout or BOOT_TIMEOUT[where]
     missing = rig.await_boot(timeout)
-    if rig.stopping:
+    if rig.port.stopping:
         return  # asked to end before the first tick: the tick loop runs none
     if missing:
         bus = f"{built.bus.interface}:{built.bus.channel}"
@@ -499,12 +504,12 @@ def start_up(built: Built, bench: Bench) -> None:
         raise ControllerUnavailable(wrong)
     rig.wait_for_subscriber(rig.keys.tes_wrench, ZENOH_GRACE)
     if rig.supervisor is None and not rig.wait_for_subscriber(rig.keys.sc_request, 10.0):
-        if rig.stopping:
+        if rig.port.stopping:
             return  # asked to end while waiting: a stop, not a missing supervisor
         raise ControllerUnavailable(
             f"no supervisor on {built.bus.interface}:{built.bus.channel} reads pure/sc/request"
         )
-    rig.drain_bus()
-    rig.apply_permission()
+    rig.port.drain()
+    rig.port.apply_permission()
     if rig.recorder is not None:
         rig.recorder.poll()  # the start-up's frames, at t = 0

@@ -10,10 +10,10 @@ from dataclasses import dataclass, field
 
 from drivers.rules import JudgedRules
 from drivers.vocabulary import OPERATOR_STOPS, RUNNING_STATES, STOP_COMMANDS, State
+from hil.run.agents import SCENARIO_SOURCE
 from hil.run.fault_verdicts import fault_verdicts
 from hil.run.lateness import REACTION_AFTER
 from hil.run.measurements import MEASUREMENTS, measure, summary_metrics, unavailable
-from hil.run.rig import SCENARIO_SOURCE
 from hil.run.scenario import Scenario, Verdict
 from hil.run.trace import Trace
 

@@ -32,7 +32,7 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
     lockstep = built.clock == "lockstep"
     clock: Clock
     if lockstep:
-        clock = LockstepClock(plant.dt, rig.command_guard)
+        clock = LockstepClock(plant.dt, rig.port.command_guard)
     else:
         rt = built.realtime
         clock = RealtimeClock(
@@ -102,8 +102,8 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
     return Trace(
         **series,
         fallen=plant.fallen,
-        stats=rig.stats,
-        lateness=rig.lateness,
+        stats=rig.port.stats,
+        lateness=rig.port.lateness,
         controller_telemetry_missing=int(np.isnan(series["command_speed"][:, 0]).sum()),
         timing=timing,
         bus=rig.can.stats.as_dict(),
@@ -138,7 +138,7 @@ def _pose_taker(built: Built) -> PoseTaker | None:
 
 
 def _status(tr: Truth, rig: Rig, clock: Clock, duration: float, began: float) -> RunStatus:
-    state = rig.safety_state
+    state = rig.port.safety_state
     return RunStatus(
         t=tr.t,
         duration=duration,
@@ -181,7 +181,7 @@ def _row(tr: Truth, rig: Rig, order: Reorder | None = ROW_ORDER) -> tuple[float,
         tr.yaw_rate,
         *tr.ball_rate,
         *tr.motor_torque,
-        rig.safety_state,
+        rig.port.safety_state,
         _supervisor_speed(rig),
         tr.powered,
         tr.resting,

@@ -15,8 +15,8 @@ from drivers.zenoh_link import ZenohConfigError
 from hil.faults import FaultError, FaultEvent, FaultSpec
 from hil.outputs.bodies import Poses
 from hil.run.clock import TimingStats
+from hil.run.drives_port import TickStats
 from hil.run.lateness import Lateness
-from hil.run.rig import TickStats
 
 
 class ControllerUnavailable(RuntimeError):
