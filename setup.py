@@ -28,6 +28,8 @@ COMPILED = [
     # zenoh: every node's subscriptions, puts and the lockstep fence (the bench's ZenohAccess, a msgspec
     # Struct, is drivers/zenoh_access.py).
     "drivers/zenoh_link.py",
+    # Rotations and Euler angles: the 3-D plant's and the supervisor's ticks call them (drivers/rotations.py).
+    "drivers/rotations.py",
     # Not drivers/shared_bus.py: compiled, its SharedBus (a python-can BusABC) is not cleared from the weak
     # references its channel holds when it is collected, and the next look at them crashed the interpreter
     # (tests/test_shared_bus.py, a bus never shut down).

@@ -15,6 +15,7 @@ import numpy as np
 from mypy_extensions import mypyc_attr
 
 from drivers.bounds import G0
+from drivers.rotations import quaternion_zyx, rotate
 from plant.anthropometry import SeatedRider, composite, robot_body_segment, seat_rider, yaw_inertia
 from plant.drives import DriveArray
 from plant.omniwheel import motor_jacobian, wheel_inertia_equivalents
@@ -86,19 +87,6 @@ class RiderIntent:
 
 Pose = tuple[tuple[float, float, float], tuple[float, float, float, float]]
 """A body's frame in the world: position (m) and orientation as a unit quaternion (w, x, y, z)."""
-
-
-def quaternion_zyx(yaw: float, pitch: float, roll: float) -> tuple[float, float, float, float]:
-    """Rz(yaw) Ry(pitch) Rx(roll) as a unit quaternion (w, x, y, z)."""
-    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
-    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
-    return (
-        cy * cp * cr + sy * sp * sr,
-        cy * cp * sr - sy * sp * cr,
-        cy * sp * cr + sy * cp * sr,
-        sy * cp * cr - cy * sp * sr,
-    )
 
 
 class Truth(Record):
@@ -538,12 +526,11 @@ class Plant(PlantCore):
         angles (the planar plant has no ball spin)."""
         x, r = self.x, self.robot.ball.radius
         centre = (self.position[0], self.position[1], r)
-        chassis = quaternion_zyx(x[12], x[1], x[7])
-        poses = {"ball": (centre, quaternion_zyx(0.0, x[0], x[6])), "chassis": (centre, chassis)}
+        chassis = quaternion_zyx(x[7], x[1], x[12])
+        poses = {"ball": (centre, quaternion_zyx(x[6], x[0], 0.0)), "chassis": (centre, chassis)}
         if self.seated is not None:
-            yaw, pitch, roll = x[12], x[1], x[7]
-            hip = _rotate_zyx(yaw, pitch, roll, (self.seated.hip_x, 0.0, self.seated.hip_z))
-            torso = quaternion_zyx(yaw, x[2], x[8])
+            hip = rotate((self.seated.hip_x, 0.0, self.seated.hip_z), chassis)
+            torso = quaternion_zyx(x[8], x[2], x[12])
             poses["torso"] = ((centre[0] + hip[0], centre[1] + hip[1], centre[2] + hip[2]), torso)
         return poses
 
@@ -555,16 +542,3 @@ class Plant(PlantCore):
             q, dq = x[6 * k : 6 * k + 3], x[6 * k + 3 : 6 * k + 6]
             e += self.planes[k].energy((q[0], q[1], q[2]), (dq[0], dq[1], dq[2]))
         return e + 0.5 * self.yaw_inertia * x[13] ** 2
-
-
-def _rotate_zyx(
-    yaw: float, pitch: float, roll: float, v: tuple[float, float, float]
-) -> tuple[float, float, float]:
-    """Rz(yaw) Ry(pitch) Rx(roll) v."""
-    x, y, z = v
-    cr, sr = math.cos(roll), math.sin(roll)
-    y, z = cr * y - sr * z, sr * y + cr * z
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    x, z = cp * x + sp * z, -sp * x + cp * z
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    return cy * x - sy * y, sy * x + cy * y, z
