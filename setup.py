@@ -50,12 +50,13 @@ COMPILED = [
     "controller/node.py",
     # The rig's tick (hil/run/rig.py: Rig allows Python subclasses, which tests and the benchmark use).
     "hil/run/rig.py",
-    # The plant: its tick and outputs, drives, rider's torso, planar dynamics, sensors and wheel maps (Plant
-    # and MotorDrive allow Python subclasses, which benchmarks/lockstep.py and tests/test_failop.py use:
-    # @mypyc_attr). Not plant/rider.py: msgspec does not see the class keywords (tag=..., frozen=True)
-    # of a Struct compiled by mypyc, and the rider's segments are a tagged union (its per-tick maths is
-    # plant/torso.py). The 3-D plant's tick (plant/ballbot3d.py) too: MuJoCo's step is C, the Python around it
-    # is most of the rest of its tick.
+    # The plant: every plant's base (PlantCore, plant/core.py), its tick and outputs, drives, rider's torso,
+    # planar dynamics, sensors and wheel maps (PlantCore, Plant and MotorDrive allow Python subclasses, which
+    # a lab's plant, benchmarks/lockstep.py and tests/test_failop.py use: @mypyc_attr). Not plant/rider.py:
+    # msgspec does not see the class keywords (tag=..., frozen=True) of a Struct compiled by mypyc, and the
+    # rider's segments are a tagged union (its per-tick maths is plant/torso.py). The 3-D plant's tick
+    # (plant/ballbot3d.py) too: MuJoCo's step is C, the Python around it is most of the rest of its tick.
+    "plant/core.py",
     "plant/ballbot.py",
     "plant/ballbot3d.py",
     "plant/drives.py",

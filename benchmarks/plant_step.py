@@ -25,7 +25,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import msgspec
 
 from hil.run.truth_balancer import TruthBalancer
-from plant.ballbot import RiderIntent
+from plant.core import RiderIntent
 from plant.models import make_plant
 from plant.params import MujocoParams, RiderParams, RobotParams, SimParams
 from plant.rider import Ramp, Sine

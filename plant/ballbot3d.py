@@ -17,7 +17,7 @@ import numpy as np
 from mypy_extensions import mypyc_attr
 
 from drivers.rotations import euler_rates, euler_zyx, quaternion_zyx
-from plant.ballbot import PITCH, ROLL, PlantCore, Pose, RiderIntent, Truth
+from plant.core import PITCH, ROLL, PlantCore, Pose, RiderIntent, Truth
 from plant.model3d import (
     BALL,
     CHASSIS,
@@ -556,6 +556,10 @@ class Plant3D(PlantCore):
         d, names = self.data, self._body_names
         pos, quat = d.xpos.tolist(), d.xquat.tolist()
         return {name: (tuple(pos[b]), tuple(quat[b])) for b, name in names}
+
+    def body_model(self) -> object:
+        """The model it simulates on."""
+        return self.model
 
     def energy(self) -> float:
         """Kinetic + gravitational energy (J), MuJoCo's account at the current state (also left in

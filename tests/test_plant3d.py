@@ -22,8 +22,9 @@ from plant.anthropometry import (
     TRUNK_LATERAL_DEG,
     robot_body_segment,
 )
-from plant.ballbot import Plant, RiderIntent
+from plant.ballbot import Plant
 from plant.ballbot3d import Plant3D
+from plant.core import RiderIntent
 from plant.model3d import drive_inertia
 from plant.omniwheel import motor_jacobian
 from plant.params import RobotParams, SimParams

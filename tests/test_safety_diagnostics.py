@@ -10,8 +10,8 @@ from drivers.config import load_toml
 from drivers.rotations import heading_frame
 from drivers.vocabulary import Cause
 from hil.run.truth_balancer import TruthBalancer
-from plant.ballbot import RiderIntent
 from plant.ballbot3d import Plant3D
+from plant.core import RiderIntent
 from plant.params import RobotParams, SimParams
 from plant.rider import Hold, Ramp
 from safety.config import RobotGeometry, SupervisorConfig

@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from drivers.dut import DutHandle
     from drivers.keys import Keys
     from drivers.plugs import Supervisor
-    from plant.ballbot import PlantCore
+    from plant.core import PlantCore
 
 
 class FaultTarget(Protocol):

@@ -35,7 +35,7 @@ from plant.params import Encoder
 from plant.sensors import DriveFeedback, ImuSample, TesSample, counts_from_angle
 
 if TYPE_CHECKING:
-    from plant.ballbot import PlantCore
+    from plant.core import PlantCore
 
 SEAT = "tes"
 """The seat's cells travel in its zenoh payload, not in a CAN frame."""

@@ -24,7 +24,7 @@ from typing import NamedTuple
 import numpy as np
 
 from drivers.rotations import Quat, Vec3, multiply, rotate
-from plant.ballbot import PlantCore, Pose
+from plant.core import PlantCore, Pose
 
 POSES_HZ = 100.0
 """At most this many poses per simulated second: smooth to the eye, a quarter of a 400 Hz run's ticks."""
@@ -103,18 +103,7 @@ def model_bodies(model: object, posed: Iterable[str]) -> tuple[Body, ...]:
 
 def plant_bodies(plant: PlantCore) -> tuple[Body, ...]:
     """The bodies of `plant` in the order of its `poses()`."""
-    import mujoco
-
-    from plant.ballbot3d import Plant3D
-    from plant.model3d import build_model
-
-    posed = list(plant.poses())
-    if isinstance(plant, Plant3D):
-        model = plant.model
-    else:  # the planar plant: the 3-D model of the same robot and rider, for its shapes
-        sim = plant.sim
-        model = mujoco.MjModel.from_xml_string(build_model(plant.robot, plant.rider, sim.mujoco, sim.dt).xml)
-    return model_bodies(model, posed)
+    return model_bodies(plant.body_model(), plant.poses())
 
 
 def flatten(poses: dict[str, Pose], names: Sequence[str]) -> list[float]:

@@ -45,7 +45,7 @@ from hil.outputs.run_logs import McapSpec, RunLogs, open_logs
 from hil.run.rig import SCENARIO_SOURCE, AgentLinks, OperatorStep, Rig, ScStep
 from hil.run.scenario import Scenario
 from hil.run.trace import ControllerUnavailable
-from plant.ballbot import PlantCore, RiderIntent
+from plant.core import PlantCore, RiderIntent
 from plant.models import make_plant
 from plant.params import RiderParams, RobotParams, SimParams
 

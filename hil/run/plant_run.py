@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass
 
 from hil.run.truth_balancer import TruthBalancer
-from plant.ballbot import RiderIntent
+from plant.core import RiderIntent
 from plant.models import make_plant
 from plant.params import RiderParams, RobotParams, SimParams
 from plant.rider import Hold, Ramp

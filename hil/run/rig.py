@@ -53,7 +53,7 @@ from drivers.zenoh_link import Subscription, ZenohLink
 from hil.faults import FaultSet
 from hil.outputs.inputs_log import InputsLog
 from hil.run.lateness import Lateness
-from plant.ballbot import PlantCore
+from plant.core import PlantCore
 from plant.drives import DriveState, MotorDrive
 from plant.sensors import DriveFeedback, ImuSample, TesSample
 
