@@ -2,7 +2,9 @@
 its group and imported only then, as python-can finds a bus backend. Built-in parts are entry points of this
 package (pyproject.toml); a lab's own are entry points of its package, one line each.
 
-    find_plug(SUPERVISORS, "reference", "supervisor")(spec)     installed(DEVICE_PROFILES)
+    find_plug(DEVICE_PROFILES, "odrive", "device profile")     installed(DEVICE_PROFILES)
+
+A kind of part with a typed start wraps find_plug: drivers.dut.start_dut, drivers.plugs.start_supervisor.
 """
 
 from __future__ import annotations

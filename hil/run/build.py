@@ -29,8 +29,8 @@ from drivers.config import ConfigError, load_toml
 from drivers.contract import CONTRACT_VERSION, mismatch
 from drivers.dut import DutHandle, DutSpec, start_dut
 from drivers.keys import Keys
-from drivers.plugs import Supervisor, SupervisorSpec
-from drivers.registry import SUPERVISOR_RULES, SUPERVISORS, find_plug, installed
+from drivers.plugs import Supervisor, SupervisorSpec, start_supervisor
+from drivers.registry import SUPERVISOR_RULES, find_plug, installed
 from drivers.resources import find
 from drivers.rules import JudgedRules
 from drivers.schemas import ScRequest
@@ -368,9 +368,7 @@ def _start_parts(
     if part.where != "external":
         spec = supervisor_spec(bench, scenario, replace(at, driven=part.where == "embedded"))
         if part.where == "embedded":
-            handle = find_plug(SUPERVISORS, part.plugin, "supervisor")(
-                spec, link=_supervisor_link(wire, lockstep, stack)
-            )
+            handle = start_supervisor(part.plugin, spec, link=_supervisor_link(wire, lockstep, stack))
             stack.callback(handle.stop)
             supervisor = handle.node
         else:
