@@ -20,6 +20,12 @@ SUPERVISORS = "pure_hil.supervisors"
 SUPERVISOR_RULES = "pure_hil.supervisor_rules"
 """The type of a supervisor's rules (a msgspec Struct, by the supervisor's name): the rig checks a bench's
 rules file with a scenario's overrides against it before the run (drivers/rules.py). Optional."""
+PLANTS = "pure_hil.plants"
+"""A plant: a class `cls(robot, rider, sim, intent, initial_tilt)`, a `plant.core.PlantCore` with its
+`PlantMechanics`, named by the sim settings' `plant` (hil/run/plants.py)."""
+FAULT_FAMILIES = "pure_hil.faults"
+"""A fault family: a tuple of fault classes (`hil.faults.base.FaultSpec`), each tagged by its `kind`
+(hil/faults/__init__.py)."""
 DEVICE_PROFILES = "pure_hil.devices"
 """A DeviceProfile: a device profile's name, kind, settings, host and emulation, one line each
 (drivers/devices/profile.py)."""

@@ -1,7 +1,7 @@
 """What every plant is: `PlantCore`, the part all plants share (the drives, the sensors' models, the rider's
 intent and torso control, the supervisor's alert, pushes), and `PlantMechanics`, what a plant adds to it (its
 bodies' motion, truth, energy, poses and what the sensors read). The planar plant (plant/ballbot.py), the 3-D
-plant (plant/ballbot3d.py) and a lab's own plant (an entry point of `pure_hil.plants`, plant/models.py) are
+plant (plant/ballbot3d.py) and a lab's own plant (an entry point of `pure_hil.plants`, hil/run/plants.py) are
 each a `PlantCore` subclass with `PlantMechanics`.
 
 The rig holds a plant as a `PlantCore`, not as the Protocol: the compiled build's tick reads its attributes
@@ -125,7 +125,7 @@ class Truth(Record):
         )
 
 
-@mypyc_attr(allow_interpreted_subclasses=True)  # a lab's own plant (plant/models.py) may be one
+@mypyc_attr(allow_interpreted_subclasses=True)  # a lab's own plant (hil/run/plants.py) may be one
 class PlantCore:
     """What both plants share: the drives, the sensors' models, the rider's intent and torso control, the
     supervisor's alert, pushes and the outputs' per-tick caches. A plant adds its mechanics: `step()`,

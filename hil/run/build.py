@@ -42,11 +42,11 @@ from hil.devices import rig_node
 from hil.faults import FaultError, FaultSet
 from hil.outputs.inputs_log import InputsLog
 from hil.outputs.run_logs import McapSpec, RunLogs, open_logs
+from hil.run.plants import load_sim, make_plant
 from hil.run.rig import SCENARIO_SOURCE, AgentLinks, OperatorStep, Rig, ScStep
 from hil.run.scenario import Scenario
 from hil.run.trace import ControllerUnavailable
 from plant.core import PlantCore, RiderIntent
-from plant.models import make_plant
 from plant.params import RiderParams, RobotParams, SimParams
 
 
@@ -319,7 +319,7 @@ def _connect(
 
 def sim_params(bench: Bench, scenario: Scenario | None = None, seed: int | None = None) -> SimParams:
     """The bench's simulation settings with its plant override, the scenario's tick rate and the seed."""
-    sim = load_toml(find(bench.sim, "sim"), SimParams)
+    sim = load_sim(find(bench.sim, "sim"))
     changes: dict[str, object] = {} if bench.plant == "sim" else {"plant": bench.plant}
     if scenario is not None:
         changes["tick_hz"] = scenario.tick_hz
