@@ -184,7 +184,6 @@ class FaultSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only
     ) = None
     expect: Expect | None = None
 
-    family: ClassVar[str] = ""
     summary: ClassVar[str] = ""
     detect_within: ClassVar[float] = 0.25
     """s the supervisor has to see this fault on its own evidence (docs/safety.md, the coverage campaign)."""

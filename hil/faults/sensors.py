@@ -24,7 +24,7 @@ import typing
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import msgspec
 
@@ -194,8 +194,6 @@ class Readings:
 
 class SensorFault(FaultSpec, frozen=True, kw_only=True):
     channel: Channel
-
-    family: ClassVar[str] = "sensors"
 
     def apply(self, readings: Readings, t: float, state: FaultState) -> None:
         i = _INDEX[self.channel]
