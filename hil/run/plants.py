@@ -46,10 +46,9 @@ def load_sim(path: Path | str) -> SimParams:
     """A sim settings file whose `plant` is installed; ConfigError names the file, the field and the plants
     installed."""
     sim = load_toml(path, SimParams)
-    if sim.plant not in installed(PLANTS):
-        raise ConfigError(
-            path, f"no plant {sim.plant!r} installed (have: {', '.join(installed(PLANTS))}) - at `$.plant`"
-        )
+    have = installed(PLANTS)
+    if sim.plant not in have:
+        raise ConfigError(path, f"no plant {sim.plant!r} installed (have: {', '.join(have)}) - at `$.plant`")
     return sim
 
 
