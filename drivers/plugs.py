@@ -10,7 +10,9 @@ What the rig may use of a supervisor it drives in its own tick is `Supervisor` b
 the rig, its loop, the faults and the live view use nothing else (hil/ imports no supervisor's code).
 
 The device profiles are plugs of the same registry: their emulations on the rig's side (hil/devices/), their
-hosts on the controller's and the supervisor's (drivers/devices/).
+hosts on the controller's and the supervisor's (drivers/devices/). So are the plants (hil/run/plants.py) and
+the fault families (hil/faults/), whose contracts live with their types (plant/core.py, hil/faults/base.py):
+they never leave the rig's process.
 """
 
 from __future__ import annotations
