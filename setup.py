@@ -28,6 +28,8 @@ COMPILED = [
     # zenoh: every node's subscriptions, puts and the lockstep fence (the bench's ZenohAccess, a msgspec
     # Struct, is drivers/zenoh_access.py).
     "drivers/zenoh_link.py",
+    # Rotations and Euler angles: the 3-D plant's and the supervisor's ticks call them (drivers/rotations.py).
+    "drivers/rotations.py",
     # Not drivers/shared_bus.py: compiled, its SharedBus (a python-can BusABC) is not cleared from the weak
     # references its channel holds when it is collected, and the next look at them crashed the interpreter
     # (tests/test_shared_bus.py, a bus never shut down).
@@ -51,12 +53,13 @@ COMPILED = [
     "hil/run/rig.py",
     "hil/run/drives_port.py",
     "hil/run/agents.py",
-    # The plant: its tick and outputs, drives, rider's torso, planar dynamics, sensors and wheel maps (Plant
-    # and MotorDrive allow Python subclasses, which benchmarks/lockstep.py and tests/test_failop.py use:
-    # @mypyc_attr). Not plant/rider.py: msgspec does not see the class keywords (tag=..., frozen=True)
-    # of a Struct compiled by mypyc, and the rider's segments are a tagged union (its per-tick maths is
-    # plant/torso.py). The 3-D plant's tick (plant/ballbot3d.py) too: MuJoCo's step is C, the Python around it
-    # is most of the rest of its tick.
+    # The plant: every plant's base (PlantCore, plant/core.py), its tick and outputs, drives, rider's torso,
+    # planar dynamics, sensors and wheel maps (PlantCore, Plant and MotorDrive allow Python subclasses, which
+    # a lab's plant, benchmarks/lockstep.py and tests/test_failop.py use: @mypyc_attr). Not plant/rider.py:
+    # msgspec does not see the class keywords (tag=..., frozen=True) of a Struct compiled by mypyc, and the
+    # rider's segments are a tagged union (its per-tick maths is plant/torso.py). The 3-D plant's tick
+    # (plant/ballbot3d.py) too: MuJoCo's step is C, the Python around it is most of the rest of its tick.
+    "plant/core.py",
     "plant/ballbot.py",
     "plant/ballbot3d.py",
     "plant/drives.py",

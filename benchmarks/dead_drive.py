@@ -29,8 +29,8 @@ import numpy as np
 from drivers.bounds import G0
 from drivers.config import load_toml
 from hil.run.truth_balancer import TruthBalancer
-from plant.ballbot import RiderIntent
 from plant.ballbot3d import Plant3D
+from plant.core import RiderIntent
 from plant.params import RiderParams, RobotParams, SimParams
 from plant.rider import Hold, Ramp
 from safety.config import RecoveryRules, RobotGeometry, SupervisorConfig

@@ -24,9 +24,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import msgspec
 
+from hil.run.plants import make_plant
 from hil.run.truth_balancer import TruthBalancer
-from plant.ballbot import RiderIntent
-from plant.models import make_plant
+from plant.core import RiderIntent
 from plant.params import MujocoParams, RiderParams, RobotParams, SimParams
 from plant.rider import Ramp, Sine
 

@@ -34,7 +34,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 from drivers.bus_config import BusConfig, network_interfaces
 from drivers.can_bus import CanNode, open_bus, private_channel
 from hil.run.clock import RealtimeClock
-from plant.ballbot import Plant, RiderIntent
+from plant.ballbot import Plant
+from plant.core import RiderIntent
 from plant.params import RiderParams, RobotParams, SimParams
 from plant.rider import Sine
 

@@ -37,7 +37,8 @@ from drivers.schemas import EstopCommand, TesWrench
 from drivers.vocabulary import ControllerState
 from drivers.zenoh_link import ZenohLink, free_loopback_endpoint, open_session
 from hil.run.truth_balancer import TruthBalancer
-from plant.ballbot import Plant, RiderIntent
+from plant.ballbot import Plant
+from plant.core import RiderIntent
 from plant.params import RiderParams, RobotParams, SimParams
 from plant.rider import Ramp
 from safety.config import RobotGeometry, SupervisorConfig

@@ -3,27 +3,34 @@ supervisor are found by name in their entry-point groups (drivers/registry.py, t
 started from a spec that says where everything is. The same plug runs in the rig's process (embedded) or,
 from its spec serialised to JSON, in a child process the rig starts (`pure-hil part KIND PLUGIN SPEC.json`).
 
-    start(spec) -> handle      handle.stop(); handle.poll() for a part the rig drives in lockstep
+    start_dut(name, spec) -> DutHandle (drivers/dut.py)
+    start_supervisor(name, spec, link) -> SupervisorHandle (below)
 
-What the rig may use of a supervisor it drives in its own tick is `Supervisor` below: the rig, its loop, the
-faults and the live view use nothing else (hil/ imports no supervisor's code).
+What the rig may use of a supervisor it drives in its own tick is `Supervisor` below, its handle's `node`:
+the rig, its loop, the faults and the live view use nothing else (hil/ imports no supervisor's code).
 
 The device profiles are plugs of the same registry: their emulations on the rig's side (hil/devices/), their
-hosts on the controller's and the supervisor's (drivers/devices/).
+hosts on the controller's and the supervisor's (drivers/devices/). So are the plants (hil/run/plants.py) and
+the fault families (hil/faults/), whose contracts live with their types (plant/core.py, hil/faults/base.py):
+they never leave the rig's process.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import msgspec
 
 from drivers.bus_config import BusConfig
 from drivers.devices import Devices
+from drivers.registry import SUPERVISORS, find_plug
 from drivers.vocabulary import Event, OperatorRecord
 from drivers.zenoh_access import ZenohAccess
+
+if TYPE_CHECKING:  # zenoh only where a supervisor starts
+    from drivers.zenoh_link import ZenohLink
 
 
 class SupervisorSpec(msgspec.Struct, frozen=True, kw_only=True):
@@ -91,3 +98,31 @@ class Supervisor(Protocol):
         ...
 
     def report(self) -> SupervisorReport: ...
+
+
+class SupervisorHandle(Protocol):
+    """What a supervisor plug's `start(spec, link=None)` returns: the rig stops it at the end of the run.
+    `link`: the rig's zenoh link, lent to a driven supervisor (its puts count in the lockstep fence); None:
+    it opens its own."""
+
+    @property
+    def node(self) -> Supervisor:
+        """What the rig updates from its tick when it drives it, and whose events `pure-hil supervisor`
+        prints at the end."""
+        ...
+
+    def stop(self) -> None: ...
+
+
+@runtime_checkable
+class Watched(Protocol):
+    """A part's handle that can tell whether the part still runs on its own thread (a controller's or a
+    supervisor's may offer it): a command that runs a part until Ctrl-C ends when it stops on an error."""
+
+    def alive(self) -> bool: ...
+
+
+def start_supervisor(name: str, spec: SupervisorSpec, link: ZenohLink | None = None) -> SupervisorHandle:
+    """The supervisor plug registered as `name` (drivers/registry.py), started from `spec`."""
+    handle: SupervisorHandle = find_plug(SUPERVISORS, name, "supervisor")(spec, link=link)
+    return handle

@@ -2,7 +2,9 @@
 its group and imported only then, as python-can finds a bus backend. Built-in parts are entry points of this
 package (pyproject.toml); a lab's own are entry points of its package, one line each.
 
-    find_plug(SUPERVISORS, "reference", "supervisor")(spec)     installed(DEVICE_PROFILES)
+    find_plug(DEVICE_PROFILES, "odrive", "device profile")     installed(DEVICE_PROFILES)
+
+A kind of part with a typed start wraps find_plug: drivers.dut.start_dut, drivers.plugs.start_supervisor.
 """
 
 from __future__ import annotations
@@ -18,6 +20,12 @@ SUPERVISORS = "pure_hil.supervisors"
 SUPERVISOR_RULES = "pure_hil.supervisor_rules"
 """The type of a supervisor's rules (a msgspec Struct, by the supervisor's name): the rig checks a bench's
 rules file with a scenario's overrides against it before the run (drivers/rules.py). Optional."""
+PLANTS = "pure_hil.plants"
+"""A plant: a class `cls(robot, rider, sim, intent, initial_tilt)`, a `plant.core.PlantCore` with its
+`PlantMechanics`, named by the sim settings' `plant` (hil/run/plants.py)."""
+FAULT_FAMILIES = "pure_hil.faults"
+"""A fault family: a tuple of fault classes (`hil.faults.base.FaultSpec`), each tagged by its `kind`
+(hil/faults/__init__.py)."""
 DEVICE_PROFILES = "pure_hil.devices"
 """A DeviceProfile: a device profile's name, kind, settings, host and emulation, one line each
 (drivers/devices/profile.py)."""

@@ -19,6 +19,7 @@ from drivers.config import ConfigError, load_toml
 from drivers.resources import find
 from drivers.rules import JudgedRules
 from hil.bench.bench import Bench, load_bench
+from hil.faults import load_with_faults
 from hil.outputs.run_logs import RunLogs
 from hil.report.folder import events, write_outputs
 from hil.run.build import (
@@ -34,9 +35,10 @@ from hil.run.build import (
 )
 from hil.run.judge import RunResult, judge
 from hil.run.loop import tick_loop
+from hil.run.plants import load_sim
 from hil.run.scenario import Scenario
 from hil.run.trace import CONFIG_ERRORS, ControllerUnavailable, Failure, Trace, reason
-from plant.params import RiderParams, RobotParams, SimParams
+from plant.params import RiderParams, RobotParams
 
 T = TypeVar("T")
 
@@ -130,7 +132,7 @@ def check_start(scenario: Scenario, bench: Bench, origin: str) -> RiderParams:
     try:
         scenario.intent.check_reach(rider, str(rider_file))
         scenario.check_start(
-            load_toml(sim_file, SimParams).fall_tilt_deg,
+            load_sim(sim_file).fall_tilt_deg,
             str(sim_file),
             robot,
             rider,
@@ -165,7 +167,7 @@ def _plant_kind(bench: Bench) -> str:
 
 def load_scenario(name: str | Path) -> Scenario:
     """A scenario by path or shipped short name."""
-    return load_toml(find(name, "scenarios"), Scenario)
+    return load_with_faults(find(name, "scenarios"), Scenario)
 
 
 def _ball_radius(scenario: Scenario) -> float:

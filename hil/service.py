@@ -47,7 +47,7 @@ from hil.live import LiveStream
 from hil.pipeline import check_start, describe, load_scenario, run
 from hil.run.build import RunOptions, RunStatus, clock_of, law_of
 from hil.run.scenario import Intent, Scenario
-from plant.ballbot import PlantCore, RiderIntent
+from plant.core import PlantCore, RiderIntent
 from plant.params import RiderParams
 
 if TYPE_CHECKING:  # imported where used: rerun loads only for a service with a live view

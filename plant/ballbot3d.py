@@ -16,7 +16,8 @@ import mujoco
 import numpy as np
 from mypy_extensions import mypyc_attr
 
-from plant.ballbot import PITCH, ROLL, PlantCore, Pose, RiderIntent, Truth
+from drivers.rotations import euler_rates, euler_zyx, quaternion_zyx
+from plant.core import PITCH, ROLL, PlantCore, Pose, RiderIntent, Truth
 from plant.model3d import (
     BALL,
     CHASSIS,
@@ -67,32 +68,6 @@ class Motion(NamedTuple):
     @property
     def tilt(self) -> Pair:
         return self.attitude[1], self.attitude[0]
-
-
-def euler_zyx(q: tuple[float, float, float, float]) -> tuple[float, float, float]:
-    """(roll, pitch, yaw) of a unit quaternion (w, x, y, z), ZYX: R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    w, x, y, z = q
-    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
-    pitch = math.asin(min(max(2.0 * (w * y - z * x), -1.0), 1.0))
-    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
-    return roll, pitch, yaw
-
-
-def euler_rates(
-    roll: float, pitch: float, rate: tuple[float, float, float] | list[float]
-) -> tuple[float, float, float]:
-    """ZYX Euler angle rates (roll, pitch, yaw) from body rates."""
-    wx, wy, wz = rate
-    sr, cr = math.sin(roll), math.cos(roll)
-    cp = math.cos(pitch)
-    tp = math.tan(pitch)
-    return wx + (sr * wy + cr * wz) * tp, cr * wy - sr * wz, (sr * wy + cr * wz) / cp
-
-
-def tilt_quaternion(pitch: float, roll: float) -> tuple[float, float, float, float]:
-    """Ry(pitch) Rx(roll) as a quaternion (w, x, y, z)."""
-    cp, sp, cr, sr = math.cos(pitch / 2), math.sin(pitch / 2), math.cos(roll / 2), math.sin(roll / 2)
-    return cp * cr, cp * sr, sp * cr, -sp * sr
 
 
 class StickSlip(NamedTuple):
@@ -205,7 +180,7 @@ class Plant3D(PlantCore):
         self._yaw = self._last_yaw = 0.0
         """The heading, unwrapped (MuJoCo's orientation gives it within ±π)."""
         pitch, roll = initial_tilt
-        d.qpos[3:7] = tilt_quaternion(pitch, roll)  # the ball turned with the chassis: encoders read zero
+        d.qpos[3:7] = quaternion_zyx(roll, pitch, 0.0)  # the ball turned with the chassis: encoders read zero
         mujoco.mj_kinematics(m, d)
         self._set_drive_friction()  # at rest: stuck
         self._set_hip_controls()  # the rider holds their torso from the start
@@ -429,7 +404,7 @@ class Plant3D(PlantCore):
         roll, pitch, yaw = euler_zyx((sens[6], sens[7], sens[8], sens[9]))
         self._yaw += (yaw - self._last_yaw + math.pi) % (2.0 * math.pi) - math.pi
         self._last_yaw = yaw
-        droll, dpitch, dyaw = euler_rates(roll, pitch, gyro)
+        droll, dpitch, dyaw = euler_rates(gyro, roll, pitch)
         qpos, qvel = self._qpos.tolist(), self._qvel.tolist()
         vx, vy = qvel[0], qvel[1]
         c, s = math.cos(self._yaw), math.sin(self._yaw)
@@ -581,6 +556,10 @@ class Plant3D(PlantCore):
         d, names = self.data, self._body_names
         pos, quat = d.xpos.tolist(), d.xquat.tolist()
         return {name: (tuple(pos[b]), tuple(quat[b])) for b, name in names}
+
+    def body_model(self) -> object:
+        """The model it simulates on."""
+        return self.model
 
     def energy(self) -> float:
         """Kinetic + gravitational energy (J), MuJoCo's account at the current state (also left in

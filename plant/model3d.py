@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.bounds import G0
+from drivers.rotations import matrix_zyx
 from plant.anthropometry import (
     LEG_COM,
     TRUNK_EXTENSION_DEG,
@@ -258,19 +259,13 @@ def fall_geoms(robot: RobotParams, rider: RiderParams | None) -> tuple[FallGeom,
     return tuple(geoms)
 
 
-def tilt_rotation(pitch: float, roll: float) -> np.ndarray:
-    """Ry(pitch) Rx(roll): the chassis released at that tilt (rad), as the plants release it."""
-    cp, sp, cr, sr = math.cos(pitch), math.sin(pitch), math.cos(roll), math.sin(roll)
-    return np.array([[cp, sp * sr, sp * cr], [0.0, cr, -sr], [-sp, cp * sr, cp * cr]])
-
-
 def lowest_fall_geom(
     robot: RobotParams, rider: RiderParams | None, pitch: float, roll: float
 ) -> tuple[str, float]:
     """With the chassis at the tilt (pitch, roll), rad, the fall geom nearest the floor and its height above
     it, m, the ball sunk MAX_SINK into the floor: at 0 or below it may touch the floor, which the 3-D plant
     counts as a fall (Plant3D._check_fall)."""
-    rotation = tilt_rotation(pitch, roll)
+    rotation = np.array(matrix_zyx(roll, pitch, 0.0))  # the chassis released at that tilt
     centre = robot.ball.radius - MAX_SINK
     return min(
         ((g.name, centre + g.lowest(rotation)) for g in fall_geoms(robot, rider)), key=lambda found: found[1]

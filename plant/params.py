@@ -342,16 +342,13 @@ class MujocoParams(_Record, frozen=True):
     """Ratio of frictional to normal constraint impedance: higher holds the rolling contact tighter."""
 
 
-PlantName = Literal["3d", "planar"]
-"""The plants (plant/models.py PLANTS)."""
-
-
 class SimParams(_Record, frozen=True):
     tick_hz: Positive = 400.0
     """Bus tick: rate of sensor frames and SYNC."""
-    plant: PlantName = "3d"
-    """3d: rigid bodies in MuJoCo (plant/ballbot3d.py); planar: two vertical planes and yaw
-    (plant/ballbot.py), kept for regression."""
+    plant: str = "3d"
+    """An installed plant (entry points `pure_hil.plants`, hil/run/plants.py): 3d, rigid bodies in MuJoCo
+    (plant/ballbot3d.py); planar, two vertical planes and yaw (plant/ballbot.py), kept for regression; or a
+    lab's own."""
     mujoco: MujocoParams = MujocoParams()
     substeps: Annotated[int, msgspec.Meta(ge=1, le=100)] = 1
     """Fixed RK4 steps per tick (internal rate = tick_hz × substeps). One step at 400 Hz already agrees

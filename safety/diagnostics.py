@@ -28,6 +28,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from drivers.rotations import body_up, chassis_axis, euler_rates, heading_frame
 from drivers.vocabulary import Cause
 from safety.config import RobotGeometry, SeatRules, SensorRules
 from safety.machine import Finding
@@ -483,14 +484,6 @@ def motor_jacobian(robot: RobotGeometry) -> np.ndarray:
     return np.array(rows)
 
 
-def heading_frame(vector: Sequence[float], roll: float, pitch: float) -> tuple[float, float, float]:
-    """A body vector in the heading frame (the world turned to the chassis' heading): Ry(pitch) Rx(roll) v."""
-    bx, by, bz = vector
-    sr, cr, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
-    u1, u2 = cr * by - sr * bz, sr * by + cr * bz
-    return cp * bx + sp * u2, u1, -sp * bx + cp * u2
-
-
 def trend_inputs(
     relative: Sequence[float],
     rate: Sequence[float],
@@ -512,32 +505,3 @@ def trend_inputs(
     turn = euler_rates(rate, roll, pitch)[2]
     ax, ay, _ = heading_frame(accel, roll, pitch)
     return (forward, ax + turn * left), (left, ay - turn * forward)
-
-
-def body_frame(vector: Sequence[float], roll: float, pitch: float) -> tuple[float, float, float]:
-    """A heading-frame vector in body axes (`heading_frame` undone): Rx(−roll) Ry(−pitch) v."""
-    hx, hy, hz = vector
-    sr, cr, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
-    u0, u2 = cp * hx - sp * hz, sp * hx + cp * hz
-    return u0, cr * hy + sr * u2, -sr * hy + cr * u2
-
-
-def body_up(roll: float, pitch: float) -> tuple[float, float, float]:
-    """The world's vertical in body axes (the heading frame's z seen from the chassis)."""
-    sr, cr, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
-    return -sp, cp * sr, cp * cr
-
-
-def chassis_axis(roll: float, pitch: float) -> tuple[float, float, float]:
-    """The chassis' own axis (body z) in the heading frame."""
-    sr, cr, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
-    return cr * sp, -sr, cr * cp
-
-
-def euler_rates(rate: Sequence[float], roll: float, pitch: float) -> tuple[float, float, float]:
-    """ZYX Euler angle rates (roll, pitch, heading) from body rates: what the attitude's angles do. A chassis
-    tilted while it turns has body rates that differ from them by the turn rate times the tilt."""
-    wx, wy, wz = rate
-    sr, cr = math.sin(roll), math.cos(roll)
-    turn = sr * wy + cr * wz
-    return wx + turn * math.tan(pitch), cr * wy - sr * wz, turn / math.cos(pitch)

@@ -10,7 +10,7 @@ from drivers.can_bus import open_bus
 from drivers.config import load_toml
 from drivers.devices import host_node
 from drivers.keys import Keys
-from drivers.plugs import Supervisor, SupervisorSpec
+from drivers.plugs import Supervisor, SupervisorHandle, SupervisorSpec, Watched
 from drivers.zenoh_link import ZenohLink
 from safety.config import RobotGeometry, SupervisorConfig
 from safety.node import SupervisorNode, SupervisorThread
@@ -63,6 +63,8 @@ class EmbeddedSupervisor:
 
 PLUG_CONTRACT: type[Supervisor] = SupervisorNode
 """The reference supervisor is what the rig may drive (mypy checks it against drivers.plugs.Supervisor)."""
+HANDLE_CONTRACT: tuple[type[SupervisorHandle], type[Watched]] = (EmbeddedSupervisor, EmbeddedSupervisor)
+"""Its handle, and one that says whether its thread still runs (mypy checks both)."""
 
 
 def start(spec: SupervisorSpec, link: ZenohLink | None = None) -> EmbeddedSupervisor:

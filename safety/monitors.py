@@ -33,6 +33,7 @@ from drivers.can_codec import (
     MessageName,
 )
 from drivers.e2e import COUNTER, COUNTER_MODULO, CRC, E2EStatus
+from drivers.rotations import heading_frame
 from drivers.schemas import EstopCommand, ScRequest, TesWrench
 from drivers.vocabulary import Cause
 from safety.arbiter import ScArbiter
@@ -47,7 +48,6 @@ from safety.diagnostics import (
     TorqueCheck,
     TrendCheck,
     YawCheck,
-    heading_frame,
     motor_jacobian,
     trend_inputs,
 )

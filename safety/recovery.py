@@ -29,8 +29,9 @@ from scipy.linalg import solve_continuous_are
 
 from drivers.bounds import G0
 from drivers.can_codec import ENCODERS, TILT_INPUTS
+from drivers.rotations import body_frame, body_up, euler_rates, heading_frame
 from safety.config import RecoveryRules, RobotGeometry
-from safety.diagnostics import YawCheck, body_frame, body_up, euler_rates, heading_frame, motor_jacobian
+from safety.diagnostics import YawCheck, motor_jacobian
 
 ATTITUDE_WINDOW = 40
 """Ticks (100 ms) over which the IMU point's acceleration is taken for the accelerometer's tilt."""

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from drivers.rotations import euler_zyx, multiply, rotate
 from hil.outputs.bodies import (
     POSE_VALUES,
     PoseLog,
@@ -26,9 +27,7 @@ from hil.outputs.bodies import (
     every,
     flatten,
     model_bodies,
-    multiply,
     plant_bodies,
-    rotate,
 )
 from hil.outputs.foxglove import FrameTransforms
 from hil.outputs.trace_log import LAYOUT
@@ -36,7 +35,7 @@ from hil.pipeline import run
 from hil.run.build import RunOptions
 from hil.run.scenario import Intent, Scenario
 from plant.ballbot import Plant
-from plant.ballbot3d import Plant3D, euler_zyx
+from plant.ballbot3d import Plant3D
 from plant.model3d import build_model
 from plant.rider import Ramp
 from tests.helpers import RIDER_75, robot, sim
@@ -52,7 +51,7 @@ def world_shapes(bodies, poses) -> list[tuple]:
     for body in bodies:
         p, q = poses[body.name]
         for s in body.shapes:
-            x, y, z = rotate(q, s.position)
+            x, y, z = rotate(s.position, q)
             matrix = np.zeros(9)
             mujoco.mju_quat2Mat(matrix, np.array(multiply(q, s.orientation)))
             placed.append((s.kind, s.size, (p[0] + x, p[1] + y, p[2] + z), matrix, s.rgba))

@@ -19,20 +19,25 @@ ALLOWED = {
 PLANT_THIRD_PARTY = {"numpy", "scipy", "msgspec", "mypy_extensions", "mujoco"}  # mypy_extensions: @mypyc_attr
 PLANT_FORBIDDEN_STDLIB = {"time", "threading", "socket", "os", "io", "asyncio", "subprocess", "pathlib"}
 DECLARATIONS = "drivers.bounds"
-"""The one module of ours every package may import, the plant too: the bounds of the numbers in the files
-they all read, declared once (docs/architecture.md). Declarations only: it imports nothing but typing and
-msgspec."""
+"""The bounds of the numbers in the files every package reads, declared once (docs/architecture.md).
+Declarations only: it imports nothing but typing and msgspec."""
+SHARED = {
+    DECLARATIONS: {"__future__", "typing", "msgspec"},
+    "drivers.rotations": {"__future__", "math", "collections.abc"},  # arithmetic on plain floats
+}
+"""The modules of ours every package may import, the plant too, each with all it may import itself: nothing
+that acts, nothing of ours."""
 
 
 def imported_roots(source: str, own_package: str) -> set[str]:
-    """The top-level packages `source` imports (DECLARATIONS, which anyone may import, not counted)."""
+    """The top-level packages `source` imports (SHARED, which anyone may import, not counted)."""
     tree = ast.parse(source)
     roots = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
-            roots |= {alias.name.split(".")[0] for alias in node.names if alias.name != DECLARATIONS}
+            roots |= {alias.name.split(".")[0] for alias in node.names if alias.name not in SHARED}
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            if node.module != DECLARATIONS:
+            if node.module not in SHARED:
                 roots.add(node.module.split(".")[0])
         elif isinstance(node, ast.ImportFrom) and node.level > 0:
             roots.add(own_package)  # a relative import stays inside its package
@@ -122,13 +127,24 @@ def test_positive_control_a_vocabulary_import_from_safety_is_seen():
     assert len(vocabulary_imported_elsewhere("tests/x.py", source)) == 3
 
 
-def test_the_declarations_everyone_imports_import_nothing_that_acts():
-    path = ROOT / (DECLARATIONS.replace(".", "/") + ".py")
-    assert _imported_modules(path.read_text()) <= {"__future__", "typing", "msgspec"}
-    # Positive control: the plant importing anything else of drivers/ is still an arrow the table forbids.
+@pytest.mark.parametrize("module", sorted(SHARED))
+def test_the_modules_everyone_imports_import_nothing_that_acts(module):
+    path = ROOT / (module.replace(".", "/") + ".py")
+    assert _imported_modules(path.read_text()) <= SHARED[module]
+
+
+def test_positive_control_the_shared_modules_own_imports_are_seen():
+    assert _imported_modules("import numpy\nfrom drivers.config import load_toml\n") == {
+        "numpy",
+        "drivers.config",
+    }
+
+
+def test_positive_control_the_plant_importing_any_other_module_of_drivers_is_forbidden():
     source = "from drivers.bounds import BallMass\nfrom drivers.config import load_toml\n"
     assert imported_roots(source, "plant") == {"drivers"}
     assert imported_roots("from drivers.bounds import BallMass\n", "plant") == set()
+    assert imported_roots("from drivers.rotations import rotate\n", "plant") == set()
 
 
 def test_checker_sees_a_violation():
@@ -344,3 +360,42 @@ def test_shared_constants_and_bounds_are_declared_once():
 def test_positive_control_a_second_declaration_is_seen():
     source = "G0 = 9.81\nPositive: object = float\ndef f():\n    G0 = 1\n"
     assert top_level_assignments(source, DECLARED_ONCE) == [(1, "G0"), (2, "Positive")]
+
+
+ROTATIONS = (
+    "quaternion_zyx",
+    "euler_zyx",
+    "matrix_zyx",
+    "euler_rates",
+    "rotate",
+    "multiply",
+    "heading_frame",
+    "body_frame",
+    "body_up",
+    "chassis_axis",
+    "tilt_quaternion",
+    "tilt_rotation",
+)
+"""The rotations and Euler conventions, defined in drivers/rotations.py only (issue 48; the last two are
+names they once had)."""
+
+
+def top_level_functions(source: str, names: tuple[str, ...]) -> list[tuple[int, str]]:
+    """(line, name) of each module-level function named one of `names`."""
+    tree = ast.parse(source)
+    return [(n.lineno, n.name) for n in tree.body if isinstance(n, ast.FunctionDef) and n.name in names]
+
+
+def test_rotations_are_defined_once():
+    where = sorted(
+        f"{path.relative_to(ROOT)}:{line} {name}"
+        for package in SOURCES
+        for path in modules(package)
+        for line, name in top_level_functions(path.read_text(), ROTATIONS)
+    )
+    assert {w.split(":")[0] for w in where} == {"drivers/rotations.py"}, where
+
+
+def test_positive_control_a_second_rotation_is_seen():
+    source = "def euler_rates(rate, roll, pitch):\n    pass\nclass A:\n    def rotate(self):\n        pass\n"
+    assert top_level_functions(source, ROTATIONS) == [(1, "euler_rates")]

@@ -879,8 +879,8 @@ def test_the_live_pose_is_the_bodies_pose_on_a_ride_signs_included():
     degree."""
     from hil.live import LiveStream
     from hil.run.truth_balancer import TruthBalancer
-    from plant.ballbot import RiderIntent
     from plant.ballbot3d import Plant3D
+    from plant.core import RiderIntent
     from plant.rider import Hold, Ramp, Sine
     from tests.helpers import RIDER_75, robot, sim
 

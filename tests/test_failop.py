@@ -159,8 +159,8 @@ def two_wheel_run(rules, lean, dead=0, fault=1.0, end=7.0):
     sensors' samples (the wire's values), balances on the other two, its command applied the next tick.
     Returns how it ended and the peak yaw rate."""
     from hil.run.truth_balancer import TruthBalancer
-    from plant.ballbot import RiderIntent
     from plant.ballbot3d import Plant3D
+    from plant.core import RiderIntent
     from plant.params import RiderParams, RobotParams, SimParams
     from plant.rider import Ramp
     from safety.recovery import IsolatedEstimator, RecoveryLaw
@@ -364,7 +364,8 @@ def test_a_yaw_disagreement_is_blamed_on_the_one_sensor_whose_exclusion_keeps_th
 
 # ---------------------------------------------------------------------------------------------- rider
 def _leaning_plant(heeds: bool):
-    from plant.ballbot import Plant, RiderIntent
+    from plant.ballbot import Plant
+    from plant.core import RiderIntent
     from plant.params import RiderParams, RobotParams, SimParams
     from plant.rider import Ramp
 

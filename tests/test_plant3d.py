@@ -14,6 +14,7 @@ from scipy.optimize import brentq
 
 from drivers.bounds import G0
 from drivers.config import ConfigError, load_toml
+from drivers.rotations import euler_rates
 from hil.run.truth_balancer import TruthBalancer
 from plant.anthropometry import (
     TRUNK_EXTENSION_DEG,
@@ -21,8 +22,9 @@ from plant.anthropometry import (
     TRUNK_LATERAL_DEG,
     robot_body_segment,
 )
-from plant.ballbot import Plant, RiderIntent
-from plant.ballbot3d import Plant3D, euler_rates
+from plant.ballbot import Plant
+from plant.ballbot3d import Plant3D
+from plant.core import RiderIntent
 from plant.model3d import drive_inertia
 from plant.omniwheel import motor_jacobian
 from plant.params import RobotParams, SimParams
@@ -322,7 +324,7 @@ def attitude_drift(cls=Plant3D):
     def record(plant):
         (roll, pitch, yaw), gyro, _ = plant.imu_truth()
         attitude.append((roll, pitch, yaw))
-        rates.append(euler_rates(roll, pitch, gyro))
+        rates.append(euler_rates(gyro, roll, pitch))
 
     _, (_, _, speed, yaw_rate), _ = steady_turn(None, 1.0, 1.5, seconds=4.0, each=record, cls=cls)
     assert speed == pytest.approx(1.0, abs=0.02) and yaw_rate == pytest.approx(1.5, abs=0.02)
@@ -370,7 +372,7 @@ def wire_attitude_drift(cls=Plant3D):
             rate_frame.encode({"RateX": x, "RateY": y, "RateZ": z, "Valid": 1, "Counter": 0, "Crc": 0})
         )
         attitude.append((a["Roll"], a["Pitch"]))
-        rates.append(euler_rates(a["Roll"], a["Pitch"], (r["RateX"], r["RateY"], r["RateZ"]))[:2])
+        rates.append(euler_rates((r["RateX"], r["RateY"], r["RateZ"]), a["Roll"], a["Pitch"])[:2])
 
     steady_turn(None, 1.0, 1.5, seconds=5.0, each=record, cls=cls)
     return drift_rate(attitude[-800:], rates[-800:])

@@ -9,7 +9,8 @@ import pytest
 from drivers.bounds import G0
 from hil.run.truth_balancer import TruthBalancer, linearise_plane
 from plant.anthropometry import composite, robot_body_segment, seat_rider
-from plant.ballbot import Plant, RiderIntent, plane_params
+from plant.ballbot import Plant, plane_params
+from plant.core import RiderIntent
 from plant.params import Drive, RobotParams
 from plant.plane import PlaneDynamics, Wrench
 from plant.rider import Hold, Profile, Ramp

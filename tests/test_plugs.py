@@ -83,6 +83,49 @@ def test_the_rig_starts_the_supervisor_the_bench_names_through_its_plug(monkeypa
     assert spec.rules["speed"]["absolute_cap"] > 0, "the bench's rules with the scenario's overrides"
 
 
+class _Node:
+    events = ()
+
+
+class _SupervisorHandle:
+    """A lab's supervisor handle: its node and stop(), nothing more."""
+
+    def __init__(self, spec, link=None) -> None:
+        self.spec, self.link, self.node, self.stopped = spec, link, _Node(), False
+
+    def stop(self) -> None:
+        self.stopped = True
+
+
+class _WatchedSupervisorHandle(_SupervisorHandle):
+    def alive(self) -> bool:
+        return True
+
+
+def test_start_supervisor_finds_the_plug_by_name_and_hands_it_the_spec_and_link(monkeypatch):
+    from importlib.metadata import EntryPoint
+
+    import drivers.registry
+    from drivers.plugs import Watched, start_supervisor
+
+    plugs = [
+        EntryPoint(name="bare", value=f"{__name__}:_SupervisorHandle", group=SUPERVISORS),
+        EntryPoint(name="watched", value=f"{__name__}:_WatchedSupervisorHandle", group=SUPERVISORS),
+    ]
+    monkeypatch.setattr(drivers.registry, "entry_points", lambda group: plugs if group == SUPERVISORS else [])
+    spec = SupervisorSpec(can=BusConfig(channel=private_channel()), robot="x")
+    link = object()
+    bare = start_supervisor("bare", spec, link=link)
+    assert isinstance(bare, _SupervisorHandle) and (bare.spec, bare.link) == (spec, link)
+    assert not isinstance(bare, Watched), "a handle without alive() is not watched"
+    assert isinstance(start_supervisor("watched", spec), Watched)  # the positive control
+    with pytest.raises(
+        PlugNotFound,
+        match=r"no supervisor 'nope' in entry points 'pure_hil.supervisors' \(have: bare, watched\)",
+    ):
+        start_supervisor("nope", spec)
+
+
 def test_every_device_profile_is_one_entry_point_with_its_settings_host_and_emulation():
     from drivers.devices import Devices, Translator
     from drivers.devices.profile import find_profile

@@ -9,7 +9,8 @@ import pytest
 
 from hil.run.truth_balancer import TruthBalancer
 from plant.anthropometry import seat_rider
-from plant.ballbot import Plant, RiderIntent
+from plant.ballbot import Plant
+from plant.core import RiderIntent
 from plant.params import RobotParams
 from plant.rider import Adversarial, Hold, LeanStyle, Profile, Ramp, Sine, Step, Until
 from tests.helpers import RIDER_75, deg, sim

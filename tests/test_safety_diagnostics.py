@@ -5,13 +5,13 @@ import math
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 from drivers.config import load_toml
+from drivers.rotations import heading_frame
 from drivers.vocabulary import Cause
 from hil.run.truth_balancer import TruthBalancer
-from plant.ballbot import RiderIntent
 from plant.ballbot3d import Plant3D
+from plant.core import RiderIntent
 from plant.params import RobotParams, SimParams
 from plant.rider import Hold, Ramp
 from safety.config import RobotGeometry, SupervisorConfig
@@ -25,8 +25,6 @@ from safety.diagnostics import (
     TorqueCheck,
     TrendCheck,
     YawCheck,
-    body_frame,
-    heading_frame,
     live_run,
     motor_jacobian,
     trend_inputs,
@@ -157,16 +155,6 @@ def test_what_small_angle_kinematics_neglect_widens_the_attitude_bound():
 
 
 # ------------------------------------------------------------------------------ speed vs accelerometer
-def test_heading_frame_undoes_the_imus_body_frame_and_body_frame_undoes_it():
-    rng = np.random.default_rng(1)
-    for _ in range(20):
-        roll, pitch = rng.uniform(-0.4, 0.4, 2)
-        body = rng.normal(size=3)
-        world = Rotation.from_euler("YX", [pitch, roll]).apply(body)  # heading = Ry(pitch) Rx(roll) body
-        assert heading_frame(body, roll, pitch) == pytest.approx(world, abs=1e-12)
-        assert body_frame(world, roll, pitch) == pytest.approx(body, abs=1e-12)
-
-
 def test_the_plants_accelerometer_integrates_to_its_speed_change():
     # Physics against physics: MuJoCo's accelerometer (the IMU point's specific force) integrated over a
     # window equals the change of the IMU point's velocity the wheel rates, gyro and attitude give, in both

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from hil.run.truth_balancer import TruthBalancer
-from plant.ballbot import Plant, RiderIntent
+from plant.ballbot import Plant
+from plant.core import RiderIntent
 from plant.params import Encoder, Imu, RobotParams, Tes
 from plant.rider import Ramp, Sine
 from plant.sensors import ImuModel, TesModel, cop, counts_from_angle, load_cell_geometry

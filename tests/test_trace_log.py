@@ -11,7 +11,7 @@ import pytest
 
 from hil.outputs.trace_log import COLUMNS, LAYOUT, TOLD, Column, Layout, TraceLog
 from hil.run import loop
-from plant.ballbot import Truth
+from plant.core import Truth
 
 TRUTH = Truth(  # every column's value distinct, so a value in another's column shows
     t=0.125,

@@ -21,10 +21,10 @@ from drivers.bounds import Positive
 from drivers.bus_config import BusConfig
 from drivers.config import ConfigError, load_toml
 from drivers.devices import Devices
+from drivers.registry import PLANTS, installed
 from drivers.resources import find
 from drivers.zenoh_access import ZenohAccess
 from drivers.zenoh_link import ZenohConfigError, check_endpoint
-from plant.params import PlantName
 
 Where = Literal["embedded", "spawned", "external"]
 
@@ -113,8 +113,9 @@ class Bench(_Part, frozen=True):
     outputs: OutputsPart = OutputsPart()
     sim: str = "sim/default.toml"
     """The plant's simulation settings (tick rate and seed come from the scenario)."""
-    plant: Literal["sim", PlantName] = "sim"
-    """The plant: as the sim file says (`sim`), or the 3-D (MuJoCo) or the planar one whatever it says."""
+    plant: str = "sim"
+    """The plant: as the sim file says (`sim`), or an installed one whatever it says (`3d`, MuJoCo; `planar`;
+    a lab's own: entry points `pure_hil.plants`)."""
     clock: Literal["scenario", "lockstep", "realtime"] = "scenario"
     realtime: RealtimePart = RealtimePart()
     rider_on_board: bool = False
@@ -132,6 +133,10 @@ class Bench(_Part, frozen=True):
             )
         if self.controller.command and self.controller.where != "spawned":
             raise ValueError("controller.command is for controller.where = 'spawned'")
+        if self.plant != "sim" and self.plant not in installed(PLANTS):
+            raise ValueError(
+                f"plant: no plant {self.plant!r} installed (have: sim, {', '.join(installed(PLANTS))})"
+            )
 
     def separate(self) -> list[str]:
         """The parts not in the rig's process."""

@@ -14,11 +14,10 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 from types import FrameType
-from typing import TYPE_CHECKING, get_args
+from typing import TYPE_CHECKING
 
 from drivers.bounds import MAX_DURATION
 from drivers.resources import shipped
-from plant.params import PlantName
 
 if TYPE_CHECKING:
     from hil.bench.bench import Bench
@@ -59,10 +58,10 @@ def add_bench_options(parser: argparse.ArgumentParser, clock: bool = False, plan
     if clock or plant:
         group.add_argument(
             "--plant",
-            choices=get_args(PlantName),
+            metavar="NAME",
             default=None,
-            help="the plant: 3d (MuJoCo rigid bodies) or planar (two planes and yaw, for regression; "
-            "default: the bench's sim settings, 3d)",
+            help="an installed plant: 3d (MuJoCo rigid bodies), planar (two planes and yaw, for regression) "
+            "or a lab's own (entry points pure_hil.plants; default: the bench's sim settings, 3d)",
         )
 
 

@@ -23,6 +23,7 @@ def handle(args: argparse.Namespace) -> int:
     the spec a run starts it from (hil.run.build.controller_spec). It runs in this process, so a signal to
     it (whoever started it stopping it) stops the controller itself, never a wrapper around it."""
     from drivers.dut import start_dut
+    from drivers.plugs import Watched
     from hil.run.build import Placement, controller_spec
     from hil.run.scenario import Scenario
 
@@ -42,7 +43,7 @@ def handle(args: argparse.Namespace) -> int:
         interrupted = until_interrupted(
             f"pure-hil controller: {bench.controller.plugin} ({spec.mode}) on {bench.can.interface}:"
             f"{bench.can.channel}, zenoh {bench.zenoh.mode}; Ctrl-C to stop",
-            alive=getattr(handle, "alive", None),
+            alive=handle.alive if isinstance(handle, Watched) else None,
             stop=stop,
         )
     finally:

@@ -22,23 +22,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def handle(args: argparse.Namespace) -> int:
     """A bench part's plug in this process, on a thread of its own, until SIGINT or SIGTERM (the rig
     spawns its parts so: drivers/plugs.py)."""
-    from drivers.dut import DutSpec
-    from drivers.plugs import SupervisorSpec
-    from drivers.registry import CONTROLLERS, SUPERVISORS, PlugNotFound, find_plug
+    from drivers.dut import DutHandle, DutSpec, start_dut
+    from drivers.plugs import SupervisorHandle, SupervisorSpec, Watched, start_supervisor
+    from drivers.registry import PlugNotFound
 
     spec_type: type[DutSpec] | type[SupervisorSpec] = DutSpec if args.kind == "controller" else SupervisorSpec
-    group = CONTROLLERS if args.kind == "controller" else SUPERVISORS
     try:
         spec: DutSpec | SupervisorSpec = msgspec.json.decode(Path(args.spec).read_bytes(), type=spec_type)
-        start = find_plug(group, args.plugin, args.kind)
     except OSError as exc:
         print(f"pure-hil part: {args.spec}: cannot read: {exc.strerror or exc}", file=sys.stderr)
         return 2
     except msgspec.MsgspecError as exc:
         print(f"pure-hil part: {args.spec}: {exc}", file=sys.stderr)
-        return 2
-    except PlugNotFound as exc:
-        print(f"pure-hil part: {exc}", file=sys.stderr)
         return 2
     if spec.driven:
         print(
@@ -47,12 +42,18 @@ def handle(args: argparse.Namespace) -> int:
         )
         return 2
     stop = stop_on_signals()  # before the part: a signal while it starts stops it cleanly
-    handle = start(spec)
+    try:
+        handle: DutHandle | SupervisorHandle = (
+            start_dut(args.plugin, spec) if isinstance(spec, DutSpec) else start_supervisor(args.plugin, spec)
+        )
+    except PlugNotFound as exc:
+        print(f"pure-hil part: {exc}", file=sys.stderr)
+        return 2
     try:
         bus = f"{spec.can.interface}:{spec.can.channel}"
         interrupted = until_interrupted(
             f"pure-hil part: {args.kind} {args.plugin} on {bus}; Ctrl-C to stop",
-            alive=getattr(handle, "alive", None),
+            alive=handle.alive if isinstance(handle, Watched) else None,
             stop=stop,
         )
     finally:

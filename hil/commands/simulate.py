@@ -27,11 +27,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def handle(args: argparse.Namespace) -> int:
     from hil.run.plant_run import default_intent, format_summary, run_plant
-    from plant.params import RiderParams, RobotParams, SimParams
+    from hil.run.plants import load_sim
+    from plant.params import RiderParams, RobotParams
 
     robot = load_toml(find(args.robot, "robot"), RobotParams)
     rider = None if args.no_rider else load_toml(find(args.rider, "riders"), RiderParams)
-    sim = load_toml(find(args.sim, "sim"), SimParams)
+    sim = load_sim(find(args.sim, "sim"))
     if args.seed is not None:
         sim = msgspec.structs.replace(sim, seed=args.seed)
     started = time.perf_counter()

@@ -34,7 +34,7 @@ def handle(args: argparse.Namespace) -> int:
     from contextlib import ExitStack
 
     from drivers.keys import Keys
-    from drivers.registry import SUPERVISORS, find_plug
+    from drivers.plugs import Watched, start_supervisor
     from drivers.zenoh_link import ZenohLink
     from hil.bench.parts import check
     from hil.bench.rigs import announce
@@ -57,14 +57,13 @@ def handle(args: argparse.Namespace) -> int:
     at = Placement(bench.can, bench.zenoh, args.tick_hz, lockstep=args.clock == "lockstep")
     spec = supervisor_spec(bench, scenario, at, overrides="--safety")
     check(bench)  # the bus and the plug, before any session: a missing vcan0 is one line and exit 2
-    start = find_plug(SUPERVISORS, bench.supervisor.plugin, "supervisor")
     hub = bench.zenoh.mode == "loopback" and args.role == "hub"
     # Its session as this command's role says (the rig's hub, or --identity's certificate), lent to the plug.
     session = bench.zenoh.open_rig(fallback=False)[0] if hub else bench.zenoh.open(args.identity)
     link = ZenohLink(session, Keys(bench.zenoh.prefix))
     stop = stop_on_signals()  # before the plug: a signal while it starts stops it cleanly
     try:
-        handle = start(spec, link=link)
+        handle = start_supervisor(bench.supervisor.plugin, spec, link=link)
         with ExitStack() as announced:
             where = f"zenoh {bench.zenoh.mode}"
             if hub:
@@ -75,7 +74,7 @@ def handle(args: argparse.Namespace) -> int:
                 where = f"zenoh hub {endpoint}"
             interrupted = until_interrupted(
                 f"pure-hil supervisor: on {bench.can.interface}:{bench.can.channel}, {where}; Ctrl-C to stop",
-                alive=getattr(handle, "alive", None),
+                alive=handle.alive if isinstance(handle, Watched) else None,
                 stop=stop,
             )
         handle.stop()

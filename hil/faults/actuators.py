@@ -33,7 +33,7 @@ Lean = Annotated[
 
 
 class PlantFault(FaultSpec, frozen=True, kw_only=True):
-    family: ClassVar[str] = "actuators"
+    """A fault of the robot's drives, or something the world or the rider does to it."""
 
 
 class DriveFault(PlantFault, frozen=True, kw_only=True):

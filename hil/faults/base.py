@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from drivers.dut import DutHandle
     from drivers.keys import Keys
     from drivers.plugs import Supervisor
-    from plant.ballbot import PlantCore
+    from plant.core import PlantCore
 
 
 class FaultTarget(Protocol):
@@ -184,7 +184,6 @@ class FaultSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only
     ) = None
     expect: Expect | None = None
 
-    family: ClassVar[str] = ""
     summary: ClassVar[str] = ""
     detect_within: ClassVar[float] = 0.25
     """s the supervisor has to see this fault on its own evidence (docs/safety.md, the coverage campaign)."""

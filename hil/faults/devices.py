@@ -41,7 +41,6 @@ class DeviceFault(FaultSpec, frozen=True, kw_only=True):
     """A fault of a device in its device profile's protocol: the supervisor must see it within 100 ms of
     its effect on the wire."""
 
-    family: ClassVar[str] = "devices"
     profile: ClassVar[str] = ""
     detect_within: ClassVar[float] = 0.1
 

@@ -83,7 +83,6 @@ class CanFault(FaultSpec, frozen=True, kw_only=True):
     message: Message
     count: Count | None = None
 
-    family: ClassVar[str] = "frames"
     both_ways: ClassVar[bool] = True
     """Acts on received frames too (else only on frames the rig sends)."""
 
@@ -302,8 +301,6 @@ class Babble(FaultSpec, frozen=True, kw_only=True, tag="can.babble"):
     ) = None
     length: Annotated[int, FRAME_BYTES] = 8
 
-    family: ClassVar[str] = "frames"
-
     def capacity(self, rig: FaultTarget) -> int:
         """The most frames of this length the bus carries in one tick."""
         return frames_per_tick(rig.bitrate, rig.plant.sim.tick_hz, self.length)
@@ -324,8 +321,6 @@ class Babble(FaultSpec, frozen=True, kw_only=True, tag="can.babble"):
 class BusOff(FaultSpec, frozen=True, kw_only=True, tag="can.bus_off"):
     """The rig's node (the drives and the IMU) goes bus-off: it neither sends nor receives until it
     recovers at the end of `duration` (bus silence as the controller and the supervisor see it)."""
-
-    family: ClassVar[str] = "frames"
 
     def validate(self, rig: FaultTarget) -> None:
         if self.duration is None:

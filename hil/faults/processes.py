@@ -10,15 +10,13 @@ they mean the same in lockstep and in real time.
 from __future__ import annotations
 
 import math
-from typing import ClassVar, Literal
+from typing import Literal
 
 from drivers.dut import PausableDut
 from hil.faults.base import FaultSpec, FaultState, FaultTarget, Hold
 
 
 class ProcessFault(FaultSpec, frozen=True, kw_only=True):
-    family: ClassVar[str] = "processes"
-
     def delay_ticks(self, rig: FaultTarget, state: FaultState) -> int:
         """How many ticks this tick's commands wait before the drives get them."""
         return 0

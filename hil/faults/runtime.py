@@ -27,7 +27,7 @@ from hil.faults.topics import TopicFault
 from plant.sensors import DriveFeedback, ImuSample, TesSample
 
 if TYPE_CHECKING:
-    from plant.ballbot import PlantCore
+    from plant.core import PlantCore
 
 log = logging.getLogger(__name__)
 

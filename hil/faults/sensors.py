@@ -24,7 +24,7 @@ import typing
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Annotated, ClassVar, Literal
+from typing import TYPE_CHECKING, Annotated, Literal
 
 import msgspec
 
@@ -35,7 +35,7 @@ from plant.params import Encoder
 from plant.sensors import DriveFeedback, ImuSample, TesSample, counts_from_angle
 
 if TYPE_CHECKING:
-    from plant.ballbot import PlantCore
+    from plant.core import PlantCore
 
 SEAT = "tes"
 """The seat's cells travel in its zenoh payload, not in a CAN frame."""
@@ -194,8 +194,6 @@ class Readings:
 
 class SensorFault(FaultSpec, frozen=True, kw_only=True):
     channel: Channel
-
-    family: ClassVar[str] = "sensors"
 
     def apply(self, readings: Readings, t: float, state: FaultState) -> None:
         i = _INDEX[self.channel]

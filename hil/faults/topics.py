@@ -8,7 +8,7 @@ see them through the real zenoh session.
 from __future__ import annotations
 
 import typing
-from typing import Annotated, ClassVar, Literal
+from typing import Annotated, Literal
 
 import msgspec
 
@@ -42,8 +42,6 @@ def _requests_per_tick(spec: ScFlood, rig: FaultTarget | None) -> tuple[float, s
 
 
 class TopicFault(FaultSpec, frozen=True, kw_only=True):
-    family: ClassVar[str] = "topics"
-
     def wrench(self, payload: TesWrench, data: bytes, state: FaultState) -> list[bytes]:
         """The payloads to publish on pure/tes/wrench instead of `data` (the encoded `payload`)."""
         return [data]

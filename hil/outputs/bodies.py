@@ -23,11 +23,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from plant.ballbot import PlantCore, Pose
-
-Vec3 = tuple[float, float, float]
-Quat = tuple[float, float, float, float]
-"""A unit quaternion (w, x, y, z), MuJoCo's and the plant's order."""
+from drivers.rotations import Quat, Vec3, multiply, rotate
+from plant.core import PlantCore, Pose
 
 POSES_HZ = 100.0
 """At most this many poses per simulated second: smooth to the eye, a quarter of a 400 Hz run's ticks."""
@@ -59,7 +56,7 @@ class Shape(NamedTuple):
 
     def along_z(self, distance: float) -> Vec3:
         """The point `distance` along the shape's z axis from its centre, in the body's frame."""
-        x, y, z = rotate(self.orientation, (0.0, 0.0, distance))
+        x, y, z = rotate((0.0, 0.0, distance), self.orientation)
         px, py, pz = self.position
         return px + x, py + y, pz + z
 
@@ -67,31 +64,6 @@ class Shape(NamedTuple):
 class Body(NamedTuple):
     name: str
     shapes: tuple[Shape, ...]
-
-
-def rotate(q: Quat, v: Vec3) -> Vec3:
-    """v turned by the unit quaternion q."""
-    w, x, y, z = q
-    vx, vy, vz = v
-    # v + 2 w (u × v) + 2 u × (u × v), u = (x, y, z)
-    cx, cy, cz = y * vz - z * vy, z * vx - x * vz, x * vy - y * vx
-    return (
-        vx + 2.0 * (w * cx + y * cz - z * cy),
-        vy + 2.0 * (w * cy + z * cx - x * cz),
-        vz + 2.0 * (w * cz + x * cy - y * cx),
-    )
-
-
-def multiply(a: Quat, b: Quat) -> Quat:
-    """The rotation b, then a (Hamilton product a b)."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return (
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    )
 
 
 def model_bodies(model: object, posed: Iterable[str]) -> tuple[Body, ...]:
@@ -119,7 +91,7 @@ def model_bodies(model: object, posed: Iterable[str]) -> tuple[Body, ...]:
         # Up the tree to the posed body this geom moves with, its pose carried into that body's frame.
         while b not in owner and b > 0 and int(m.body_jntnum[b]) == 0:
             lift, turn = _vec3(m.body_pos[b]), _four(m.body_quat[b])
-            x, y, z = rotate(turn, position)
+            x, y, z = rotate(position, turn)
             position = (lift[0] + x, lift[1] + y, lift[2] + z)
             orientation = multiply(turn, orientation)
             b = int(m.body_parentid[b])
@@ -131,18 +103,7 @@ def model_bodies(model: object, posed: Iterable[str]) -> tuple[Body, ...]:
 
 def plant_bodies(plant: PlantCore) -> tuple[Body, ...]:
     """The bodies of `plant` in the order of its `poses()`."""
-    import mujoco
-
-    from plant.ballbot3d import Plant3D
-    from plant.model3d import build_model
-
-    posed = list(plant.poses())
-    if isinstance(plant, Plant3D):
-        model = plant.model
-    else:  # the planar plant: the 3-D model of the same robot and rider, for its shapes
-        sim = plant.sim
-        model = mujoco.MjModel.from_xml_string(build_model(plant.robot, plant.rider, sim.mujoco, sim.dt).xml)
-    return model_bodies(model, posed)
+    return model_bodies(plant.body_model(), plant.poses())
 
 
 def flatten(poses: dict[str, Pose], names: Sequence[str]) -> list[float]:

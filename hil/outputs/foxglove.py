@@ -12,7 +12,8 @@ from collections.abc import Sequence
 
 import msgspec
 
-from hil.outputs.bodies import POSE_VALUES, Body, Quat, Shape, Vec3
+from drivers.rotations import Quat, Vec3
+from hil.outputs.bodies import POSE_VALUES, Body, Shape
 
 FRAME_TRANSFORM = "foxglove.FrameTransform"
 SCENE_UPDATE = "foxglove.SceneUpdate"

@@ -29,8 +29,8 @@ from drivers.config import ConfigError, load_toml
 from drivers.contract import CONTRACT_VERSION, mismatch
 from drivers.dut import DutHandle, DutSpec, start_dut
 from drivers.keys import Keys
-from drivers.plugs import Supervisor, SupervisorSpec
-from drivers.registry import SUPERVISOR_RULES, SUPERVISORS, find_plug, installed
+from drivers.plugs import Supervisor, SupervisorSpec, start_supervisor
+from drivers.registry import SUPERVISOR_RULES, find_plug, installed
 from drivers.resources import find
 from drivers.rules import JudgedRules
 from drivers.schemas import ScRequest
@@ -44,11 +44,11 @@ from hil.outputs.inputs_log import InputsLog
 from hil.outputs.run_logs import McapSpec, RunLogs, open_logs
 from hil.run.agents import SCENARIO_SOURCE, AgentLinks, OperatorStep, ScStep
 from hil.run.drives_port import DrivesPort
+from hil.run.plants import load_sim, make_plant
 from hil.run.rig import Rig, RigParts
 from hil.run.scenario import Scenario
 from hil.run.trace import ControllerUnavailable
-from plant.ballbot import PlantCore, RiderIntent
-from plant.models import make_plant
+from plant.core import PlantCore, RiderIntent
 from plant.params import RiderParams, RobotParams, SimParams
 
 
@@ -324,7 +324,7 @@ def _connect(
 
 def sim_params(bench: Bench, scenario: Scenario | None = None, seed: int | None = None) -> SimParams:
     """The bench's simulation settings with its plant override, the scenario's tick rate and the seed."""
-    sim = load_toml(find(bench.sim, "sim"), SimParams)
+    sim = load_sim(find(bench.sim, "sim"))
     changes: dict[str, object] = {} if bench.plant == "sim" else {"plant": bench.plant}
     if scenario is not None:
         changes["tick_hz"] = scenario.tick_hz
@@ -373,9 +373,7 @@ def _start_parts(
     if part.where != "external":
         spec = supervisor_spec(bench, scenario, replace(at, driven=part.where == "embedded"))
         if part.where == "embedded":
-            handle = find_plug(SUPERVISORS, part.plugin, "supervisor")(
-                spec, link=_supervisor_link(wire, lockstep, stack)
-            )
+            handle = start_supervisor(part.plugin, spec, link=_supervisor_link(wire, lockstep, stack))
             stack.callback(handle.stop)
             supervisor = handle.node
         else:

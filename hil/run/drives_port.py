@@ -23,7 +23,7 @@ from drivers.can_bus import CanNode, Received
 from drivers.can_codec import DRIVE_COMMAND, MessageName
 from drivers.schemas import TICK_MODULO
 from hil.run.lateness import Lateness
-from plant.ballbot import PlantCore
+from plant.core import PlantCore
 
 COMMANDS: dict[str, int] = {name: motor for motor, name in enumerate(DRIVE_COMMAND)}
 """Each drive's command frame (keyed by name as frames carry it: Received.name) -> its motor."""

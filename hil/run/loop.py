@@ -17,7 +17,7 @@ from hil.run.build import Built, RunOptions, RunStatus
 from hil.run.clock import Clock, LockstepClock, RealtimeClock
 from hil.run.rig import Rig
 from hil.run.trace import Failure, Trace, reason
-from plant.ballbot import Truth
+from plant.core import Truth
 
 TELEMETRY_EVERY = 16
 """Ticks between takes of the controller's telemetry during a run: a take is one lump on its tick (64

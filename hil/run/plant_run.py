@@ -9,9 +9,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from hil.run.plants import make_plant
 from hil.run.truth_balancer import TruthBalancer
-from plant.ballbot import RiderIntent
-from plant.models import make_plant
+from plant.core import RiderIntent
 from plant.params import RiderParams, RobotParams, SimParams
 from plant.rider import Hold, Ramp
 

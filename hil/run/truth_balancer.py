@@ -12,7 +12,8 @@ from dataclasses import replace
 import control
 import numpy as np
 
-from plant.ballbot import PITCH, ROLL, PlantCore, plane_params
+from plant.ballbot import plane_params
+from plant.core import PITCH, ROLL, PlantCore
 from plant.plane import PlaneDynamics, PlaneParams
 
 DEFAULT_Q = (100.0, 1.0, 10.0)

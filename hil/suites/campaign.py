@@ -33,7 +33,7 @@ import numpy as np
 from drivers.config import ConfigError, load_toml
 from drivers.resources import find
 from hil.bench.bench import Bench, load_bench
-from hil.faults import Fault
+from hil.faults import Fault, load_with_faults
 from hil.run.measurements import measure, release_end, with_unit
 from hil.run.scenario import OperatorEntry, Scenario
 from hil.suites.coverage import Bounds, Classification, Outcome, classify, false_trip, outcome
@@ -152,7 +152,7 @@ def load_campaign(name: Path | str) -> Campaign:
     be read or is not one is a ConfigError naming the campaign's file and the field, before any case runs
     (each case would end in the same error)."""
     path = find(name, "campaigns")
-    campaign = load_toml(path, Campaign)
+    campaign = load_with_faults(path, Campaign)
     listed = [("riders", campaign.riders)]
     listed += [(f"fault_free[{i}].riders", entry.riders) for i, entry in enumerate(campaign.fault_free)]
     for field_name, riders in listed:
@@ -188,7 +188,7 @@ def expand(campaign: Campaign, select: list[str] | None = None) -> list[Case]:
         raise ValueError(f"campaign {campaign.name}: fault set names repeat: {names}")
     cases = []
     for scenario_path in campaign.scenarios:
-        base = load_toml(find(scenario_path, "scenarios"), Scenario)
+        base = load_with_faults(find(scenario_path, "scenarios"), Scenario)
         for rider in _or_scenarios_own(campaign.riders):
             for law in _or_scenarios_own(campaign.laws):
                 for fault_set in sets:
@@ -225,7 +225,7 @@ def expand(campaign: Campaign, select: list[str] | None = None) -> list[Case]:
                         )
     for entry in campaign.fault_free:
         for scenario_path in entry.scenarios:
-            base = load_toml(find(scenario_path, "scenarios"), Scenario)
+            base = load_with_faults(find(scenario_path, "scenarios"), Scenario)
             for rider in _or_scenarios_own(entry.riders):
                 for law in _or_scenarios_own(entry.laws):
                     for seed in campaign.seeds:

@@ -136,13 +136,12 @@ def hil_bench(request: pytest.FixtureRequest):
 @pytest.fixture
 def hil_scenario():
     """`hil_scenario(name_or_path, **overrides)` -> Scenario (a short name is a shipped scenario)."""
-    from drivers.config import load_toml
     from drivers.resources import find
-    from hil.faults import parse_fault
+    from hil.faults import load_with_faults, parse_fault
     from hil.run.scenario import Scenario
 
     def load(name: str | Path, **overrides):
-        scenario = load_toml(find(name, "scenarios"), Scenario)
+        scenario = load_with_faults(find(name, "scenarios"), Scenario)
         if "faults" in overrides:
             overrides["faults"] = [
                 f if not isinstance(f, dict) else parse_fault(f) for f in overrides["faults"]
