@@ -242,3 +242,92 @@ def test_persistent_errors_name_the_drive_and_a_clean_window_trusts_it_again():
     assert "Encoder1" not in s.monitors.named, "a whole clean window: trusted again"
     assert s.monitors.observe(s.t).e2e_invalid == ()
     assert s.machine.state is State.STOPPING, "the stop under way keeps its cause"
+
+
+# ------------------------------------------------------------------------------ through the lockstep rig
+def rig_run(faults, tmp_path):
+    """bench_smoke (the robot catches a 3 deg tilt and stands) on the embedded lockstep bench, its criteria
+    kept: its verdict says whether the supervisor stayed content."""
+    import msgspec
+
+    from hil import pipeline
+    from hil.faults import parse_fault
+    from hil.run.scenario import Scenario
+    from tests.zenoh_helpers import private_bench
+
+    base = load_toml(ROOT / "configs/scenarios/bench_smoke.toml", Scenario)
+    scenario = msgspec.structs.replace(base, duration=2.5, faults=[parse_fault(f) for f in faults])
+    return pipeline.run(scenario, private_bench("embedded"), out=tmp_path)
+
+
+def diagnoses(folder) -> list[tuple[float, dict]]:
+    """Each SUPERVISOR_DIAGNOSIS on the wire (can.log) with its time."""
+    import can
+
+    from drivers.can_codec import Catalog, MessageName
+
+    catalog = Catalog()
+    out = []
+    for msg in can.LogReader(str(folder / "can.log")):
+        codec = catalog.by_id(msg.arbitration_id)
+        if codec is not None and codec.name == MessageName.SUPERVISOR_DIAGNOSIS:
+            out.append((msg.timestamp, codec.decode(bytes(msg.data))))
+    return out
+
+
+def crc_errors(folder, message: str) -> int:
+    """Frames of `message` in can.log whose CRC fails."""
+    import can
+
+    from drivers.can_codec import Catalog
+    from drivers.e2e import E2EChecker
+
+    codec, checker = Catalog()[message], E2EChecker()
+    return sum(
+        checker.check(codec, bytes(msg.data)).status is E2EStatus.CRC_ERROR
+        for msg in can.LogReader(str(folder / "can.log"))
+        if msg.arbitration_id == codec.frame_id
+    )
+
+
+def corrupt(at: float, **params) -> dict:
+    return {"kind": "can.corrupt", "message": "DRIVE1_FEEDBACK", "bit": 13, "at": at, **params}
+
+
+def test_in_the_rig_short_bursts_of_corrupted_drive_frames_are_ridden_through(tmp_path):
+    """Three bursts of 7 corrupted DRIVE1_FEEDBACK frames, 0.3 s apart: the run passes, the supervisor
+    never leaves NORMAL and never names the drive (the old rule counted 14 errors a burst and stopped at the
+    second: E2E_ERRORS)."""
+    result = rig_run([corrupt(at, count=BURST) for at in (1.0, 1.3, 1.6)], tmp_path)
+    tr = result.trace
+    assert crc_errors(tmp_path, "DRIVE1_FEEDBACK") == 3 * BURST, "the bursts reached the bus"
+    assert result.verdict == "PASSED"
+    assert [e for e in tr.safety_events if e.kind == "transition"] == []
+    assert not any(s["Encoder1"] for _, s in diagnoses(tmp_path)), "the drive is not named"
+
+
+def test_in_the_rig_positive_control_one_frame_more_in_a_burst_names_the_drive(tmp_path):
+    result = rig_run([corrupt(1.0, count=BURST + 1)], tmp_path)
+    first = next(e for e in result.trace.safety_events if e.kind == "transition")
+    assert first.cause == "E2E_ERRORS" and "DRIVE1_FEEDBACK" in first.detail
+    assert result.verdict != "PASSED"
+    assert any(s["Encoder1"] for _, s in diagnoses(tmp_path)), "the drive's encoder is named"
+
+
+def test_in_the_rig_persistent_corruption_names_the_drive_and_clean_frames_trust_it_again(tmp_path):
+    """DRIVE1_FEEDBACK corrupted for 0.2 s: the encoder is named on the wire (E2E_ERRORS first, then the
+    silent drive's takeover), and once its frames are clean for a window it is no longer named: the recovery
+    law balances on it again, and at rest the supervisor ends in ESTOP as its rules say."""
+    result = rig_run([corrupt(1.0, duration=0.2)], tmp_path)
+    tr = result.trace
+    transitions = [(e.to_state, e.cause) for e in tr.safety_events if e.kind == "transition"]
+    assert transitions[0] == ("STOPPING", "E2E_ERRORS")
+    assert ("RECOVERY", "DRIVES_SILENT") in transitions
+    flags = [(t, bool(s["Encoder1"])) for t, s in diagnoses(tmp_path)]
+    named = [t for t, flag in flags if flag]
+    assert named, "the drive's encoder is named"
+    cleared = [t for t, flag in flags if not flag and t > named[0]]
+    assert cleared, "and trusted again"
+    assert cleared[0] > 1.2, "only after the corruption ended"
+    assert not any(flag for t, flag in flags if t >= cleared[0]), "trusted for the rest of the run"
+    assert tr.fallen is None and tr.resting[-1]
