@@ -13,9 +13,9 @@ the gap reports: counted once). Over the last `window` checks at most `max_error
                                                                  └──── window checks all OK ─────┘
 
 INVALID clears the window (a stream is trusted again only on a whole window of its own clean checks, not on
-the clean ones before its errors). A burst of at most `max_errors` errors is ridden through in any state; a
-stream is named (INVALID) only when its errors persist. Silence is not a check: E2E cannot count frames it
-never saw beyond its counter's gap, and the stream watchdogs judge time (safety/machine.py).
+the clean ones before its errors). A trusted stream rides through a burst of at most `max_errors` errors
+within a window; it is named (INVALID) only when its errors persist. Silence is not a check: E2E cannot
+count frames it never saw beyond its counter's gap, and the stream watchdogs judge time (safety/machine.py).
 """
 
 from __future__ import annotations

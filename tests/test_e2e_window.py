@@ -6,6 +6,8 @@ parts trusted again after a clean window (issue 47, the owner's third decision).
 from __future__ import annotations
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from drivers.can_bus import CanNode
 from drivers.config import load_toml
@@ -115,6 +117,36 @@ def test_an_invalid_stream_is_trusted_again_only_on_a_whole_clean_window():
     for _ in range(N - 1):
         assert w.frame(OK) is WindowState.INVALID
     assert w.frame(OK) is WindowState.VALID
+
+
+def reference(checks: list[bool], window: int, max_errors: int) -> WindowState:
+    """The rules read literally over the whole history (True: an error): checks the window's bookkeeping."""
+    state, kept = WindowState.NODATA, list[bool]()
+    for error in checks:
+        kept = [*kept, error][-window:]
+        if state is WindowState.NODATA:
+            state = WindowState.INIT
+        if state is WindowState.INVALID:
+            if len(kept) == window and not any(kept):
+                state = WindowState.VALID
+        elif sum(kept) > max_errors:
+            state, kept = WindowState.INVALID, []
+        elif state is WindowState.INIT and len(kept) - sum(kept) >= window - max_errors:
+            state = WindowState.VALID
+    return state
+
+
+@given(
+    checks=st.lists(st.booleans(), max_size=200),
+    window=st.integers(2, 12),
+    max_errors=st.integers(0, 11),
+)
+def test_the_window_keeps_the_rules_over_any_sequence(checks, window, max_errors):
+    max_errors = min(max_errors, window - 1)
+    w = E2EWindow(window, max_errors)
+    for i, error in enumerate(checks):
+        w.frame(E2EStatus.REPEATED if error else OK)
+        assert w.state is reference(checks[: i + 1], window, max_errors)
 
 
 def test_the_window_refuses_to_tolerate_all_its_checks():
