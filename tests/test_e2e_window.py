@@ -5,6 +5,7 @@ parts trusted again after a clean window (issue 47, the owner's third decision).
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
@@ -229,6 +230,7 @@ class Supervisor:
 
 
 BURST = Integrity().drive_feedback.max_errors
+CFG_STOP = SupervisorConfig().stop
 WINDOW = Integrity().drive_feedback.window
 
 
@@ -293,17 +295,22 @@ def rig_run(faults, tmp_path):
 
 
 def diagnoses(folder) -> list[tuple[float, dict]]:
-    """Each SUPERVISOR_DIAGNOSIS on the wire (can.log) with its time."""
+    """Each SUPERVISOR_DIAGNOSIS on the wire (can.log) at its simulated time: the tick of the SYNC before it
+    (can.log's own stamps are the wall clock's)."""
     import can
 
     from drivers.can_codec import Catalog, MessageName
 
     catalog = Catalog()
-    out = []
+    out, t = [], 0.0
     for msg in can.LogReader(str(folder / "can.log")):
         codec = catalog.by_id(msg.arbitration_id)
-        if codec is not None and codec.name == MessageName.SUPERVISOR_DIAGNOSIS:
-            out.append((msg.timestamp, codec.decode(bytes(msg.data))))
+        if codec is None:
+            continue
+        if codec.name == MessageName.SYNC:
+            t = int(codec.decode(bytes(msg.data))["Tick"]) * TICK
+        elif codec.name == MessageName.SUPERVISOR_DIAGNOSIS:
+            out.append((t, codec.decode(bytes(msg.data))))
     return out
 
 
@@ -363,3 +370,27 @@ def test_in_the_rig_persistent_corruption_names_the_drive_and_clean_frames_trust
     assert cleared[0] > 1.2, "only after the corruption ended"
     assert not any(flag for t, flag in flags if t >= cleared[0]), "trusted for the rest of the run"
     assert tr.fallen is None and tr.resting[-1]
+
+
+def test_in_the_rig_a_drive_named_in_motion_is_trusted_again_in_motion(tmp_path):
+    """speed_limiting, DRIVE1_FEEDBACK corrupted for 0.2 s from 3 s (the rider leaning on, the robot
+    rolling): the encoder is named, the recovery law takes the robot, and once the frames are clean for a
+    window the encoder is trusted again while the robot still moves; the robot stays up."""
+    import msgspec
+
+    from hil import pipeline
+    from hil.faults import parse_fault
+    from hil.run.scenario import Scenario
+    from tests.zenoh_helpers import private_bench
+
+    base = load_toml(ROOT / "configs/scenarios/speed_limiting.toml", Scenario)
+    scenario = msgspec.structs.replace(base, duration=4.0, faults=[parse_fault(corrupt(3.0, duration=0.2))])
+    tr = pipeline.run(scenario, private_bench("embedded"), out=tmp_path).trace
+    assert any(e.to_state == "RECOVERY" for e in tr.safety_events)
+    flags = [(t, bool(s["Encoder1"])) for t, s in diagnoses(tmp_path)]
+    named = next(t for t, flag in flags if flag)
+    cleared = next(t for t, flag in flags if not flag and t > named)
+    assert 3.2 < cleared < 3.5, "trusted again a window after the corruption ended"
+    speed = np.hypot(*tr.velocity[np.searchsorted(tr.t, cleared)])
+    assert speed > CFG_STOP.standstill_speed, "in motion"
+    assert tr.fallen is None
