@@ -61,6 +61,12 @@ class E2EWindow:
         """One frame's E2E status (`lost`: the frames missing before it, LOST only); the state after it."""
         if status is E2EStatus.OK:
             self._corrupted = 0
+            if self.state is WindowState.VALID:  # most frames: a clean check cannot change VALID
+                self._count += 1
+                errors = self._errors
+                if errors and errors[0] <= self._count - self.window:
+                    errors.popleft()
+                return WindowState.VALID
             self._check(error=False)
         elif status is E2EStatus.LOST:
             for _ in range(lost - self._corrupted):
