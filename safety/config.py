@@ -246,20 +246,21 @@ class Integrity(_Strict, frozen=True):
 
     def rules(self, message: str) -> E2EWindowRules:
         """The window of a protected message."""
-        if message in DRIVE_FEEDBACK:
-            return self.drive_feedback
-        if message in DRIVE_COMMAND:
-            return self.drive_command
-        if message in DRIVE_TORQUE:
-            return self.drive_torque
-        own: dict[str, E2EWindowRules] = {
-            MessageName.IMU_ATTITUDE: self.imu_attitude,
-            MessageName.IMU_RATE: self.imu_rate,
-            MessageName.IMU_ACCEL: self.imu_accel,
-            MessageName.CONTROLLER_HEARTBEAT: self.controller_heartbeat,
-            MessageName.OPERATOR_ESTOP: self.operator_estop,
-        }
-        return own.get(message, self.other)
+        rules: E2EWindowRules = getattr(self, WINDOW_OF.get(message, "other"))
+        return rules
+
+
+WINDOW_OF: dict[str, str] = {
+    **dict.fromkeys(DRIVE_FEEDBACK, "drive_feedback"),
+    **dict.fromkeys(DRIVE_COMMAND, "drive_command"),
+    **dict.fromkeys(DRIVE_TORQUE, "drive_torque"),
+    MessageName.IMU_ATTITUDE: "imu_attitude",
+    MessageName.IMU_RATE: "imu_rate",
+    MessageName.IMU_ACCEL: "imu_accel",
+    MessageName.CONTROLLER_HEARTBEAT: "controller_heartbeat",
+    MessageName.OPERATOR_ESTOP: "operator_estop",
+}
+"""The `[integrity]` window each protected message the supervisor reads is judged by (any other: `other`)."""
 
 
 class DriveRules(_Strict, frozen=True):

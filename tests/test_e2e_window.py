@@ -394,3 +394,20 @@ def test_in_the_rig_a_drive_named_in_motion_is_trusted_again_in_motion(tmp_path)
     speed = np.hypot(*tr.velocity[np.searchsorted(tr.t, cleared)])
     assert speed > CFG_STOP.standstill_speed, "in motion"
     assert tr.fallen is None
+
+
+def test_every_protected_message_the_supervisor_reads_has_a_window_of_its_own():
+    """The DBC's protected messages whose signals the supervisor receives each have their own rule, not
+    `other`'s (a message added to the contract needs its fault-tolerant time thought through)."""
+    from drivers.can_codec import Catalog
+    from drivers.e2e import is_protected
+    from safety.config import WINDOW_OF
+
+    read = {
+        c.name
+        for c in Catalog()
+        if is_protected(c) and any("SUPERVISOR" in s.receivers for s in c.message.signals)
+    }
+    assert len(read) == 14, read
+    assert read == set(WINDOW_OF)
+    assert set(WINDOW_OF.values()) | {"other"} == set(Integrity.__struct_fields__)
