@@ -33,13 +33,14 @@ COMPILED = [
     # Not drivers/shared_bus.py: compiled, its SharedBus (a python-can BusABC) is not cleared from the weak
     # references its channel holds when it is collected, and the next look at them crashed the interpreter
     # (tests/test_shared_bus.py, a bus never shut down).
-    # The supervisor: its state machine, monitors, diagnostics, recovery law, SC arbiter and its node.
+    # The supervisor: its state machine, monitors, diagnostics, recovery law, SC arbiter, node and E2E windows.
     "safety/machine.py",
     "safety/monitors.py",
     "safety/diagnostics.py",
     "safety/recovery.py",
     "safety/arbiter.py",
     "safety/node.py",
+    "safety/e2e_window.py",
     # The reference controller: its estimator, balancer, commanded speed and yaw, step and node
     # (controller/embedded.py, its handle, stays Python: benchmarks/lockstep.py times its poll by wrapping
     # it).

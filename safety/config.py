@@ -36,6 +36,8 @@ from drivers.bounds import (
     WordBits,
     ZenithDeg,
 )
+from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MessageName
+from drivers.e2e import MAX_GAP
 from drivers.rules import MotionLimits, SpeedLimits, StopLimits
 
 Fraction = Annotated[float, msgspec.Meta(gt=0, le=1)]
@@ -183,11 +185,82 @@ class Watchdogs(_Strict, frozen=True):
     """A silent seat (TES) is a fault: the rider's input is lost."""
 
 
+WindowChecks = Annotated[
+    int,
+    msgspec.Meta(
+        ge=2,
+        le=4000,
+        description="checks (frames) of one stream; 4000 is 10 s at 400 Hz: a stream whose errors have "
+        "stopped waits a whole clean window before it is trusted again",
+    ),
+]
+BurstChecks = Annotated[
+    int,
+    msgspec.Meta(
+        ge=0,
+        le=MAX_GAP - 1,
+        description="errors in a window; E2E's 4-bit alive counter bridges at most 7 corrupted frames in a "
+        "row (drivers/e2e.py MAX_GAP): after a longer burst it reads out of order until it comes round, the "
+        "stream is silent and its watchdog's",
+    ),
+]
+
+
+class E2EWindowRules(_Strict, frozen=True):
+    """One stream's E2E window (safety/e2e_window.py): of its last `window` checks at most `max_errors` may
+    fail; docs/safety.md "E2E windows" derives each from the stream's fault-tolerant time."""
+
+    window: WindowChecks
+    max_errors: BurstChecks
+
+    def __post_init__(self) -> None:
+        if self.max_errors >= self.window:
+            raise ValueError(
+                f"max_errors ({self.max_errors}) must be below window ({self.window}): a window that "
+                "tolerates all its checks failing trusts a dead stream"
+            )
+
+
 class Integrity(_Strict, frozen=True):
-    e2e_window: Positive = 1.0
-    """s over which E2E errors (CRC, repeated, out of order, lost frames) are counted."""
-    e2e_max_errors: Annotated[int, msgspec.Meta(ge=1)] = 20
-    """This many in the window: the bus cannot be trusted, controlled stop."""
+    """Each protected stream's E2E window, per message (the three drives' alike): a burst of at most
+    `max_errors` is ridden through, more within `window` names the stream's parts (E2E_ERRORS)."""
+
+    drive_feedback: E2EWindowRules = E2EWindowRules(window=100, max_errors=7)
+    """DRIVEn_FEEDBACK, 400 Hz: its fault-tolerant time is `watchdogs.drives` (25 ms, 10 frames)."""
+    drive_command: E2EWindowRules = E2EWindowRules(window=100, max_errors=7)
+    """DRIVEn_COMMAND, 400 Hz: the drives' own command watchdog (20 ms, 8 frames)."""
+    drive_torque: E2EWindowRules = E2EWindowRules(window=25, max_errors=2)
+    """DRIVEn_TORQUE, 100 Hz: the torque check's `drives.torque_samples` (3 samples, 30 ms)."""
+    imu_attitude: E2EWindowRules = E2EWindowRules(window=100, max_errors=7)
+    """IMU_ATTITUDE, 400 Hz: `watchdogs.imu` (25 ms)."""
+    imu_rate: E2EWindowRules = E2EWindowRules(window=100, max_errors=7)
+    """IMU_RATE, 400 Hz: `watchdogs.imu` (25 ms)."""
+    imu_accel: E2EWindowRules = E2EWindowRules(window=100, max_errors=7)
+    """IMU_ACCEL, 400 Hz: `watchdogs.imu` (25 ms)."""
+    controller_heartbeat: E2EWindowRules = E2EWindowRules(window=100, max_errors=7)
+    """CONTROLLER_HEARTBEAT, 400 Hz in the rig: `watchdogs.heartbeat` (50 ms)."""
+    operator_estop: E2EWindowRules = E2EWindowRules(window=3, max_errors=1)
+    """OPERATOR_ESTOP, 10 Hz: no watchdog; the detection bound (250 ms) is its fault-tolerant time."""
+    other: E2EWindowRules = E2EWindowRules(window=100, max_errors=7)
+    """Any other protected message the supervisor hears (its own frames sent by another node)."""
+
+    def rules(self, message: str) -> E2EWindowRules:
+        """The window of a protected message."""
+        rules: E2EWindowRules = getattr(self, WINDOW_OF.get(message, "other"))
+        return rules
+
+
+WINDOW_OF: dict[str, str] = {
+    **dict.fromkeys(DRIVE_FEEDBACK, "drive_feedback"),
+    **dict.fromkeys(DRIVE_COMMAND, "drive_command"),
+    **dict.fromkeys(DRIVE_TORQUE, "drive_torque"),
+    MessageName.IMU_ATTITUDE: "imu_attitude",
+    MessageName.IMU_RATE: "imu_rate",
+    MessageName.IMU_ACCEL: "imu_accel",
+    MessageName.CONTROLLER_HEARTBEAT: "controller_heartbeat",
+    MessageName.OPERATOR_ESTOP: "operator_estop",
+}
+"""The `[integrity]` window each protected message the supervisor reads is judged by (any other: `other`)."""
 
 
 class DriveRules(_Strict, frozen=True):

@@ -157,6 +157,7 @@ class Observation:
         controller_state: int | None = None,
         torque_peak: float = 0.0,
         e2e_errors: int = 0,
+        e2e_invalid: tuple[str, ...] = (),
         seat_load: float | None = None,
         button: bool = False,
         request: ScRequest | None = None,
@@ -178,7 +179,9 @@ class Observation:
         self.torque_peak = torque_peak
         """Largest |torque command| since the previous observation, Nm."""
         self.e2e_errors = e2e_errors
-        """E2E errors within the configured window."""
+        """E2E errors within the streams' windows (safety/e2e_window.py), for the record."""
+        self.e2e_invalid = e2e_invalid
+        """The protected streams whose E2E errors persist: more than their window tolerates (E2E_ERRORS)."""
         self.seat_load = seat_load
         """The rider's weight on the seat (−Fz), N."""
         self.button = button
@@ -353,8 +356,11 @@ class SafetyMachine:
             return Cause.OPERATOR_ESTOP, f"by {obs.operator_source or '?'}"
         if obs.button:
             return Cause.BUTTON_ESTOP, ""
-        if obs.e2e_errors >= c.integrity.e2e_max_errors:
-            return Cause.E2E_ERRORS, f"{obs.e2e_errors} in {c.integrity.e2e_window:g} s"
+        if obs.e2e_invalid:
+            return (
+                Cause.E2E_ERRORS,
+                f"{', '.join(obs.e2e_invalid)}: more E2E errors than the window tolerates",
+            )
         wrench_age = obs.ages.get("wrench", math.inf)
         if w.require_wrench and wrench_age > w.wrench and (armed or wrench_age != math.inf):
             return Cause.WRENCH_SILENT, ""
@@ -580,8 +586,8 @@ class SafetyMachine:
                 return f"{stream} silent"
         if obs.controller_state == ControllerState.FAULT:
             return "controller reports a fault"
-        if obs.e2e_errors >= c.integrity.e2e_max_errors:
-            return "E2E errors above the limit"
+        if obs.e2e_invalid:
+            return f"E2E errors persist on {', '.join(obs.e2e_invalid)}"
         if self._contactor_fault:
             return "the main contactor did not open when told to (welded?)"
         on = [str(i) for i, d in enumerate(obs.drives, 1) if d.enabled]

@@ -7,16 +7,19 @@ ball radius. Once a sensor check has failed the estimate turns conservative: the
 from all three drives and the three that each leave one drive out (its place taken by the gyro's yaw
 rate), so a single wrong encoder cannot hide a runaway from the stop's own checks.
 
-Untrusted frames (E2E) update nothing and count as integrity errors. The diagnostics (safety/diagnostics.py)
-are fed frame by frame where one frame carries both sides of a check (a drive's position and velocity, a
-torque sample after its command) and at each observation where the sides come in different frames.
+Untrusted frames (E2E) update nothing. Each protected stream's E2E checks are judged over a window
+(safety/e2e_window.py): a burst is ridden through, a stream whose errors persist is named (its parts, as
+CHANNEL_INPUT lists them) until a whole window of its frames is clean again. The diagnostics
+(safety/diagnostics.py) are fed frame by frame where one frame carries both sides of a check (a drive's
+position and velocity, a torque sample after its command) and at each observation where the sides come in
+different frames.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from collections import Counter, deque
+from collections import Counter
 from collections.abc import Callable
 
 import numpy as np
@@ -32,7 +35,7 @@ from drivers.can_codec import (
     TILT_INPUTS,
     MessageName,
 )
-from drivers.e2e import COUNTER, COUNTER_MODULO, CRC, E2EStatus
+from drivers.e2e import COUNTER, COUNTER_MODULO, CRC
 from drivers.rotations import heading_frame
 from drivers.schemas import EstopCommand, ScRequest, TesWrench
 from drivers.vocabulary import Cause
@@ -51,6 +54,7 @@ from safety.diagnostics import (
     motor_jacobian,
     trend_inputs,
 )
+from safety.e2e_window import E2EWindow, WindowState
 from safety.machine import STREAMS, DriveReport, Finding, Observation
 from safety.recovery import IsolatedEstimator, leave_one_out
 
@@ -250,7 +254,8 @@ class Monitors:
         self._wrench_id: tuple[int, float] | None = None
         self.stale_wrench = 0
         """Seat samples that repeated the previous one unchanged (not counted as fresh)."""
-        self._errors: deque[tuple[float, int]] = deque()
+        self._windows: dict[str, E2EWindow] = {}
+        """Each protected stream's E2E window, by message (made at its first frame)."""
         self.operators = frozenset(config.identity.operators)
         self.rejected_identity: Counter[str] = Counter()
         """SC requests and resets ignored because their source is not a configured operator."""
@@ -268,8 +273,12 @@ class Monitors:
     # ------------------------------------------------------------------------------------------ inputs
     def frame(self, rx: Received, t: float) -> None:
         e2e = rx.e2e
-        if e2e is not None and e2e.status is not E2EStatus.OK:
-            self._errors.append((t, max(e2e.lost, 1)))
+        if e2e is not None:
+            window = self._windows.get(rx.name)
+            if window is None:
+                rules = self.config.integrity.rules(rx.name)
+                window = self._windows[rx.name] = E2EWindow(rules.window, rules.max_errors)
+            window.frame(e2e.status, e2e.lost)
         if not rx.ok:
             return
         s, name = rx.signals, rx.name
@@ -399,8 +408,18 @@ class Monitors:
         self._named.clear()
         self._failed.clear()
 
+    def e2e_invalid(self) -> tuple[str, ...]:
+        """The protected streams whose E2E errors persist (their window INVALID), in the order first heard."""
+        return tuple(name for name, w in self._windows.items() if w.state is WindowState.INVALID)
+
+    def _e2e_named(self) -> set[str]:
+        """The parts of the streams E2E cannot trust now: named while their window is INVALID, trusted again
+        once a whole window of their frames is clean (not latched, unlike the checks' findings)."""
+        return {part for name in self.e2e_invalid() for part in CHANNEL_INPUT.get(name, ()) if part}
+
     def suspects(self) -> frozenset[str]:
-        """The parts the diagnosis names faulty (drivers.can_codec.PARTS), latched until a reset.
+        """The parts the diagnosis names faulty (drivers.can_codec.PARTS): latched until a reset, but for a
+        stream's parts E2E names, which it names only while that stream's errors persist.
 
         What a check isolates by itself (an encoder's position against its velocity, a frozen or replayed
         channel) is named directly. A cross-check that fails names its likeliest input unless a direct
@@ -410,7 +429,7 @@ class Monitors:
         with the gyro although none lies; on the 3-D plant within 22 ms, before the torque check); an
         attitude or speed-trend check the plane's attitude, rate or accelerometer by the accelerometer's own
         tilt (safety/recovery.py `blame`)."""
-        named = self._named
+        named = self._named | self._e2e_named()
         failed = self._failed
         if not failed:
             return frozenset(named)
@@ -573,9 +592,6 @@ class Monitors:
 
     def observe(self, t: float) -> Observation:
         """A snapshot at time t; the per-update parts (torque peak, operator command) start afresh."""
-        window = t - self.config.integrity.e2e_window
-        while self._errors and self._errors[0][0] < window:
-            self._errors.popleft()
         ages = {k: t - v for k, v in self.last.items()}
         ages["sc"] = self.sc.age(t)
         findings = self.findings(t)
@@ -588,7 +604,8 @@ class Monitors:
             ages=ages,
             controller_state=self.controller_state,
             torque_peak=self.torque_peak,
-            e2e_errors=sum(n for _, n in self._errors),
+            e2e_errors=sum(w.errors for w in self._windows.values()),
+            e2e_invalid=self.e2e_invalid(),
             seat_load=self.seat_load,
             button=self.button,
             request=self.sc.request,
