@@ -28,6 +28,7 @@ COMPILED_SUITE = (
     "tests/test_rotations.py",  # drivers/rotations.py
     "tests/test_safety_machine.py",  # safety/machine.py
     "tests/test_safety_monitors.py",  # safety/monitors.py
+    "tests/test_e2e_window.py",  # safety/e2e_window.py
     "tests/test_safety_diagnostics.py",  # safety/diagnostics.py
     "tests/test_safety_arbiter.py",  # safety/arbiter.py
     "tests/test_failop.py",  # safety/recovery.py, and the Rig's takeover paths
@@ -42,6 +43,7 @@ COMPILED_SUITE = (
     # End to end: every shipped scenario, determinism, replay, faults on the wire (hil/run/rig.py), the
     # supervisor's and the controller's nodes (safety/node.py, controller/node.py) on their paths.
     "tests/test_scenarios.py",
+    "tests/test_agents.py",  # hil/run/agents.py
     "tests/test_faults_wire.py",
     "tests/test_safety_e2e.py",
 )
