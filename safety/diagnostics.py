@@ -31,7 +31,7 @@ import numpy as np
 from drivers.rotations import body_up, chassis_axis, euler_rates, heading_frame
 from drivers.vocabulary import Cause
 from safety.config import RobotGeometry, SeatRules, SensorRules
-from safety.machine import Finding
+from safety.observation import Finding
 
 
 class Window:

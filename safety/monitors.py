@@ -55,7 +55,7 @@ from safety.diagnostics import (
     trend_inputs,
 )
 from safety.e2e_window import E2EWindow, WindowState
-from safety.machine import STREAMS, DriveReport, Finding, Observation
+from safety.observation import STREAMS, DriveReport, Finding, Observation
 from safety.recovery import IsolatedEstimator, leave_one_out
 
 IMU_CHANNELS: dict[str, tuple[str, str, str]] = {

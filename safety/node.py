@@ -48,8 +48,9 @@ from drivers.vocabulary import (
 )
 from drivers.zenoh_link import Fence, ZenohLink
 from safety.config import RobotGeometry, SupervisorConfig
-from safety.machine import Decision, Observation, SafetyMachine
+from safety.machine import Decision, SafetyMachine
 from safety.monitors import Monitors
+from safety.observation import Observation
 from safety.recovery import RecoveryLaw
 
 log = logging.getLogger(__name__)

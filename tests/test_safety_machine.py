@@ -18,13 +18,10 @@ from safety.machine import (
     CUT_POWER,
     FINDINGS,
     IMMEDIATE,
-    STREAMS,
     TAKEOVER_CAUSES,
-    DriveReport,
-    Finding,
-    Observation,
     SafetyMachine,
 )
+from safety.observation import STREAMS, DriveReport, Finding, Observation
 
 
 def sc_request(mode, cap, source):

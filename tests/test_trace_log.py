@@ -31,7 +31,9 @@ TRUTH = Truth(  # every column's value distinct, so a value in another's column 
     seat_wrench=(0.0,) * 6,
     fallen=None,
 )
-RIG = SimpleNamespace(port=SimpleNamespace(safety_state=3), supervisor=SimpleNamespace(observed_speed=lambda: 8.5))
+RIG = SimpleNamespace(
+    port=SimpleNamespace(safety_state=3), supervisor=SimpleNamespace(observed_speed=lambda: 8.5)
+)
 COMMAND_SPEED, TILT_COMMAND = (9.1, 9.2), (10.1, 10.2)
 EXPECTED = {
     "t": 0.125,
