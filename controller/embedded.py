@@ -6,7 +6,7 @@ import threading
 
 import msgspec
 
-from controller.config import ControllerConfig, RiderInfo, RobotModel
+from controller.config import ControllerConfig, RiderInfo
 from controller.core import Controller
 from controller.node import ControllerNode, ControllerThread
 from drivers.can_bus import open_bus
@@ -14,6 +14,7 @@ from drivers.config import load_toml
 from drivers.devices import host_node
 from drivers.dut import DrivenDut, DutSpec, PausableDut
 from drivers.keys import Keys
+from drivers.robot import RobotModel
 from drivers.zenoh_link import ZenohLink
 
 

@@ -11,8 +11,9 @@ from drivers.config import load_toml
 from drivers.devices import host_node
 from drivers.keys import Keys
 from drivers.plugs import Supervisor, SupervisorHandle, SupervisorSpec, Watched
+from drivers.robot import RobotModel
 from drivers.zenoh_link import ZenohLink
-from safety.config import RobotGeometry, SupervisorConfig
+from safety.config import SupervisorConfig
 from safety.node import SupervisorNode, SupervisorThread
 
 
@@ -29,7 +30,7 @@ class EmbeddedSupervisor:
                 self.session = spec.zenoh.open("supervisor")
                 link = ZenohLink(self.session, Keys(spec.zenoh.prefix), lossless=spec.lockstep)
             self.link = link
-            robot = load_toml(spec.robot, RobotGeometry)
+            robot = load_toml(spec.robot, RobotModel)
             rules = msgspec.convert(spec.rules, SupervisorConfig)
             can = host_node(self.bus, spec.devices, robot.encoder.counts_per_rev, "supervisor")
             self.node = SupervisorNode(

@@ -26,6 +26,7 @@ import msgspec
 from drivers.can_bus import CanNode, Received
 from drivers.can_codec import PARTS, MessageName
 from drivers.plugs import SupervisorReport
+from drivers.robot import RobotModel
 from drivers.schemas import (
     TICK_MODULO,
     EstopCommand,
@@ -47,7 +48,7 @@ from drivers.vocabulary import (
     StateName,
 )
 from drivers.zenoh_link import Fence, ZenohLink
-from safety.config import RobotGeometry, SupervisorConfig
+from safety.config import SupervisorConfig
 from safety.machine import Decision, Observation, SafetyMachine
 from safety.monitors import Monitors
 from safety.recovery import RecoveryLaw
@@ -64,14 +65,14 @@ class SupervisorNode:
         can: CanNode,
         link: ZenohLink,
         config: SupervisorConfig | None = None,
-        robot: RobotGeometry | None = None,
+        robot: RobotModel | None = None,
         tick_hz: float = 400.0,
         fence_wait: float = 0.5,
         on_put: Callable[[str, bytes], None] | None = None,
         stage_read_back: bool = True,
     ):
         self.config = config = config or SupervisorConfig()
-        robot = robot or RobotGeometry()
+        robot = robot or RobotModel()
         self.can, self.link, self.keys = can, link, link.keys
         self.machine = SafetyMachine(
             config, robot.drive.torque_limit, robot.drive.watchdog_timeout, stage_read_back=stage_read_back
