@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import typing
+from operator import attrgetter
 from pathlib import Path
 
 import msgspec
@@ -96,16 +97,9 @@ def test_the_plants_robot_sections_extend_the_shared_ones_and_redeclare_none_of_
             msgspec.convert({name: {"typo": 1}}, RobotParams)
 
 
-def values(record: msgspec.Struct, prefix: str = "") -> dict[str, object]:
-    """Each field's value by its path in the file, through the records in it."""
-    found: dict[str, object] = {}
-    for name in record.__struct_fields__:
-        value = getattr(record, name)
-        if isinstance(value, msgspec.Struct):
-            found |= values(value, f"{prefix}{name}.")
-        else:
-            found[f"{prefix}{name}"] = value
-    return found
+def values(record: msgspec.Struct) -> dict[str, object]:
+    """Each field's value by its path in the file."""
+    return {path: attrgetter(path)(record) for path in hints(type(record))}
 
 
 def disagreements(truth: RobotParams, model: RobotModel) -> list[str]:
