@@ -151,7 +151,8 @@ def decision_cost(ticks: int) -> None:
 
 
 def reaction_latency(trips: int) -> None:
-    from safety.node import SupervisorNode, SupervisorThread
+    from drivers.plugs import NodeThread
+    from safety.node import SupervisorNode
 
     config = BusConfig(channel=private_channel("bench"))
     endpoint = free_loopback_endpoint()
@@ -159,7 +160,7 @@ def reaction_latency(trips: int) -> None:
     link = ZenohLink(session)
     sup_bus = open_bus(config)
     node = SupervisorNode(CanNode(sup_bus, name="supervisor"), link)
-    thread = SupervisorThread(node).start()
+    thread = NodeThread(node.run, "supervisor").start()
     bus = open_bus(config)
     robot = CanNode(bus, name="robot")
     state = {"heartbeat": ControllerState.BALANCING, "tripped_at": None, "permitted": True, "bus": True}

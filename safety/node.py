@@ -336,22 +336,3 @@ class SupervisorNode:
             while (queued := self.can.recv(timeout=0.0)) is not None:
                 self.frame(queued, self._stamp(0.0))
             self.update(self._stamp(0.0))
-
-
-class SupervisorThread:
-    """The supervisor on a thread of its own (standalone, in the rig's process for tests); `sync`: on the
-    SYNC time base (beside a lockstep rig) instead of the wall clock."""
-
-    def __init__(self, node: SupervisorNode, sync: bool = False):
-        self.node = node
-        self.stop_event = threading.Event()
-        target = node.run_on_sync if sync else node.run
-        self.thread = threading.Thread(target=target, args=(self.stop_event,), name="supervisor", daemon=True)
-
-    def start(self) -> SupervisorThread:
-        self.thread.start()
-        return self
-
-    def stop(self, timeout: float = 2.0) -> None:
-        self.stop_event.set()
-        self.thread.join(timeout)
