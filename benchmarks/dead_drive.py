@@ -28,12 +28,13 @@ import numpy as np
 
 from drivers.bounds import G0
 from drivers.config import load_toml
+from drivers.robot import RobotModel
 from hil.run.truth_balancer import TruthBalancer
 from plant.ballbot3d import Plant3D
 from plant.core import RiderIntent
 from plant.params import RiderParams, RobotParams, SimParams
 from plant.rider import Hold, Ramp
-from safety.config import RecoveryRules, RobotGeometry, SupervisorConfig
+from safety.config import RecoveryRules, SupervisorConfig
 from safety.recovery import IsolatedEstimator, RecoveryLaw
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -71,7 +72,7 @@ def run(case: Case, dead: int, rules: RecoveryRules) -> dict[str, float | str | 
     robot = load_toml(ROOT / "configs/robot/pure.toml", RobotParams)
     rider = load_toml(ROOT / f"configs/riders/{case.rider}.toml", RiderParams)
     plant = Plant3D(robot, rider, SimParams(), RiderIntent(pitch=list(case.lean)))
-    geometry = load_toml(ROOT / "configs/robot/pure.toml", RobotGeometry)
+    geometry = load_toml(ROOT / "configs/robot/pure.toml", RobotModel)
     estimate, law = IsolatedEstimator(geometry, rules, plant.sim.dt), RecoveryLaw(geometry, rules)
     law.design(rider.mass * G0)
     balancer = TruthBalancer(plant)

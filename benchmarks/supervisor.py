@@ -33,6 +33,7 @@ from drivers.bus_config import BusConfig
 from drivers.can_bus import CanNode, open_bus, private_channel
 from drivers.config import load_toml
 from drivers.resources import find
+from drivers.robot import RobotModel
 from drivers.schemas import EstopCommand, TesWrench
 from drivers.vocabulary import ControllerState
 from drivers.zenoh_link import ZenohLink, free_loopback_endpoint, open_session
@@ -41,7 +42,7 @@ from plant.ballbot import Plant
 from plant.core import RiderIntent
 from plant.params import RiderParams, RobotParams, SimParams
 from plant.rider import Ramp
-from safety.config import RobotGeometry, SupervisorConfig
+from safety.config import SupervisorConfig
 from safety.machine import SafetyMachine
 from safety.monitors import Monitors
 from safety.recovery import RecoveryLaw
@@ -105,7 +106,7 @@ def decision_cost(ticks: int) -> None:
     robot = load_toml(ROBOT, RobotParams)
     plant = Plant(robot, load_toml(find("ref_60kg_180", "riders"), RiderParams), SimParams())
     recorded = recorded_ticks(ticks)
-    config, geometry = SupervisorConfig(), load_toml(ROBOT, RobotGeometry)
+    config, geometry = SupervisorConfig(), load_toml(ROBOT, RobotModel)
     stages = {"frames": 0.0, "observe": 0.0, "update": 0.0, "recovery": 0.0}
     law = RecoveryLaw(geometry, config.recovery)
     best = dict.fromkeys(stages, float("inf"))
@@ -150,7 +151,8 @@ def decision_cost(ticks: int) -> None:
 
 
 def reaction_latency(trips: int) -> None:
-    from safety.node import SupervisorNode, SupervisorThread
+    from drivers.plugs import NodeThread
+    from safety.node import SupervisorNode
 
     config = BusConfig(channel=private_channel("bench"))
     endpoint = free_loopback_endpoint()
@@ -158,7 +160,7 @@ def reaction_latency(trips: int) -> None:
     link = ZenohLink(session)
     sup_bus = open_bus(config)
     node = SupervisorNode(CanNode(sup_bus, name="supervisor"), link)
-    thread = SupervisorThread(node).start()
+    thread = NodeThread(node.run, "supervisor").start()
     bus = open_bus(config)
     robot = CanNode(bus, name="robot")
     state = {"heartbeat": ControllerState.BALANCING, "tripped_at": None, "permitted": True, "bus": True}

@@ -1,8 +1,9 @@
 """The reference controller's configuration: its own view of the robot, the rider, and its tuning.
 
-A real controller carries its own model, so this package decodes the robot and rider files into its own
-types (only the fields it needs; the rest of those files is ignored) and never imports the plant. A model
-that differs from the plant's truth is set up by pointing the controller at a different robot file.
+A real controller carries its own model, so this package decodes the robot and rider files itself (only
+the fields it needs: the robot file's `drivers.robot.RobotModel`; the rest of those files is ignored) and
+never imports the plant. A model that differs from the plant's truth is set up by pointing the controller at
+a different robot file.
 """
 
 from __future__ import annotations
@@ -12,28 +13,9 @@ from typing import Annotated, Literal
 import msgspec
 
 from drivers.bounds import (
-    AzimuthDeg,
-    BallInertia,
-    BallMass,
-    BallRadius,
-    BodyInertia,
-    BodyMass,
-    ComHeight,
-    CountsPerRev,
-    GearRatio,
-    MotorSign,
     NonNegative,
     Positive,
     RiderHeight,
-    RotorInertia,
-    SeatHeight,
-    StreamTimeout,
-    TopHeight,
-    TorqueLimit,
-    Viscous,
-    WheelInertia,
-    WheelRadius,
-    ZenithDeg,
 )
 
 
@@ -45,57 +27,7 @@ class _Strict(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=T
     pass
 
 
-# ---------------------------------------------------------------------- the robot, as the controller sees it
-class ModelBall(_Lenient, frozen=True):
-    radius: BallRadius = 0.1145
-    mass: BallMass = 3.6
-    inertia: BallInertia = 0.047
-
-
-class ModelBody(_Lenient, frozen=True):
-    mass: BodyMass = 30.0
-    com_height: ComHeight = 0.25
-    inertia_pitch: BodyInertia = 0.5
-    inertia_roll: BodyInertia = 0.5
-    top_height: TopHeight = 0.386
-    seat_height: SeatHeight = 0.03
-
-
-class ModelDrivetrain(_Lenient, frozen=True):
-    wheel_radius: WheelRadius = 0.0625
-    zenith_deg: ZenithDeg = 45.0
-    azimuth0_deg: AzimuthDeg = 0.0
-    motor_sign: tuple[MotorSign, MotorSign, MotorSign] = (1, 1, 1)
-    gear_ratio: GearRatio = 8.0
-    wheel_inertia: WheelInertia = 0.0015
-    rotor_inertia: RotorInertia = 1.2e-4
-
-
-class ModelDrive(_Lenient, frozen=True):
-    torque_limit: TorqueLimit = 3.75
-    permission_timeout: StreamTimeout = 0.05
-    """s of silence of SUPERVISOR_ESTOP after which the supervisor is lost: this controller then stops on
-    its own (the drives follow it for their grace)."""
-
-
-class ModelFriction(_Lenient, frozen=True):
-    rolling_viscous: Viscous = 0.75
-    drivetrain_viscous: Viscous = 0.5
-
-
-class ModelEncoder(_Lenient, frozen=True):
-    counts_per_rev: CountsPerRev = 8192
-
-
-class RobotModel(_Lenient, frozen=True):
-    """Decoded from the same robot TOML as the plant (configs/robot/pure.toml)."""
-
-    ball: ModelBall = ModelBall()
-    body: ModelBody = ModelBody()
-    drivetrain: ModelDrivetrain = ModelDrivetrain()
-    drive: ModelDrive = ModelDrive()
-    friction: ModelFriction = ModelFriction()
-    encoder: ModelEncoder = ModelEncoder()
+# ---------------------------------------------------------------------------- the rider, as it is told
 
 
 class RiderInfo(_Lenient, frozen=True):

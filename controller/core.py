@@ -15,10 +15,11 @@ import numpy as np
 
 from controller.balance import PlaneBalancer, equilibrium
 from controller.command import CommandSpeed, YawCommand
-from controller.config import ControllerConfig, RiderInfo, RobotModel
+from controller.config import ControllerConfig, RiderInfo
 from controller.estimator import PITCH, ROLL, Estimate, Estimator
 from controller.model import PlaneModel, lqr_gain, motor_jacobian, plane_model, seat_load_height
 from drivers.bounds import G0
+from drivers.robot import RobotModel
 from drivers.schemas import ScCommand
 from drivers.vocabulary import ControllerState
 

@@ -6,14 +6,16 @@ import threading
 
 import msgspec
 
-from controller.config import ControllerConfig, RiderInfo, RobotModel
+from controller.config import ControllerConfig, RiderInfo
 from controller.core import Controller
-from controller.node import ControllerNode, ControllerThread
+from controller.node import ControllerNode
 from drivers.can_bus import open_bus
 from drivers.config import load_toml
 from drivers.devices import host_node
 from drivers.dut import DrivenDut, DutSpec, PausableDut
 from drivers.keys import Keys
+from drivers.plugs import NodeHandle, NodeThread
+from drivers.robot import RobotModel
 from drivers.zenoh_link import ZenohLink
 
 
@@ -26,7 +28,7 @@ def build_controller(spec: DutSpec) -> Controller:
     return Controller(config, load_toml(spec.robot, RobotModel), load_toml(spec.rider, RiderInfo))
 
 
-class EmbeddedController:
+class EmbeddedController(NodeHandle):
     """The reference controller in the rig's process: on a thread of its own, or (`spec.driven`) handled
     from the rig's thread through `poll()` after every SYNC."""
 
@@ -36,20 +38,16 @@ class EmbeddedController:
         try:
             self.session = spec.zenoh.open(spec.identity)
         except BaseException:
-            self.bus.shutdown()
+            self.close()
             raise
-        self.link = ZenohLink(self.session, Keys(spec.zenoh.prefix))
+        self.link = link = ZenohLink(self.session, Keys(spec.zenoh.prefix))
         can = host_node(self.bus, spec.devices, controller.robot.encoder.counts_per_rev, "controller")
-        self.node = ControllerNode(controller, can, self.link, lockstep=spec.lockstep)
-        self.thread = None if spec.driven else ControllerThread(self.node).start()
-        self.paused = self.thread.paused if self.thread is not None else threading.Event()
-        self._stopped = False
+        self.node = ControllerNode(controller, can, link, lockstep=spec.lockstep)
+        self.paused = threading.Event()
         if spec.driven:
             self.node.boot()  # the rig's start-up handshake waits for it before the first SYNC
-
-    def alive(self) -> bool:
-        """Its thread still runs (an error that ended it is on stderr); driven: the rig's thread is its."""
-        return self.thread is None or self.thread.thread.is_alive()
+        else:
+            self.thread = NodeThread(self.node.run, "controller", 0.1, self.paused).start()
 
     def poll(self) -> None:
         """Driven: take in what is queued and answer any SYNC among it (nothing while hung or stopped)."""
@@ -62,16 +60,6 @@ class EmbeddedController:
 
     def resume(self) -> None:
         self.paused.clear()
-
-    def stop(self) -> None:
-        if self._stopped:
-            return
-        self._stopped = True
-        if self.thread is not None:
-            self.thread.stop()
-        self.link.close()
-        self.session.close()
-        self.bus.shutdown()
 
 
 def start(spec: DutSpec) -> EmbeddedController:

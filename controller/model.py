@@ -15,8 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from controller.config import Lqr, RobotModel
+from controller.config import Lqr
 from drivers.bounds import G0
+from drivers.robot import RobotModel
 
 RIDER_COM_ABOVE_HIP = 0.104  # × height
 RIDER_GYRATION = 0.19  # × height

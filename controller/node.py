@@ -260,23 +260,3 @@ class ControllerNode:
             rx = self.can.recv(timeout=min(poll, BOOT_PERIOD) if self.tick is None else poll)
             if rx is not None:
                 self.handle(rx)
-
-
-class ControllerThread:
-    """The controller node on a thread of its own (the embedded default: in the rig's process)."""
-
-    def __init__(self, node: ControllerNode):
-        self.node = node
-        self.stop_event = threading.Event()
-        self.paused = threading.Event()
-        self.thread = threading.Thread(
-            target=node.run, args=(self.stop_event, 0.1, self.paused), name="controller", daemon=True
-        )
-
-    def start(self) -> ControllerThread:
-        self.thread.start()
-        return self
-
-    def stop(self, timeout: float = 2.0) -> None:
-        self.stop_event.set()
-        self.thread.join(timeout)

@@ -17,6 +17,7 @@ they never leave the rig's process.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
@@ -30,6 +31,9 @@ from drivers.vocabulary import Event, OperatorRecord
 from drivers.zenoh_access import ZenohAccess
 
 if TYPE_CHECKING:  # zenoh only where a supervisor starts
+    import can
+    import zenoh
+
     from drivers.zenoh_link import ZenohLink
 
 
@@ -120,6 +124,57 @@ class Watched(Protocol):
     supervisor's may offer it): a command that runs a part until Ctrl-C ends when it stops on an error."""
 
     def alive(self) -> bool: ...
+
+
+class NodeThread:
+    """A plug's node on a thread of its own: `run(stop_event, *args)`, which returns once `stop()` sets the
+    event (daemon: a node that will not end does not hold up its process's exit)."""
+
+    def __init__(self, run: Callable[..., None], name: str, *args: object):
+        self.stop_event = threading.Event()
+        self.thread = threading.Thread(target=run, args=(self.stop_event, *args), name=name, daemon=True)
+
+    def start(self) -> NodeThread:
+        self.thread.start()
+        return self
+
+    def stop(self, timeout: float = 2.0) -> None:
+        self.stop_event.set()
+        self.thread.join(timeout)
+
+
+class NodeHandle:
+    """What the reference plugs' handles hold and how they shut down, written once for the controller
+    (controller/embedded.py) and the supervisor (safety/embedded.py): the node on a `NodeThread` (None when
+    the rig drives it from its tick), its bus, and a zenoh session of its own with the link on it, or a link
+    the rig lent (`session` None), which stays the rig's to close."""
+
+    bus: can.BusABC
+    thread: NodeThread | None = None
+    session: zenoh.Session | None = None
+    link: ZenohLink | None = None
+    _stopped = False
+
+    def alive(self) -> bool:
+        """Its thread still runs (an error that ended it is on stderr); driven: the rig's thread is its."""
+        return self.thread is None or self.thread.thread.is_alive()
+
+    def stop(self) -> None:
+        """Once: the thread first, so that the node no longer uses what is closed after it."""
+        if self._stopped:
+            return
+        self._stopped = True
+        if self.thread is not None:
+            self.thread.stop()
+        self.close()
+
+    def close(self) -> None:
+        """Close what it opened: also what a start that failed part way had opened so far."""
+        if self.session is not None:  # its own link and session; a lent link stays its owner's
+            if self.link is not None:
+                self.link.close()
+            self.session.close()
+        self.bus.shutdown()
 
 
 def start_supervisor(name: str, spec: SupervisorSpec, link: ZenohLink | None = None) -> SupervisorHandle:

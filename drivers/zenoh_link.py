@@ -26,7 +26,7 @@ from collections import Counter, deque
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Generic, Literal, TypeVar, cast
+from typing import Any, Generic, Literal, ParamSpec, TypeVar, cast
 
 import zenoh
 
@@ -39,6 +39,8 @@ log = logging.getLogger(__name__)
 CONFIG_DIR = SHIPPED / "zenoh"
 LOOPBACK = CONFIG_DIR / "loopback.json5"
 Role = Literal["hub", "member"]
+Where = ParamSpec("Where")
+"""Where a session connects and as whom: `load_config`'s parameters."""
 MEMBER_LISTEN = "tcp/127.0.0.1:0"
 LOOPBACK_PREFIXES = ("tcp/127.", "tcp/[::1]", "tls/127.", "udp/127.", "unixsock-stream/")
 SECRET_KEYS = (
@@ -178,15 +180,15 @@ def hub_endpoints(path: Path | str) -> list[str]:
     return _endpoints(_get(load_config(path, "hub"), "listen/endpoints"))
 
 
-def open_session(
-    path: Path | str = LOOPBACK,
-    role: Role = "member",
-    hub_endpoint: str | None = None,
-    allow_network: bool = False,
-    certs: Path | str | None = None,
-    identity: str | None = None,
-) -> zenoh.Session:
-    return zenoh.open(load_config(path, role, hub_endpoint, allow_network, certs, identity))
+def _opened(config: Callable[Where, zenoh.Config]) -> Callable[Where, zenoh.Session]:
+    def open_session(*args: Where.args, **kwargs: Where.kwargs) -> zenoh.Session:
+        return zenoh.open(config(*args, **kwargs))
+
+    return open_session
+
+
+open_session = _opened(load_config)
+"""A session on `load_config`'s Config: the same arguments, declared once there (mypy checks each call)."""
 
 
 def open_hub(

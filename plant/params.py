@@ -12,67 +12,46 @@ from typing import Annotated, Literal
 
 import msgspec
 
+import drivers.robot as robot_file
 from drivers.bounds import (
     AccelBiasSigma,
     AccelBiasWalk,
     AccelNoiseDensity,
     AttitudeNoiseDeg,
     AzimuthDeg,
-    BallInertia,
-    BallMass,
-    BallRadius,
-    BodyInertia,
-    BodyMass,
     CalibrationError,
     CellNoise,
     CellRadius,
     CellRange,
     ChassisBottom,
     ChassisRadius,
-    ComHeight,
     ContactorTimeout,
-    CountsPerRev,
-    CurrentLoopTau,
     DryFriction,
     FloorFriction,
-    GearRatio,
     GyroBiasSigma,
     GyroBiasWalk,
     GyroNoiseDensity,
     HipHalfWidth,
     HipTorque,
     HipX,
-    ImuHeight,
     LeanAccelDeg,
     LeanDeg,
     LeanRateDeg,
-    MotorSign,
-    NoLoadSpeed,
     Positive,
     ReactionTime,
     RiderHeight,
     RiderMass,
     RollFriction,
-    RotorInertia,
-    SeatHeight,
     SensorRateHz,
     SpinFriction,
-    StallTorque,
     StickVelocity,
-    StreamTimeout,
     SupervisorLostGrace,
-    TopHeight,
-    TorqueLimit,
     TorqueNoise,
     TrunkDamping,
     TrunkStiffness,
     TwistTorque,
     VelocityNoise,
     Viscous,
-    WheelInertia,
-    WheelRadius,
-    WordBits,
-    ZenithDeg,
 )
 
 
@@ -81,13 +60,9 @@ class _Record(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=T
 
 
 # --------------------------------------------------------------------------------------------- robot
-class Ball(_Record, frozen=True):
-    radius: BallRadius = 0.1145
-    """r_K, m."""
-    mass: BallMass = 3.6
-    """m_K, kg."""
-    inertia: BallInertia = 0.047
-    """Θ_K about the ball centre, kg m²."""
+# Each section extends the one every package reads (drivers/robot.py: its fields, defaults and bounds) with
+# what only the plant's physics needs, and refuses unknown fields: here a key nobody reads is a typo.
+class Ball(robot_file.Ball, frozen=True, forbid_unknown_fields=True, kw_only=True):
     floor_friction: FloorFriction = 0.8
     """μ: ball-floor sliding friction coefficient (3-D plant: the ball slips past μ N)."""
     spin_friction: SpinFriction = 0.01
@@ -98,25 +73,7 @@ class Ball(_Record, frozen=True):
     rolling resistance both plants share)."""
 
 
-class Body(_Record, frozen=True):
-    """Everything above the ball that is not the rider: chassis, drivetrain, seat, TES, battery, footrest."""
-
-    mass: BodyMass = 30.0
-    """kg."""
-    com_height: ComHeight = 0.25
-    """COM above the ball centre along the body axis, m."""
-    inertia_pitch: BodyInertia = 0.5
-    """About the COM, about body y, kg m²."""
-    inertia_roll: BodyInertia = 0.5
-    """About the COM, about body x, kg m²."""
-    inertia_yaw: BodyInertia = 0.3
-    """About the body axis, kg m²."""
-    top_height: TopHeight = 0.386
-    """h_P: point P (top centre of the chassis, TES origin) above the ball centre, m."""
-    seat_height: SeatHeight = 0.03
-    """Seat surface above P, m."""
-    imu_height: ImuHeight = 0.20
-    """Body IMU above the ball centre on the body axis, m."""
+class Body(robot_file.Body, frozen=True, forbid_unknown_fields=True, kw_only=True):
     chassis_radius: ChassisRadius = 0.20
     """Radius of the chassis' lowest rim, m (3-D plant: touching the floor with it is a fall)."""
     chassis_bottom: ChassisBottom = 0.05
@@ -132,37 +89,11 @@ class Body(_Record, frozen=True):
             )
 
 
-class Drivetrain(_Record, frozen=True):
-    wheel_radius: WheelRadius = 0.0625
-    """r_W, m."""
-    zenith_deg: ZenithDeg = 45.0
-    """α: angle between the body z axis and the ball-centre-to-contact line, deg."""
-    azimuth0_deg: AzimuthDeg = 0.0
-    """β_0: azimuth of wheel 1 from body +x, deg; wheels follow at +120° and +240°."""
-    motor_sign: tuple[MotorSign, MotorSign, MotorSign] = (1, 1, 1)
-    """Per-motor direction: +1 when positive motor rotation is the positive wheel rate of the model."""
-    gear_ratio: GearRatio = 8.0
-    """N, motor turns per wheel turn."""
-    wheel_inertia: WheelInertia = 0.0015
-    """Omniwheel inertia at the wheel shaft, kg m²."""
-    rotor_inertia: RotorInertia = 1.2e-4
-    """Motor rotor inertia at the motor shaft, kg m²."""
+class Drivetrain(robot_file.Drivetrain, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    pass
 
 
-class Drive(_Record, frozen=True):
-    torque_limit: TorqueLimit = 3.75
-    """Motor-shaft torque limit, Nm (× gear ratio at the wheel): the drive's current limit."""
-    stall_torque: StallTorque = 16.3
-    no_load_speed: NoLoadSpeed = 282.0
-    """The motor's top speed: driving (torque and speed of one sign), the torque available falls from
-    `stall_torque` at rest to 0 at `no_load_speed`, the back-EMF taking the bus voltage; braking, the whole
-    `torque_limit` (plant/drives.py, docs/physics.md §3.6)."""
-    current_loop_tau: CurrentLoopTau = 0.0005
-    """First-order lag of the torque (current) loop, s."""
-    watchdog_timeout: StreamTimeout = 0.02
-    """The drive disables itself when no command arrives for this long, s."""
-    permission_timeout: StreamTimeout = 0.05
-    """The supervisor is lost when its SUPERVISOR_ESTOP frame (100 Hz) is silent this long, s."""
+class Drive(robot_file.Drive, frozen=True, forbid_unknown_fields=True, kw_only=True):
     supervisor_lost_grace: SupervisorLostGrace = 30.0
     """s the drives go on following the controller once the supervisor is lost (its frame silent, not an
     e-stop): cutting power in motion tips a ballbot, and the controller, which sees the silence too, brakes
@@ -183,11 +114,7 @@ class Drive(_Record, frozen=True):
             )
 
 
-class Friction(_Record, frozen=True):
-    rolling_viscous: Viscous = 0.75
-    """b_φ: ball-floor rolling resistance, Nm s/rad on φ."""
-    drivetrain_viscous: Viscous = 0.5
-    """b_ψ: ball-equivalent drivetrain viscous friction, Nm s/rad on ψ = φ - θ."""
+class Friction(robot_file.Friction, frozen=True, forbid_unknown_fields=True, kw_only=True):
     drivetrain_coulomb: DryFriction = 1.5
     """τ_c: ball-equivalent kinetic (Coulomb) friction, Nm."""
     drivetrain_stiction: DryFriction = 2.0
@@ -208,11 +135,8 @@ class Friction(_Record, frozen=True):
             raise ValueError("yaw_stiction must be >= yaw_coulomb (breakaway exceeds kinetic)")
 
 
-class Encoder(_Record, frozen=True):
-    counts_per_rev: CountsPerRev = 8192
-    """Quadrature counts per motor revolution."""
-    word_bits: WordBits = 32
-    """The count wraps as a signed integer of this width."""
+class Encoder(robot_file.Encoder, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    pass
 
 
 class Imu(_Record, frozen=True):

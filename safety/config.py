@@ -1,8 +1,8 @@
-"""The supervisor's configuration (`configs/safety/default.toml`) and its own view of the robot.
+"""The supervisor's configuration (`configs/safety/default.toml`).
 
-Like the controller, the supervisor decodes the robot file into its own types (the geometry it needs to
-estimate speed, the masses its recovery law balances), so it shares no code with the controller it watches:
-a bug in one is not a bug in both.
+Like the controller, the supervisor decodes the robot file itself, into `drivers.robot.RobotModel` (the
+geometry it needs to estimate speed, the masses its recovery law balances); its own maths on it shares no
+code with the controller it watches: a bug in one is not a bug in both.
 Every threshold has a documented default; docs/safety.md explains how they were chosen.
 """
 
@@ -13,28 +13,8 @@ from typing import Annotated
 import msgspec
 
 from drivers.bounds import (
-    AzimuthDeg,
-    BallInertia,
-    BallMass,
-    BallRadius,
-    BodyInertia,
-    BodyMass,
-    ComHeight,
-    CountsPerRev,
-    GearRatio,
-    ImuHeight,
-    MotorSign,
-    NoLoadSpeed,
     NonNegative,
     Positive,
-    SeatHeight,
-    StallTorque,
-    StreamTimeout,
-    TopHeight,
-    TorqueLimit,
-    WheelRadius,
-    WordBits,
-    ZenithDeg,
 )
 from drivers.can_codec import DRIVE_COMMAND, DRIVE_FEEDBACK, DRIVE_TORQUE, MessageName
 from drivers.e2e import MAX_GAP
@@ -43,68 +23,8 @@ from drivers.rules import MotionLimits, SpeedLimits, StopLimits
 Fraction = Annotated[float, msgspec.Meta(gt=0, le=1)]
 
 
-class _Lenient(msgspec.Struct, frozen=True, kw_only=True):
-    """A subset of a file written for someone else: unknown fields are ignored."""
-
-
 class _Strict(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     pass
-
-
-# --------------------------------------------------------------------- the robot, as the supervisor sees it
-class Ball(_Lenient, frozen=True):
-    radius: BallRadius = 0.1145
-    mass: BallMass = 3.6
-    inertia: BallInertia = 0.047
-
-
-class Body(_Lenient, frozen=True):
-    mass: BodyMass = 30.0
-    """kg of the chassis without ball and rider (the recovery law's model)."""
-    com_height: ComHeight = 0.25
-    """m above the ball centre."""
-    inertia_pitch: BodyInertia = 0.5
-    inertia_roll: BodyInertia = 0.5
-    inertia_yaw: BodyInertia = 0.3
-    top_height: TopHeight = 0.386
-    """m of the chassis top (the seat's base) above the ball centre."""
-    imu_height: ImuHeight = 0.2
-    """m above the ball centre: the IMU's own acceleration includes the chassis' rotation about the ball."""
-    seat_height: SeatHeight = 0.03
-    """m of the seat surface above P (the seat's COP is computed on it)."""
-
-
-class Encoder(_Lenient, frozen=True):
-    counts_per_rev: CountsPerRev = 8192
-    word_bits: WordBits = 32
-
-
-class Drivetrain(_Lenient, frozen=True):
-    wheel_radius: WheelRadius = 0.0625
-    zenith_deg: ZenithDeg = 45.0
-    azimuth0_deg: AzimuthDeg = 0.0
-    motor_sign: tuple[MotorSign, MotorSign, MotorSign] = (1, 1, 1)
-    gear_ratio: GearRatio = 8.0
-
-
-class DriveLimits(_Lenient, frozen=True):
-    torque_limit: TorqueLimit = 3.75
-    stall_torque: StallTorque = 16.3
-    no_load_speed: NoLoadSpeed = 282.0
-    """The motor's torque-speed line: a drive near its top speed makes less than it is told, and is not
-    faulty for it (safety/diagnostics.py TorqueCheck)."""
-    watchdog_timeout: StreamTimeout = 0.02
-    """The drives' own command watchdog, s (for the root-cause rule: it trips before the heartbeat's)."""
-
-
-class RobotGeometry(_Lenient, frozen=True):
-    """Decoded from the robot TOML the plant and the controller read (configs/robot/pure.toml)."""
-
-    ball: Ball = Ball()
-    body: Body = Body()
-    drivetrain: Drivetrain = Drivetrain()
-    drive: DriveLimits = DriveLimits()
-    encoder: Encoder = Encoder()
 
 
 # --------------------------------------------------------------------------------------------- rules

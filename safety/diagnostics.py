@@ -28,9 +28,10 @@ from typing import ClassVar
 
 import numpy as np
 
+from drivers.robot import RobotModel
 from drivers.rotations import body_up, chassis_axis, euler_rates, heading_frame
 from drivers.vocabulary import Cause
-from safety.config import RobotGeometry, SeatRules, SensorRules
+from safety.config import SeatRules, SensorRules
 from safety.observation import Finding
 
 
@@ -467,7 +468,7 @@ class SeatCheck(Check):
         return ratio > 1.0
 
 
-def motor_jacobian(robot: RobotGeometry) -> np.ndarray:
+def motor_jacobian(robot: RobotModel) -> np.ndarray:
     """Motor-shaft rates = G @ [φ̇_x − θ̇_x, φ̇_y − θ̇_y, −ψ̇] (each wheel's contact direction on the ball)."""
     d = robot.drivetrain
     rho = robot.ball.radius / d.wheel_radius

@@ -10,55 +10,37 @@ from drivers.can_bus import open_bus
 from drivers.config import load_toml
 from drivers.devices import host_node
 from drivers.keys import Keys
-from drivers.plugs import Supervisor, SupervisorHandle, SupervisorSpec, Watched
+from drivers.plugs import NodeHandle, NodeThread, Supervisor, SupervisorHandle, SupervisorSpec, Watched
+from drivers.robot import RobotModel
 from drivers.zenoh_link import ZenohLink
-from safety.config import RobotGeometry, SupervisorConfig
-from safety.node import SupervisorNode, SupervisorThread
+from safety.config import SupervisorConfig
+from safety.node import SupervisorNode
 
 
-class EmbeddedSupervisor:
+class EmbeddedSupervisor(NodeHandle):
     """A SupervisorNode with its bus and zenoh; `node` is what the rig updates when it drives it."""
 
     def __init__(self, spec: SupervisorSpec, link: ZenohLink | None = None):
         """link: the rig's, for a driven supervisor (its puts are counted in the lockstep fence); None: a
         session and link of its own, as the bench's supervisor role."""
         self.bus = open_bus(spec.can)
-        self.session = None
         try:
             if link is None:
                 self.session = spec.zenoh.open("supervisor")
                 link = ZenohLink(self.session, Keys(spec.zenoh.prefix), lossless=spec.lockstep)
             self.link = link
-            robot = load_toml(spec.robot, RobotGeometry)
+            robot = load_toml(spec.robot, RobotModel)
             rules = msgspec.convert(spec.rules, SupervisorConfig)
             can = host_node(self.bus, spec.devices, robot.encoder.counts_per_rev, "supervisor")
             self.node = SupervisorNode(
                 can, link, rules, robot, tick_hz=spec.tick_hz, stage_read_back=spec.devices.stage_read_back
             )
         except BaseException:
-            self._close()
+            self.close()
             raise
-        self.thread = None if spec.driven else SupervisorThread(self.node, sync=spec.lockstep).start()
-        self._stopped = False
-
-    def alive(self) -> bool:
-        """Its thread still runs (an error that ended it is on stderr); driven: the rig's thread is its."""
-        return self.thread is None or self.thread.thread.is_alive()
-
-    def stop(self) -> None:
-        if self._stopped:
-            return
-        self._stopped = True
-        if self.thread is not None:
-            self.thread.stop()
-        self._close()
-
-    def _close(self) -> None:
-        if self.session is not None:  # its own link and session; a lent link stays its owner's
-            if hasattr(self, "link"):
-                self.link.close()
-            self.session.close()
-        self.bus.shutdown()
+        if not spec.driven:
+            run = self.node.run_on_sync if spec.lockstep else self.node.run  # lockstep: on SYNC's time base
+            self.thread = NodeThread(run, "supervisor").start()
 
 
 PLUG_CONTRACT: type[Supervisor] = SupervisorNode

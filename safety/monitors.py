@@ -36,11 +36,12 @@ from drivers.can_codec import (
     MessageName,
 )
 from drivers.e2e import COUNTER, COUNTER_MODULO, CRC
+from drivers.robot import RobotModel
 from drivers.rotations import heading_frame
 from drivers.schemas import EstopCommand, ScRequest, TesWrench
 from drivers.vocabulary import Cause
 from safety.arbiter import ScArbiter
-from safety.config import RobotGeometry, SupervisorConfig
+from safety.config import SupervisorConfig
 from safety.diagnostics import (
     AttitudeCheck,
     EncoderCheck,
@@ -102,7 +103,7 @@ then the dict's own)."""
 class Drive:
     """What the supervisor knows of one drive."""
 
-    def __init__(self, index: int, config: SupervisorConfig, robot: RobotGeometry, period: float):
+    def __init__(self, index: int, config: SupervisorConfig, robot: RobotModel, period: float):
         sensors, rules = config.sensors, config.drives
         self.index, self.period = index, period
         self.rad_per_count = 2.0 * math.pi / robot.encoder.counts_per_rev
@@ -189,7 +190,7 @@ class Drive:
 
 
 class Monitors:
-    def __init__(self, config: SupervisorConfig, robot: RobotGeometry, tick_hz: float = 400.0):
+    def __init__(self, config: SupervisorConfig, robot: RobotModel, tick_hz: float = 400.0):
         self.config = config
         self.period = period = 1.0 / tick_hz
         self.radius = robot.ball.radius

@@ -26,6 +26,7 @@ import msgspec
 from drivers.can_bus import CanNode, Received
 from drivers.can_codec import PARTS, MessageName
 from drivers.plugs import SupervisorReport
+from drivers.robot import RobotModel
 from drivers.schemas import (
     TICK_MODULO,
     EstopCommand,
@@ -47,7 +48,7 @@ from drivers.vocabulary import (
     StateName,
 )
 from drivers.zenoh_link import Fence, ZenohLink
-from safety.config import RobotGeometry, SupervisorConfig
+from safety.config import SupervisorConfig
 from safety.machine import Decision, SafetyMachine
 from safety.monitors import Monitors
 from safety.observation import Observation
@@ -65,14 +66,14 @@ class SupervisorNode:
         can: CanNode,
         link: ZenohLink,
         config: SupervisorConfig | None = None,
-        robot: RobotGeometry | None = None,
+        robot: RobotModel | None = None,
         tick_hz: float = 400.0,
         fence_wait: float = 0.5,
         on_put: Callable[[str, bytes], None] | None = None,
         stage_read_back: bool = True,
     ):
         self.config = config = config or SupervisorConfig()
-        robot = robot or RobotGeometry()
+        robot = robot or RobotModel()
         self.can, self.link, self.keys = can, link, link.keys
         self.machine = SafetyMachine(
             config, robot.drive.torque_limit, robot.drive.watchdog_timeout, stage_read_back=stage_read_back
@@ -336,22 +337,3 @@ class SupervisorNode:
             while (queued := self.can.recv(timeout=0.0)) is not None:
                 self.frame(queued, self._stamp(0.0))
             self.update(self._stamp(0.0))
-
-
-class SupervisorThread:
-    """The supervisor on a thread of its own (standalone, in the rig's process for tests); `sync`: on the
-    SYNC time base (beside a lockstep rig) instead of the wall clock."""
-
-    def __init__(self, node: SupervisorNode, sync: bool = False):
-        self.node = node
-        self.stop_event = threading.Event()
-        target = node.run_on_sync if sync else node.run
-        self.thread = threading.Thread(target=target, args=(self.stop_event,), name="supervisor", daemon=True)
-
-    def start(self) -> SupervisorThread:
-        self.thread.start()
-        return self
-
-    def stop(self, timeout: float = 2.0) -> None:
-        self.stop_event.set()
-        self.thread.join(timeout)

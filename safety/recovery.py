@@ -29,8 +29,9 @@ from scipy.linalg import solve_continuous_are
 
 from drivers.bounds import G0
 from drivers.can_codec import ENCODERS, TILT_INPUTS
+from drivers.robot import RobotModel
 from drivers.rotations import body_frame, body_up, euler_rates, heading_frame
-from safety.config import RecoveryRules, RobotGeometry
+from safety.config import RecoveryRules
 from safety.diagnostics import YawCheck, motor_jacobian
 
 ATTITUDE_WINDOW = 40
@@ -122,7 +123,7 @@ class Plane:
 class IsolatedEstimator:
     """The state the recovery law needs, from the inputs the diagnosis has not named."""
 
-    def __init__(self, robot: RobotGeometry, rules: RecoveryRules, period: float):
+    def __init__(self, robot: RobotModel, rules: RecoveryRules, period: float):
         jacobian = motor_jacobian(robot)
         self.imu_height = robot.body.imu_height
         self._to_relative = np.linalg.inv(jacobian)
@@ -399,7 +400,7 @@ def accelerometer_tilt(a: float, norm: float, offset: float) -> float:
 
 
 def plane_gain(
-    robot: RobotGeometry, rules: RecoveryRules, rider_mass: float, inertia: float, chassis: float = 1.0
+    robot: RobotModel, rules: RecoveryRules, rider_mass: float, inertia: float, chassis: float = 1.0
 ) -> np.ndarray:
     """LQR gain K (τ = −K s, s = [θ, φ, θ̇, φ̇]) of the planar ballbot linearised upright (Fankhauser &
     Gwerder's model, the rider a point mass `rider_com` above the seat, the drivetrain's inertia left out:
@@ -461,7 +462,7 @@ a 50-120 kg rider and up to 15 deg of tilt lie within ±3.5."""
 
 
 @functools.cache
-def gain_tables(robot: RobotGeometry, rules: RecoveryRules) -> tuple[np.ndarray, np.ndarray]:
+def gain_tables(robot: RobotModel, rules: RecoveryRules) -> tuple[np.ndarray, np.ndarray]:
     """The gains for riders every RIDER_STEP kg, (roll, pitch) planes and the coupled plane of a pair for
     every chassis factor: solved once per process and robot (a takeover only interpolates: a Riccati solve
     at the takeover would delay its frame by milliseconds; the 171 of them take 0.7-1.6 s on a loaded 2-core
@@ -491,7 +492,7 @@ class RecoveryLaw:
     chassis takes the pair's torque now: the rider's legs ahead of the axis and the chassis' own tilt couple
     its roll to the yaw the torque brings (`chassis_factor`)."""
 
-    def __init__(self, robot: RobotGeometry, rules: RecoveryRules):
+    def __init__(self, robot: RobotModel, rules: RecoveryRules):
         self.robot, self.rules = robot, rules
         jacobian = motor_jacobian(robot)
         self._to_motor = np.linalg.inv(jacobian.T)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import typing
+from operator import attrgetter
 from pathlib import Path
 
 import msgspec
@@ -14,6 +15,7 @@ import pytest
 from drivers.bus_config import BusConfig
 from drivers.config import ConfigError, decode_toml, load_toml
 from drivers.resources import find
+from drivers.robot import RobotModel
 from hil.cli import main
 from hil.config_bounds import FieldBound, bounds, segment_kinds
 from plant.params import RiderParams, RobotParams, SimParams
@@ -73,11 +75,9 @@ def differences(view: type, truth: type) -> list[str]:
 
 
 def test_the_controller_and_the_supervisor_read_the_robot_and_the_rider_with_the_plants_declarations():
-    from controller.config import RiderInfo, RobotModel
-    from safety.config import RobotGeometry
+    from controller.config import RiderInfo
 
     assert differences(RobotModel, RobotParams) == []
-    assert differences(RobotGeometry, RobotParams) == []
     assert differences(RiderInfo, RiderParams) == []
     # Positive control: a bound of their own, as each had before, is seen.
     Copied = msgspec.defstruct(
@@ -86,6 +86,43 @@ def test_the_controller_and_the_supervisor_read_the_robot_and_the_rider_with_the
     assert differences(Copied, RobotParams) == [
         f"body.mass: {typing.Annotated[float, msgspec.Meta(gt=0)]} is not {hints(RobotParams)['body.mass']}"
     ]
+
+
+def test_the_plants_robot_sections_extend_the_shared_ones_and_redeclare_none_of_their_fields():
+    for name in RobotModel.__struct_fields__:
+        shared, own = type(getattr(RobotModel(), name)), type(getattr(RobotParams(), name))
+        assert issubclass(own, shared), f"plant's {name} is not drivers.robot's {shared.__name__} extended"
+        assert not set(own.__annotations__) & set(shared.__struct_fields__), f"{name} redeclares a field"
+        with pytest.raises(msgspec.ValidationError, match="unknown field"):  # the plant's truth stays strict
+            msgspec.convert({name: {"typo": 1}}, RobotParams)
+
+
+def values(record: msgspec.Struct) -> dict[str, object]:
+    """Each field's value by its path in the file."""
+    return {path: attrgetter(path)(record) for path in hints(type(record))}
+
+
+def disagreements(truth: RobotParams, model: RobotModel) -> list[str]:
+    """The fields the controller's and the supervisor's model holds other than the plant's."""
+    full = values(truth)
+    return [
+        f"{path}: {v!r} != {full.get(path)!r}" for path, v in values(model).items() if v != full.get(path)
+    ]
+
+
+@pytest.mark.parametrize("robot", [None, *sorted((ROOT / "configs/robot").glob("*.toml"))], ids=str)
+def test_the_plant_and_the_model_decode_a_robot_file_alike(robot):
+    # None: every default (a section or the whole file left out).
+    truth, model = (
+        (RobotParams(), RobotModel())
+        if robot is None
+        else (load_toml(robot, RobotParams), load_toml(robot, RobotModel))
+    )
+    assert disagreements(truth, model) == []
+    assert len(values(model)) == 28  # every field the controller and the supervisor read
+    # Positive control: a default or a decoded value drifting on one side is seen.
+    drifted = msgspec.structs.replace(truth, body=msgspec.structs.replace(truth.body, mass=31.0))
+    assert disagreements(drifted, model) == [f"body.mass: {model.body.mass!r} != 31.0"]
 
 
 def test_every_number_of_the_robot_and_the_rider_file_has_a_bound_and_why():
@@ -111,18 +148,14 @@ def test_every_number_of_the_robot_and_the_rider_file_has_a_bound_and_why():
 def test_a_robot_beyond_a_ballbot_is_refused_naming_the_file_the_field_and_the_bound(
     tmp_path, capsys, section, line, says
 ):
-    from controller.config import RobotModel
-    from safety.config import RobotGeometry
-
     robot = tmp_path / "robot.toml"
     robot.write_text(f"[{section}]\n{line}\n")
     _, err = run_refused(tmp_path, capsys, f'robot = "{robot}"\n')
     assert f'robot = "{robot}": {says}' in err, err  # the scenario's field, the file it names, the bound
-    # The controller's and the supervisor's own decoders refuse it in the same words.
-    for view in (RobotModel, RobotGeometry):
-        with pytest.raises(ConfigError) as raised:
-            load_toml(robot, view)
-        assert str(raised.value) == f"{robot}: {says}"
+    # The controller's and the supervisor's own decoder (drivers.robot) refuses it in the same words.
+    with pytest.raises(ConfigError) as raised:
+        load_toml(robot, RobotModel)
+    assert str(raised.value) == f"{robot}: {says}"
 
 
 def test_a_rider_beyond_a_person_is_refused_naming_the_file_the_field_and_the_bound(tmp_path, capsys):

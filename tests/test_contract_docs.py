@@ -12,8 +12,9 @@ import numpy as np
 from drivers.can_bus import CanNode
 from drivers.config import load_toml
 from drivers.keys import Keys
+from drivers.robot import RobotModel
 from hil.contract import PAYLOADS, json_schemas, render
-from safety.config import RobotGeometry, SupervisorConfig
+from safety.config import SupervisorConfig
 from safety.diagnostics import motor_jacobian
 from tests.helpers import ROOT
 
@@ -76,7 +77,7 @@ def test_every_rule_the_contract_states_is_the_supervisors_default():
 
 def test_the_geometry_and_its_worked_examples_are_the_robot_files():
     text = CONTRACT.read_text()
-    g = motor_jacobian(load_toml(ROOT / "configs/robot/pure.toml", RobotGeometry))
+    g = motor_jacobian(load_toml(ROOT / "configs/robot/pure.toml", RobotModel))
     to_motors = np.linalg.inv(g.T)
     for value in [*g.ravel(), *to_motors.ravel()]:
         assert f"{value:.4f}".replace("-0.0000", "0.0000") in text

@@ -7,11 +7,12 @@ import pytest
 
 from controller.balance import equilibrium
 from controller.command import CommandSpeed, deadband
-from controller.config import ControllerConfig, Hacs, Lqr, RiderInfo, RiderProfile, RobotModel
+from controller.config import ControllerConfig, Hacs, Lqr, RiderInfo, RiderProfile
 from controller.core import Controller, Fault, Wrench
 from controller.estimator import Estimator
 from controller.model import lqr_gain, motor_jacobian, plane_model
 from drivers.config import load_toml
+from drivers.robot import RobotModel
 from drivers.schemas import ScCommand
 from drivers.vocabulary import ControllerState
 from plant.ballbot import Plant, plane_params

@@ -13,8 +13,9 @@ from hypothesis import strategies as st
 from drivers.can_bus import CanNode
 from drivers.config import load_toml
 from drivers.e2e import E2EStatus
+from drivers.robot import RobotModel
 from drivers.vocabulary import Cause, ControllerState, State
-from safety.config import E2EWindowRules, Integrity, RobotGeometry, SupervisorConfig
+from safety.config import E2EWindowRules, Integrity, SupervisorConfig
 from safety.e2e_window import E2EWindow, WindowState
 from safety.machine import SafetyMachine
 from safety.monitors import Monitors
@@ -206,7 +207,7 @@ class Supervisor:
 
     def __init__(self) -> None:
         config = SupervisorConfig()
-        self.monitors = Monitors(config, load_toml(ROBOT, RobotGeometry))
+        self.monitors = Monitors(config, load_toml(ROBOT, RobotModel))
         self.machine = SafetyMachine(config)
         self.stream = Stream()
         self.t = 0.0

@@ -13,11 +13,12 @@ import pytest
 
 from drivers.can_codec import Catalog, MessageName
 from drivers.config import load_toml
+from drivers.robot import RobotModel
 from drivers.vocabulary import Cause, ControllerState, State
 from hil import pipeline
 from hil.faults import parse_fault
 from hil.run.scenario import Scenario
-from safety.config import RobotGeometry, SupervisorConfig
+from safety.config import SupervisorConfig
 from safety.machine import (
     CUT_POWER,
     IMMEDIATE,
@@ -108,7 +109,7 @@ def test_in_recovery_balance_lost_the_operators_cut_or_lost_inputs_cut_power():
 # ------------------------------------------------------------------------------------- the law itself
 @pytest.mark.parametrize("rider_mass", [0.0, 45.0, 75.0, 120.0])
 def test_the_recovery_law_stabilises_its_plane_model_for_riders_from_none_to_heavy(rider_mass):
-    robot = load_toml(ROOT / "configs/robot/pure.toml", RobotGeometry)
+    robot = load_toml(ROOT / "configs/robot/pure.toml", RobotModel)
     rules = CFG.recovery
     gain = plane_gain(robot, rules, rider_mass, robot.body.inertia_pitch)
     # An upright tilt pushes the ball under the body (the sign a balancing law must have): τ on the ball
@@ -122,7 +123,7 @@ def test_a_pairs_free_axis_brakes_without_yaw_and_its_coupled_axis_turns_the_rob
     from safety.diagnostics import motor_jacobian
     from safety.recovery import pair
 
-    robot = load_toml(ROOT / "configs/robot/pure.toml", RobotGeometry)
+    robot = load_toml(ROOT / "configs/robot/pure.toml", RobotModel)
     g = motor_jacobian(robot)
     p = pair(g, dead)
     assert dead not in p.drives and len(p.drives) == 2
@@ -141,7 +142,7 @@ def test_a_pairs_free_axis_brakes_without_yaw_and_its_coupled_axis_turns_the_rob
 def test_the_chassis_takes_the_pairs_torque_reversed_with_a_riders_legs_and_more_so_tilted_back():
     from safety.recovery import RecoveryLaw
 
-    robot = load_toml(ROOT / "configs/robot/pure.toml", RobotGeometry)
+    robot = load_toml(ROOT / "configs/robot/pure.toml", RobotModel)
     alone = RecoveryLaw(robot, msgspec.structs.replace(CFG.recovery, rider_roll_yaw_product=0.0))
     alone.design(0.0)
     assert alone.chassis_factor(0, 0.0, 0.0) == pytest.approx(1.0), "a plane of its own, level"
@@ -168,7 +169,7 @@ def two_wheel_run(rules, lean, dead=0, fault=1.0, end=7.0):
     rider = load_toml(ROOT / "configs/riders/s07_abi_73kg_176.toml", RiderParams)
     robot = load_toml(ROOT / "configs/robot/pure.toml", RobotParams)
     plant = Plant3D(robot, rider, SimParams(), RiderIntent(pitch=[Ramp(to=lean, duration=0.5)]))
-    geometry = load_toml(ROOT / "configs/robot/pure.toml", RobotGeometry)
+    geometry = load_toml(ROOT / "configs/robot/pure.toml", RobotModel)
     estimate, law = IsolatedEstimator(geometry, rules, plant.sim.dt), RecoveryLaw(geometry, rules)
     law.design(rider.mass * 9.80665)
     balancer = TruthBalancer(plant)
@@ -335,7 +336,7 @@ def _estimator():
     from safety.diagnostics import motor_jacobian
     from safety.recovery import IsolatedEstimator
 
-    robot = load_toml(ROOT / "configs/robot/pure.toml", RobotGeometry)
+    robot = load_toml(ROOT / "configs/robot/pure.toml", RobotModel)
     return IsolatedEstimator(robot, CFG.recovery, DT), motor_jacobian(robot)
 
 

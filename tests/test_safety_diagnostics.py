@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from drivers.config import load_toml
+from drivers.robot import RobotModel
 from drivers.rotations import heading_frame
 from drivers.vocabulary import Cause
 from hil.run.truth_balancer import TruthBalancer
@@ -14,7 +15,7 @@ from plant.ballbot3d import Plant3D
 from plant.core import RiderIntent
 from plant.params import RobotParams, SimParams
 from plant.rider import Hold, Ramp
-from safety.config import RobotGeometry, SupervisorConfig
+from safety.config import SupervisorConfig
 from safety.diagnostics import (
     AttitudeCheck,
     EncoderCheck,
@@ -33,7 +34,7 @@ from tests.helpers import RIDER_75, ROOT
 
 CFG = SupervisorConfig()
 SENSORS = CFG.sensors
-GEOMETRY = load_toml(ROOT / "configs/robot/pure.toml", RobotGeometry)
+GEOMETRY = load_toml(ROOT / "configs/robot/pure.toml", RobotModel)
 ROBOT = load_toml(ROOT / "configs/robot/pure.toml", RobotParams)
 DT = 1.0 / 400
 RAD_PER_COUNT = 2 * math.pi / 8192

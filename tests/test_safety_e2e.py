@@ -13,6 +13,7 @@ from drivers.bus_config import BusConfig
 from drivers.can_bus import CanNode, open_bus, private_channel
 from drivers.can_codec import Catalog, MessageName
 from drivers.config import load_toml
+from drivers.plugs import NodeThread
 from drivers.vocabulary import State
 from drivers.zenoh_link import ZenohLink, open_session
 from hil.faults.processes import Kill
@@ -24,7 +25,7 @@ from hil.run.rig import Rig
 from hil.run.scenario import OperatorEntry, Scenario
 from plant.params import RobotParams
 from safety.config import SupervisorConfig
-from safety.node import SupervisorNode, SupervisorThread
+from safety.node import SupervisorNode
 from tests.helpers import ROOT
 from tests.zenoh_helpers import hub_endpoint, private_bench
 
@@ -159,7 +160,7 @@ def external_supervisor_run(scenario: Scenario, stall_at: int | None = None, rx_
         can.rx_hook = stalling
     if rx_hook is not None:
         can.rx_hook = rx_hook
-    thread = SupervisorThread(node, sync=True).start()
+    thread = NodeThread(node.run_on_sync, "supervisor").start()
     try:
         bench = private_bench(can=bus_config, supervisor="external", hub=endpoint)
         return run(scenario, bench, options=RunOptions(session=session))

@@ -8,11 +8,12 @@ import pytest
 
 from drivers.can_bus import CanNode
 from drivers.config import load_toml
+from drivers.robot import RobotModel
 from drivers.schemas import EstopCommand, ScRequest, TesWrench
 from drivers.vocabulary import Cause
 from plant.ballbot import Plant
 from plant.params import RobotParams, SimParams
-from safety.config import RobotGeometry, SupervisorConfig
+from safety.config import SupervisorConfig
 from safety.monitors import Monitors, motor_jacobian
 from tests.helpers import RIDER_75, ROOT
 
@@ -43,7 +44,7 @@ def frames(plant: Plant):
 
 
 def monitors() -> Monitors:
-    return Monitors(SupervisorConfig(), load_toml(ROBOT, RobotGeometry))
+    return Monitors(SupervisorConfig(), load_toml(ROBOT, RobotModel))
 
 
 def test_own_jacobian_matches_the_plant_kinematics():
@@ -51,7 +52,7 @@ def test_own_jacobian_matches_the_plant_kinematics():
 
     robot = load_toml(ROBOT, RobotParams)
     expected = plant_jacobian(robot.ball.radius, robot.drivetrain)
-    assert motor_jacobian(load_toml(ROBOT, RobotGeometry)) == pytest.approx(expected, abs=1e-12)
+    assert motor_jacobian(load_toml(ROBOT, RobotModel)) == pytest.approx(expected, abs=1e-12)
 
 
 @pytest.mark.parametrize(

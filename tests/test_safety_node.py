@@ -10,13 +10,14 @@ import pytest
 
 from drivers.bus_config import BusConfig
 from drivers.can_bus import CanNode, open_bus, private_channel
+from drivers.plugs import NodeThread
 from drivers.schemas import EstopCommand, ScCommand, ScRequest, TesWrench
 from drivers.vocabulary import ControllerState
 from drivers.zenoh_link import ZenohLink, open_session
 from hil.bench.rigs import HUB_VARIABLE, announce
 from hil.cli import main
 from safety.config import SupervisorConfig, Watchdogs
-from safety.node import SupervisorNode, SupervisorThread
+from safety.node import SupervisorNode
 from tests.helpers import wait_for
 from tests.zenoh_helpers import hub_endpoint, wait_matching
 
@@ -89,7 +90,7 @@ def bench():
     watchdogs = Watchdogs(drives=0.3, imu=0.3, heartbeat=0.3, wrench=0.5)
     config = msgspec.structs.replace(SupervisorConfig(), watchdogs=watchdogs)
     node = SupervisorNode(CanNode(sup_bus, name="supervisor"), hub_link, config)
-    thread = SupervisorThread(node).start()
+    thread = NodeThread(node.run, "supervisor").start()
     robot = StandInRobot(bus_config, hub_link)
     # As `pure-hil supervisor --role hub` does: operators' clients ask the hub which rig it is.
     try:

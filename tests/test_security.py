@@ -13,11 +13,12 @@ import pytest
 import zenoh
 
 from drivers.keys import Keys
+from drivers.robot import RobotModel
 from drivers.schemas import EstopCommand, ScRequest
 from drivers.zenoh_link import CONFIG_DIR, ZenohConfigError, load_config
 from hil.bench.certs import ROLES, init
 from hil.cli import main
-from safety.config import Identity, RobotGeometry, SupervisorConfig
+from safety.config import Identity, SupervisorConfig
 from safety.monitors import Monitors
 from tests.zenoh_helpers import free_port, own_sockets
 
@@ -248,7 +249,7 @@ def test_placeholders_must_be_filled():
 
 def test_supervisor_ignores_resets_and_requests_without_an_operators_identity():
     config = SupervisorConfig(identity=Identity(operators=["operator"]))
-    m = Monitors(config, RobotGeometry())
+    m = Monitors(config, RobotModel())
     m.sc_request(ScRequest(seq=1, stamp=0.0, mode="free", source="intruder"), 1.0)
     m.operator_command(EstopCommand(seq=1, stamp=0.0, action="reset", source="intruder"))
     obs = m.observe(1.0)

@@ -47,6 +47,7 @@ from drivers.devices.cia402 import (
     State,
     eds_path,
 )
+from hil.devices.plant_drive import PlantFault, plant_faults
 
 OPERATIONAL, STOPPED = "OPERATIONAL", "STOPPED"
 SDO_ABORT = 0x80
@@ -59,6 +60,12 @@ HALT = 0x0100
 """Controlword bit 8."""
 HISTORY = 8
 """0x1003's standard error fields."""
+ERROR_CODE = {
+    PlantFault.UNPOWERED: ErrorCode.DC_LINK_UNDER_VOLTAGE,
+    PlantFault.WATCHDOG: ErrorCode.COMMUNICATION,
+    PlantFault.POWER_STAGE: ErrorCode.POWER_SECTION,
+}
+"""The error code (0x603F, EMCY) each fault of the plant's drive state raises."""
 VALID, NO_RTR, EXTENDED = 0x80000000, 0x40000000, 0x20000000
 """A COB-ID entry's bits 31 (0: the PDO or EMCY exists), 30 (TPDO: 1 = no RTR), 29 (1: a 29-bit id)."""
 
@@ -596,14 +603,11 @@ class Drive:
         self.position = int(s["Position"])
         self.velocity = round(s["Velocity"] * counts_per_rev / (2.0 * math.pi))
         self.powered = bool(s["BusPowered"])
+        faults = plant_faults(s)
         if self.forced_error:
             self.fault(self.forced_error)
-        elif not self.powered:
-            self.fault(ErrorCode.DC_LINK_UNDER_VOLTAGE)
-        elif s["WatchdogTripped"]:
-            self.fault(ErrorCode.COMMUNICATION)
-        elif s.get("Fault", 0):
-            self.fault(ErrorCode.POWER_SECTION)
+        elif faults:
+            self.fault(ERROR_CODE[faults[0]])  # one error register: the most fundamental fault
         elif self.state is State.OPERATION_ENABLED and not s["Enabled"]:
             self.fault(ErrorCode.POWER_STAGE_OFF)  # off without a controlword: the permission line
 

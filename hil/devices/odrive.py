@@ -41,9 +41,16 @@ from drivers.devices.odrive import (
     frame_id,
     split_id,
 )
+from hil.devices.plant_drive import PlantFault, plant_faults
 
 log = logging.getLogger(__name__)
 
+AXIS_ERROR = {
+    PlantFault.UNPOWERED: AxisError.DC_BUS_UNDER_VOLTAGE,
+    PlantFault.WATCHDOG: AxisError.WATCHDOG_TIMER_EXPIRED,
+    PlantFault.POWER_STAGE: AxisError.DRV_FAULT,
+}
+"""The axis error each fault of the plant's drive state disarms the axis with."""
 LATCHED = AxisError.WATCHDOG_TIMER_EXPIRED | AxisError.ESTOP_REQUESTED | AxisError.DRV_FAULT
 """Errors that stay until Clear_Errors (the bus voltage error stays while the bus is down)."""
 TEMPERATURE = 25.0
@@ -146,12 +153,8 @@ class OdriveAxes(Translator):
         axis.pos = s["Position"] / self.counts_per_rev
         axis.vel = s["Velocity"] / (2.0 * math.pi)
         axis.powered = bool(s["BusPowered"])
-        if not axis.powered:
-            axis.disarm(AxisError.DC_BUS_UNDER_VOLTAGE)
-        if s["WatchdogTripped"]:
-            axis.disarm(AxisError.WATCHDOG_TIMER_EXPIRED)
-        if s.get("Fault", 0):
-            axis.disarm(AxisError.DRV_FAULT)
+        for fault in plant_faults(s):  # an error bit each
+            axis.disarm(AXIS_ERROR[fault])
         # Nothing else of the plant's drive state reaches the axis's state: the firmware's own errors
         # (above) disarm it, and ESTOP_REQUESTED comes only from an Estop frame. The plant's Enabled this
         # tick is not the axis's state: an arming request the rig takes after the controller's heartbeat
