@@ -17,9 +17,6 @@ JITTER_BINS = 20_000
 """Period jitter is counted in 1 us bins up to 20 ms (the last bin takes everything beyond; the maximum is
 kept exactly): memory does not grow with a run's length."""
 
-AHEAD = 0.2
-"""Of a period: the rig works ahead on the next tick (its step and samples, `Rig.work_ahead`) only if the
-controller's answer is complete this long before the tick starts (0.5 ms at 400 Hz; the work: 0.1-0.2 ms)."""
 SPIN = 0.0002
 """Sleep until this long before the deadline, then busy-wait: removes timer slack and wake-up latency."""
 
@@ -154,11 +151,6 @@ class RealtimeClock:
     def command_deadline(self) -> float:
         """Nothing is waited for: the next tick takes what the controller answered by its start."""
         return time.monotonic()
-
-    def ahead_until(self) -> float:
-        """The monotonic time until which the rig may wait to work ahead on the next tick (`Rig.work_ahead`):
-        AHEAD before it starts, time for the step and the samples."""
-        return time.monotonic() + (self._next + self.period * (1.0 - AHEAD) - time.perf_counter())
 
     def sync_due(self) -> float:
         """The monotonic time by which this tick's SYNC is due: its scheduled start plus the allowance."""

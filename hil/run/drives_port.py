@@ -254,20 +254,6 @@ class DrivesPort:
         elif self._answered:
             self.silent = True
 
-    def wait_answer(self, until: float) -> bool:
-        """Real time: take in frames until the expected tick's three commands are here (True), or `until`
-        (time.monotonic()) passes, or the run is to end (False)."""
-        while self._pending:
-            if self._expected < 0:
-                return False
-            rx = self.recv_until(until)
-            if rx is None:
-                if time.monotonic() >= until or self.stopping:
-                    return False
-                continue
-            self.frame(rx)
-        return self._expected >= 0
-
     def expect(self, k: int, delay: int) -> None:
         """From now on the controller's commands tagged k are this tick's (applied `delay` ticks late: a
         loop-delay fault)."""

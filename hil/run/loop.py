@@ -31,13 +31,11 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
     ticks = round(built.duration / plant.dt)
     lockstep = built.clock == "lockstep"
     clock: Clock
-    paced: RealtimeClock | None = None
-    """Real time: the clock the rig works ahead of (`Rig.work_ahead`)."""
     if lockstep:
         clock = LockstepClock(plant.dt, rig.port.command_guard)
     else:
         rt = built.realtime
-        clock = paced = RealtimeClock(
+        clock = RealtimeClock(
             plant.dt, rt.priority, rt.cpu, rt.lock_memory, sync_allowance=rt.sync_allowance * plant.dt
         )
     log = TraceLog(ticks, built.trace_path)
@@ -85,12 +83,6 @@ def tick_loop(built: Built, options: RunOptions) -> Trace:
             if options.progress is not None and time.monotonic() > next_report:
                 options.progress(_status(tr, rig, clock, built.duration, began))
                 next_report = time.monotonic() + 0.5
-            if paced is not None and n < ticks:  # never a step past the run's last tick
-                try:
-                    rig.work_ahead(paced.ahead_until())
-                except Exception as exc:  # the next tick's step, taken early: its failure is that tick's
-                    failure = Failure(f"tick {plant.tick + 1} (worked ahead)", reason(exc))
-                    break
             clock.wait_next()
     finally:
         clock.stop()

@@ -52,11 +52,6 @@ TELEMETRY_CAPACITY = 1 << 12
 """Controller telemetry samples buffered between the loop's takes (hil/run/loop.py TELEMETRY_EVERY)."""
 
 
-Advanced = tuple[int, Sequence[DriveFeedback], ImuSample, TesSample, set[str]]
-"""A tick the plant has stepped into: its number and its sensors' samples (as faults alter them), the frames
-that stay silent."""
-
-
 @dataclass(frozen=True, slots=True)
 class RigParts:
     """What a rig is made of (hil/run/build.py `build` assembles it)."""
@@ -129,8 +124,6 @@ class Rig:
         self.inputs = parts.inputs if parts.inputs is not None else InputsLog()
         """Every (tick, key, payload) the controller was sent on zenoh, in the order it could see them
         (what `pure-hil replay` replays)."""
-        self._ahead: Advanced | None = None
-        """The next tick's step and samples, taken ahead of its start (`work_ahead`)."""
         if supervisor is not None:
             # What it puts at the end of tick k reaches the controller for tick k + 1.
             supervisor.on_put = lambda key, data: self._record(self.plant.tick + 1, key, data)
@@ -185,8 +178,12 @@ class Rig:
         tick one of the rig's late ones (hil/run/lateness.py).
         """
         plant, faults, port = self.plant, self.faults, self.port
-        ahead, self._ahead = self._ahead, None
-        k, feedback, imu, tes, silent = ahead if ahead is not None else self._advance(close=not lockstep)
+        if not lockstep:
+            port.close_tick()  # what the controller answered to the last SYNC
+        plant.step()
+        k = plant.tick
+        faults.update(k, plant.t)
+        feedback, imu, tes, silent = self._sample()
         if lockstep:  # the fence counts the tick's puts: they go before it, and it before SYNC
             self._publish_zenoh(k, tes)
             self.link.put_fence(k, plant.t)
@@ -210,28 +207,6 @@ class Rig:
         port.end_tick()
         if self.recorder is not None:
             self.recorder.poll()
-
-    def _advance(self, close: bool) -> Advanced:
-        """The plant one tick on under what the drives hold, the faults of the new tick, its samples. `close`
-        (real time): first take in the controller's answer to the last SYNC (lockstep took it already)."""
-        plant = self.plant
-        if close:
-            self.port.close_tick()
-        plant.step()
-        k = plant.tick
-        self.faults.update(k, plant.t)
-        return (k, *self._sample())
-
-    def work_ahead(self, until: float) -> None:
-        """Real time, between ticks: once the controller's answer to this tick's SYNC is complete (its three
-        commands), the next tick's plant step and samples are taken now instead of after the next tick starts,
-        so its SYNC leaves right after the wake-up: the other processes' threads that take the rig's core
-        before SYNC make it late, and the shorter that stretch the fewer (docs/performance.md "Real time").
-        Waits for the answer until `until` (time.monotonic()) at most. An answer not complete by then, or
-        while the recovery law holds the drives (its own command for the tick may still come), leaves it to
-        the next tick as before: a command that comes before the tick starts is never left out."""
-        if self._ahead is None and not self.port.takeover and self.port.wait_answer(until):
-            self._ahead = self._advance(close=True)
 
     def _supervise(self, k: int, guard: float, lockstep: bool) -> None:
         """The supervisor's part of tick k: the in-process one updates from the tick's traffic; in lockstep
