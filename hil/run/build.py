@@ -221,10 +221,13 @@ def build(
         recovery_in_commands=not bench.devices.pure,
         stop=options.stop,
     )
-    request = [
-        ScRequest(seq=0, stamp=0.0, mode=e.mode, speed_cap=e.cap, source=SCENARIO_SOURCE) for e in scenario.sc
-    ]
-    sc = tuple(ScStep(scenario.tick_of(e.at), r) for e, r in zip(scenario.sc, request, strict=True))
+    sc = tuple(
+        ScStep(
+            scenario.tick_of(e.at),
+            ScRequest(seq=0, stamp=0.0, mode=e.mode, speed_cap=e.cap, source=SCENARIO_SOURCE),
+        )
+        for e in scenario.sc
+    )
     rig = Rig(
         RigParts(
             port,
