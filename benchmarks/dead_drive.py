@@ -5,6 +5,7 @@ rig, no controller, no diagnosis: the law's own physics, case by case, against t
 coupled plane taken as a plane of its own (no product of inertia, no yaw in its feedback).
 
     python benchmarks/dead_drive.py            # 7 s on a quiet machine, 70 s on 2 loaded cores
+    python benchmarks/dead_drive.py --sweep    # a rider who heeds the alert: the largest speed kept upright
 
 Not timings: the figures are the models', the same on every machine and build. The campaign's dead-drive
 cases (configs/campaigns/diagnostics.toml) are the rig's figures: the diagnosis, the controller before it
@@ -49,6 +50,10 @@ class Case:
     """m/s the truth balancer rolls at before the fault."""
     fault: float = 2.0
     duration: float = 8.0
+    yaw_rate: float = 0.0
+    """rad/s the truth balancer turns at before the fault (a turn)."""
+    heeds: bool = False
+    """The rider sits up and holds still `alert_reaction_time` after the fault (the alert)."""
 
 
 CASES = (
@@ -72,6 +77,7 @@ def run(case: Case, dead: int, rules: RecoveryRules) -> dict[str, float | str | 
     robot = load_toml(ROOT / "configs/robot/pure.toml", RobotParams)
     rider = load_toml(ROOT / f"configs/riders/{case.rider}.toml", RiderParams)
     plant = Plant3D(robot, rider, SimParams(), RiderIntent(pitch=list(case.lean)))
+    plant.heeds_alert = case.heeds
     geometry = load_toml(ROOT / "configs/robot/pure.toml", RobotModel)
     estimate, law = IsolatedEstimator(geometry, rules, plant.sim.dt), RecoveryLaw(geometry, rules)
     law.design(rider.mass * G0)
@@ -85,12 +91,15 @@ def run(case: Case, dead: int, rules: RecoveryRules) -> dict[str, float | str | 
             plant.t, imu.attitude[:2], imu.rate, [d.velocity for d in drives], frozenset(), imu.accel
         )
         if plant.t < case.fault:
-            balancer.set_velocity(case.speed * min(plant.t / 1.5, 1.0))
+            ramp = min(plant.t / 1.5, 1.0)
+            balancer.set_velocity(case.speed * ramp)
+            balancer.yaw_rate_command = case.yaw_rate * ramp
             balancer.drive()
         else:
             if plant.drives.motors[dead].gain:
                 plant.drives.motors[dead].gain = 0.0
                 estimate.engage()
+                plant.alert(2)
             plant.drives.set_commands(command, True, plant.t)
             command = law.torques(estimate, dead)  # applied the next tick, as on the wire
             truth = plant.truth()
@@ -99,8 +108,11 @@ def run(case: Case, dead: int, rules: RecoveryRules) -> dict[str, float | str | 
             tilt = max(tilt, *(abs(math.degrees(a)) for a in truth.tilt))
         plant.step()
     fell = plant.fallen
+    at_rest = math.hypot(*plant.velocity) < AT_REST
     return {
-        "ended": "upright" if fell is None else f"fell {plant.t - case.fault:.1f} s after",
+        "ended": ("at rest" if at_rest else f"upright, {math.hypot(*plant.velocity):.2f} m/s")
+        if fell is None
+        else f"fell {plant.t - case.fault:.1f} s after",
         "cause": fell,
         "yaw": yaw,
         "spin": spin,
@@ -108,7 +120,46 @@ def run(case: Case, dead: int, rules: RecoveryRules) -> dict[str, float | str | 
     }
 
 
+AT_REST = 0.05
+"""m/s: below this at the end, the robot has come to rest."""
+LEAN_PER_SPEED = 8.0
+"""deg of forward lean per m/s the sweep's rider rides at (HACS: the rider leans to ride)."""
+SWEEP_STEP = 0.2
+SWEEP_SPEEDS = tuple(round(SWEEP_STEP * i, 6) for i in range(1, 6))
+"""m/s before the fault; the turns at 0.8 rad/s per m/s (a 1.25 m radius)."""
+
+
+def sweep() -> None:
+    """Each dead drive in straight riding and in a turn, the rider heeding the alert (issue 47's case):
+    how each run ends, and the largest speed that ends upright and at rest."""
+    rules = SupervisorConfig().recovery
+    print(f"s07 (73 kg) leaning {LEAN_PER_SPEED:.0f} deg per m/s, heeding the alert (1 s); fault at 3 s")
+    for turn in (0.0, 0.8):
+        for dead in (0, 1, 2):
+            kept, ends = 0.0, []
+            for speed in SWEEP_SPEEDS:
+                case = Case(
+                    "sweep",
+                    "s07_abi_73kg_176",
+                    [Ramp(to=LEAN_PER_SPEED * speed, duration=0.5)],
+                    speed,
+                    fault=3.0,
+                    duration=10.0,
+                    yaw_rate=turn * speed,
+                    heeds=True,
+                )
+                r = run(case, dead, rules)
+                ends.append(f"{speed:.1f}: {r['ended']}")
+                if r["cause"] is None and kept == round(speed - SWEEP_STEP, 6):
+                    kept = speed  # every slower run ended upright too
+            label = "in a turn" if turn else "straight"
+            print(f"  drive {dead + 1} dead, {label:<9} kept up to {kept:.1f} m/s; " + "; ".join(ends))
+
+
 def main() -> None:
+    if "--sweep" in sys.argv[1:]:
+        sweep()
+        return
     law = SupervisorConfig().recovery
     alone = msgspec.structs.replace(law, coupled_velocity_share=1.0, rider_roll_yaw_product=0.0)
     print("peak yaw rate (rad/s), peak ball spin on the floor (rad/s), peak tilt (deg), how it ended")
