@@ -33,11 +33,13 @@ COMPILED = [
     # Not drivers/shared_bus.py: compiled, its SharedBus (a python-can BusABC) is not cleared from the weak
     # references its channel holds when it is collected, and the next look at them crashed the interpreter
     # (tests/test_shared_bus.py, a bus never shut down).
-    # The supervisor: its state machine and what it observes, monitors, diagnostics, recovery law, SC
-    # arbiter, node and E2E windows.
+    # The supervisor: its state machine and what it observes, monitors (one per drive too), diagnostics,
+    # recovery law, SC arbiter, node and E2E windows.
     "safety/machine.py",
+    "safety/reactions.py",
     "safety/observation.py",
     "safety/monitors.py",
+    "safety/drive_monitor.py",
     "safety/diagnostics.py",
     "safety/recovery.py",
     "safety/arbiter.py",

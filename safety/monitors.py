@@ -44,19 +44,18 @@ from safety.arbiter import ScArbiter
 from safety.config import SupervisorConfig
 from safety.diagnostics import (
     AttitudeCheck,
-    EncoderCheck,
     Replay,
     Resolution,
     SeatCheck,
     Stuck,
-    TorqueCheck,
     TrendCheck,
     YawCheck,
     motor_jacobian,
     trend_inputs,
 )
+from safety.drive_monitor import Drive, Signals
 from safety.e2e_window import E2EWindow, WindowState
-from safety.observation import STREAMS, DriveReport, Finding, Observation
+from safety.observation import STREAMS, Finding, Observation
 from safety.recovery import IsolatedEstimator, leave_one_out
 
 IMU_CHANNELS: dict[str, tuple[str, str, str]] = {
@@ -82,9 +81,9 @@ PLANES = tuple(
 )
 """Per plane: its checks' name, its attitude input, its rate input."""
 ATTITUDES = frozenset(attitude for _, attitude, _ in PLANES)
+"""The IMU's attitude inputs (Roll, Pitch)."""
 DRIVES = frozenset(f"Drive{i}" for i in (1, 2, 3))
 """The drives' parts (drivers.can_codec.PARTS)."""
-"""The IMU's attitude inputs (Roll, Pitch)."""
 ATTITUDE_LSB = 1e-4
 """rad: IMU_ATTITUDE's resolution (the DBC); "it moved" means several of these."""
 CONTRACT_STEP: dict[str, float] = {
@@ -95,98 +94,6 @@ CONTRACT_STEP: dict[str, float] = {
 """Each IMU message's resolution in the contract (the DBC): rad, rad/s, m/s². A device profile may step
 coarser (xsens: 2^-7 deg, 2^-9 rad/s, 2^-8 m/s²); the stuck check takes each stream's step from its values."""
 MOVED = 3 * ATTITUDE_LSB
-Signals = dict[str, float | int]
-"""A trusted frame's decoded signals (Received.signals; a dict, not a Mapping: compiled, its look-ups are
-then the dict's own)."""
-
-
-class Drive:
-    """What the supervisor knows of one drive."""
-
-    def __init__(self, index: int, config: SupervisorConfig, robot: RobotModel, period: float):
-        sensors, rules = config.sensors, config.drives
-        self.index, self.period = index, period
-        self.rad_per_count = 2.0 * math.pi / robot.encoder.counts_per_rev
-        self.encoder = EncoderCheck(index, sensors, period, self.rad_per_count, 1 << robot.encoder.word_bits)
-        self.torque = TorqueCheck(
-            index,
-            rules.torque_tolerance,
-            rules.torque_relative,
-            rules.torque_samples,
-            robot.drive.torque_limit,
-            robot.drive.stall_torque,
-            robot.drive.no_load_speed,
-        )
-        self.stuck = Stuck(sensors.stuck_samples, 3 * self.rad_per_count)
-        self.velocity = self.velocity_before = 0.0
-        """rad/s: the motor's last two reported velocities."""
-        self.counts: int | None = None
-        self.seen = -math.inf
-        self.enabled = self.watchdog = self.fault = False
-        self.bus_powered = False
-        self.command: tuple[float, bool] | None = None
-        """(torque, enable) of the last command on the bus."""
-        self.enable_since: float | None = None
-        self.idle_since: float | None = None
-        """Since when, under the recovery law, this drive has reported itself making no torque."""
-        self.findings: dict[str, Finding | None] = {}
-
-    def feedback(self, s: Signals, t: float, lost: int) -> None:
-        counts = int(s["Position"])
-        if t - self.seen > 8 * self.period + 1e-9:
-            self.encoder.reset()  # a gap the window must not span
-        moved = 0.0 if self.counts is None else abs(counts - self.counts) * self.rad_per_count
-        self.velocity_before = self.velocity
-        self.velocity, self.counts, self.seen = float(s["Velocity"]), counts, t
-        self.enabled, self.watchdog = bool(s["Enabled"]), bool(s["WatchdogTripped"])
-        self.fault, self.bus_powered = bool(s["Fault"]), bool(s["BusPowered"])
-        self.findings["encoder"] = self.encoder.frame(counts, self.velocity, 1 + lost)
-        frozen = self.stuck.sample(s["Velocity"], moved)
-        self.findings["stuck"] = (
-            Finding(
-                Cause.SENSOR_STUCK,
-                f"drive {self.index} velocity frozen at {self.velocity:.2f} rad/s while its position moved",
-                (ENCODERS[self.index - 1],),
-            )
-            if frozen
-            else None
-        )
-
-    def commanded(self, s: Signals, t: float) -> None:
-        enable = bool(s["Enable"])
-        self.command = (float(s["Torque"]), enable)
-        if not enable:
-            self.enable_since = None
-        elif self.enable_since is None:
-            self.enable_since = t
-
-    def measured(self, torque: float) -> None:
-        producing = self.enabled and self.bus_powered and self.command is not None and self.command[1]
-        commanded = None if self.command is None else self.command[0]
-        self.findings["torque"] = self.torque.sample(
-            torque, commanded, producing, self.velocity, self.velocity_before
-        )
-
-    def dead_to_the_law(self, t: float, held: bool, confirm: float) -> bool:
-        """Held by the recovery law (`held`), the drive has reported itself off, its watchdog tripped or
-        faulted for `confirm`: the law's commands do not reach it or it cannot follow them. The drives come
-        back within a few frames of a takeover (a dead controller's tripped watchdogs: 1-4 frames)."""
-        if not held or (self.enabled and not self.watchdog and not self.fault):
-            self.idle_since = None
-            return False
-        if self.idle_since is None:
-            self.idle_since = t
-        return t - self.idle_since >= confirm - 1e-9
-
-    def report(self, t: float, timeout: float) -> DriveReport:
-        fresh = t - self.seen <= timeout
-        return DriveReport(
-            enabled=self.enabled if fresh else None,
-            watchdog=fresh and self.watchdog,
-            fault=fresh and self.fault,
-            bus_powered=self.bus_powered if fresh else None,
-            commanded_for=0.0 if self.enable_since is None else t - self.enable_since,
-        )
 
 
 class Monitors:

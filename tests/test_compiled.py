@@ -26,8 +26,8 @@ COMPILED_SUITE = (
     "tests/test_shared_bus.py",  # drivers/shared_bus.py (Python) under the compiled CanNode
     "tests/test_zenoh.py",  # drivers/zenoh_link.py
     "tests/test_rotations.py",  # drivers/rotations.py
-    "tests/test_safety_machine.py",  # safety/machine.py, safety/observation.py
-    "tests/test_safety_monitors.py",  # safety/monitors.py
+    "tests/test_safety_machine.py",  # safety/machine.py, safety/reactions.py, safety/observation.py
+    "tests/test_safety_monitors.py",  # safety/monitors.py, safety/drive_monitor.py
     "tests/test_e2e_window.py",  # safety/e2e_window.py
     "tests/test_safety_diagnostics.py",  # safety/diagnostics.py
     "tests/test_safety_arbiter.py",  # safety/arbiter.py

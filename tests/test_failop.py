@@ -19,11 +19,7 @@ from hil import pipeline
 from hil.faults import parse_fault
 from hil.run.scenario import Scenario
 from safety.config import SupervisorConfig
-from safety.machine import (
-    CUT_POWER,
-    IMMEDIATE,
-    TAKEOVER_CAUSES,
-)
+from safety.reactions import CUT_POWER, IMMEDIATE, TAKEOVER_CAUSES
 from safety.recovery import plane_gain
 from tests.helpers import ROOT
 from tests.test_safety_machine import CONTROLLED_CASES, DT, IMMEDIATE_CASES, LIMIT, hold, obs, supervisor

@@ -13,15 +13,9 @@ from drivers.config import load_toml
 from drivers.schemas import ScRequest
 from drivers.vocabulary import Cause, ControllerState, State
 from safety.config import SupervisorConfig
-from safety.machine import (
-    CONTROLLED,
-    CUT_POWER,
-    FINDINGS,
-    IMMEDIATE,
-    TAKEOVER_CAUSES,
-    SafetyMachine,
-)
+from safety.machine import SafetyMachine
 from safety.observation import STREAMS, DriveReport, Finding, Observation
+from safety.reactions import CONTROLLED, CUT_POWER, FINDINGS, IMMEDIATE, TAKEOVER_CAUSES
 
 
 def sc_request(mode, cap, source):

@@ -268,3 +268,26 @@ def test_a_drive_that_stays_off_under_the_recovery_law_is_named_and_one_that_com
     named_drives(m, plant, 10, 0.0, lambda k: set(), law=False)
     back = named_drives(m, plant, 30, 0.025, lambda k: {1, 2, 3} if k < 4 else set(), law=True)
     assert not any(back)
+
+
+def test_one_drives_monitor_reports_only_what_is_fresh_and_times_a_drive_that_stays_off():
+    """safety/drive_monitor.py alone: a report says nothing of a drive not heard within the timeout (None,
+    not its last word), counts how long the drive has been commanded on, and `dead_to_the_law` names a drive
+    only once it has stayed off under the law for `confirm`, and never while the law does not hold it."""
+    from safety.drive_monitor import Drive
+
+    period, confirm = 1 / 400, 0.05
+    drive = Drive(2, SupervisorConfig(), load_toml(ROBOT, RobotModel), period)
+    frame = {"Position": 0, "Velocity": 0.0, "Enabled": 0, "WatchdogTripped": 1, "Fault": 0, "BusPowered": 1}
+    drive.feedback(frame, 1.0, 0)
+    drive.commanded({"Torque": 0.5, "Enable": 1}, 1.0)
+    fresh = drive.report(1.0 + period, timeout=0.02)
+    assert (fresh.enabled, fresh.watchdog, fresh.bus_powered) == (False, True, True)
+    assert fresh.commanded_for == pytest.approx(period)
+    stale = drive.report(1.03, timeout=0.02)
+    assert (stale.enabled, stale.watchdog, stale.bus_powered) == (None, False, None)
+    assert not drive.dead_to_the_law(1.0, held=False, confirm=confirm), "not held: not the law's to judge"
+    ticks = [drive.dead_to_the_law(1.0 + k * period, held=True, confirm=confirm) for k in range(30)]
+    assert ticks.index(True) == round(confirm / period), "named after exactly `confirm` off"
+    drive.feedback({**frame, "Enabled": 1, "WatchdogTripped": 0}, 1.1, 0)
+    assert not drive.dead_to_the_law(1.1, held=True, confirm=confirm), "back on: the count starts again"
