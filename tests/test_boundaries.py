@@ -401,3 +401,55 @@ def test_rotations_are_defined_once():
 def test_positive_control_a_second_rotation_is_seen():
     source = "def euler_rates(rate, roll, pitch):\n    pass\nclass A:\n    def rotate(self):\n        pass\n"
     assert top_level_functions(source, ROTATIONS) == [(1, "euler_rates")]
+
+
+DRIVE_WRITES = ("set_command", "set_commands", "set_permission", "set_contactor")
+"""What reaches the plant's drives (plant/drives.py): a command, the supervisor's permission, a contactor."""
+DRIVE_WRITERS = {
+    ("hil/run/drives_port.py", "DrivesPort.__init__"): {"set_permission", "set_contactor"},
+    ("hil/run/drives_port.py", "DrivesPort._drive"): {"set_command"},
+    ("hil/run/drives_port.py", "DrivesPort.apply_permission"): {"set_permission", "set_contactor"},
+    ("hil/run/truth_balancer.py", "TruthBalancer.drive"): {"set_commands"},  # the plant-only demo: no wire
+}
+"""Every place in hil/ that writes the drives (docs/architecture.md "Two walks"): in a run only the drives'
+port, a command only through `_drive` (the controller's and the recovery law's torques alike)."""
+
+
+def drive_writes(source: str) -> list[tuple[int, str, str]]:
+    """(line, enclosing Class.function, method) of each call of a DRIVE_WRITES method in `source`."""
+    found: list[tuple[int, str, str]] = []
+
+    def visit(node: ast.AST, where: tuple[str, ...]) -> None:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.ClassDef | ast.FunctionDef | ast.AsyncFunctionDef):
+                visit(child, (*where, child.name))
+                continue
+            if (
+                isinstance(child, ast.Call)
+                and isinstance(child.func, ast.Attribute)
+                and child.func.attr in DRIVE_WRITES
+            ):
+                found.append((child.lineno, ".".join(where), child.func.attr))
+            visit(child, where)
+
+    visit(ast.parse(source), ())
+    return found
+
+
+def test_only_the_drives_port_writes_the_drives_in_a_run():
+    found: dict[tuple[str, str], set[str]] = {}
+    for path in modules("hil"):
+        for _, where, method in drive_writes(path.read_text()):
+            found.setdefault((str(path.relative_to(ROOT)), where), set()).add(method)
+    assert found == DRIVE_WRITERS
+
+
+def test_positive_control_a_second_writer_of_a_drive_is_seen():
+    source = (
+        "class Rig:\n"
+        "    def tick(self):\n"
+        "        self.plant.drives.motors[0].set_command(1.0, True, 0.0)\n"
+        "        if self.lost:\n"
+        "            self.plant.drives.set_permission(False)\n"
+    )
+    assert drive_writes(source) == [(3, "Rig.tick", "set_command"), (5, "Rig.tick", "set_permission")]
