@@ -1,6 +1,6 @@
 """What the plant's drive state does to an emulated drive, the same for every device profile: the faults
 its DRIVEn_FEEDBACK values this tick put on the drive, in one order, which each profile names in its own
-error codes (hil/devices/cia402.py, odrive.py)."""
+error codes (hil/devices/cia402/drive.py, odrive.py)."""
 
 from __future__ import annotations
 

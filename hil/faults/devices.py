@@ -23,7 +23,7 @@ class OdriveAxes(Protocol):
 
 
 class Cia402Drives(Protocol):
-    """What the cia402 faults ask of the emulated drives (hil/devices/cia402.py)."""
+    """What the cia402 faults ask of the emulated drives (hil/devices/cia402/translator.py)."""
 
     def fault(self, motor: int, code: int) -> None: ...
     def nmt_stop(self, motor: int) -> None: ...
