@@ -9,6 +9,7 @@ and the supervisor speak CANopen to the emulated drives, deterministic in lockst
 
 from __future__ import annotations
 
+import functools
 import struct
 import threading
 import time
@@ -23,8 +24,8 @@ from drivers.bus_config import BusConfig
 from drivers.can_bus import open_bus, private_channel
 from drivers.config import ConfigError
 from drivers.devices import Devices
-from drivers.devices.cia402 import ErrorCode, State, eds_path, state_of
-from hil.devices.cia402 import Cia402Drives
+from drivers.devices.cia402 import CST, ErrorCode, State, eds_path, state_of
+from hil.devices.cia402 import Cia402Drives, makes_torque, next_state, status_word
 from plant.drives import DriveState
 from tests.device_bench import TICK, WATCHDOG, DevicesOnABench
 from tests.device_runs import frames as whole_frames
@@ -427,6 +428,32 @@ def test_the_option_codes_and_halt_act_as_the_drive_says():
     _write(drive, 0x605A, 0, 0)  # disable drive function: on to SWITCH ON DISABLED at once
     drive.apply_controlword(0x02)
     assert drive.state is State.SWITCH_ON_DISABLED
+
+
+def test_the_state_machine_is_a_pure_function_of_state_and_controlword():
+    """hil/devices/cia402/p402.py: no drive, no network; the drive's own walk above goes through it."""
+    step = functools.partial(next_state, fault_reset=False, quick_stop_stays=True)
+    s = State.SWITCH_ON_DISABLED
+    for cw, expected in (
+        (0x06, State.READY_TO_SWITCH_ON),
+        (0x07, State.SWITCHED_ON),
+        (0x0F, State.OPERATION_ENABLED),
+        (0x02, State.QUICK_STOP_ACTIVE),
+        (0x00, State.SWITCH_ON_DISABLED),
+        (0x0F, State.SWITCH_ON_DISABLED),  # enable operation is no transition from SWITCH ON DISABLED
+    ):
+        s = step(s, cw)
+        assert s is expected, hex(cw)
+    assert next_state(State.OPERATION_ENABLED, 0x02, fault_reset=False, quick_stop_stays=False) is (
+        State.SWITCH_ON_DISABLED
+    )
+    assert step(State.FAULT, 0x80) is State.FAULT  # no reset allowed (a held error, the bus down)
+    assert next_state(State.FAULT, 0x80, fault_reset=True, quick_stop_stays=True) is State.SWITCH_ON_DISABLED
+    assert status_word(State.OPERATION_ENABLED, True, False) == 0x0237
+    assert status_word(State.OPERATION_ENABLED, False, True) == 0x0A27
+    assert makes_torque(State.OPERATION_ENABLED, CST, 0x0F) and not makes_torque(
+        State.OPERATION_ENABLED, CST, 0x10F
+    )
 
 
 def test_a_bench_gives_the_drives_the_identity_its_master_expects_and_a_bad_one_is_refused(tmp_path):

@@ -17,16 +17,17 @@ or the target torque as Enable 0.
 
 The package follows CiA's layers, as python-canopen's modules do: network.py (the Network the drives sit
 on), objects.py (the object dictionary and state every layer shares), nmt.py, sdo.py, pdo.py, emcy.py (CiA
-301), drive.py (a drive: the layers together with the 402 profile) and translator.py (the three drives as
-the rig's Translator). `hil.devices.cia402` keeps every name its users import (the profile's entry point
-`hil.devices.cia402:emulate`, the tests).
+301), p402.py (the 402 profile's state machine, pure), drive.py (a drive: the layers and the profile) and
+translator.py (the three drives as the rig's Translator). `hil.devices.cia402` keeps every name its users
+import (the profile's entry point `hil.devices.cia402:emulate`, the tests).
 """
 
-from hil.devices.cia402.drive import ERROR_CODE, HALT, INTERNAL_LIMIT, Drive
+from hil.devices.cia402.drive import ERROR_CODE, Drive
 from hil.devices.cia402.emcy import HISTORY, error_register
 from hil.devices.cia402.network import RigNetwork
 from hil.devices.cia402.nmt import OPERATIONAL, RESET_COMMUNICATION, RESET_NODE, STOP, STOPPED
 from hil.devices.cia402.objects import EXTENDED, NO_RTR, VALID
+from hil.devices.cia402.p402 import HALT, INTERNAL_LIMIT, makes_torque, next_state, status_word
 from hil.devices.cia402.pdo import SUPPORTED_RPDO_TYPES, SUPPORTED_TPDO_TYPES, TORQUE_OBJECTS, Pdo
 from hil.devices.cia402.sdo import LOAD, SAVE, SDO_ABORT, Abort
 from hil.devices.cia402.translator import Cia402Drives, emulate
@@ -57,4 +58,7 @@ __all__ = [
     "RigNetwork",
     "emulate",
     "error_register",
+    "makes_torque",
+    "next_state",
+    "status_word",
 ]

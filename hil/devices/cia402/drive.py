@@ -10,18 +10,15 @@ from collections.abc import Callable, Mapping
 import canopen
 
 from drivers.devices import Cia402Options
-from drivers.devices.cia402 import CST, REMOTE, STATUS_BITS, VOLTAGE_ENABLED, ErrorCode, State, eds_path
+from drivers.devices.cia402 import ErrorCode, State, eds_path
 from hil.devices.cia402.emcy import HISTORY, EmcyProducer, error_register
 from hil.devices.cia402.network import RigNetwork
 from hil.devices.cia402.nmt import NmtSlave
+from hil.devices.cia402.p402 import FAULTS, makes_torque, next_state, status_word
 from hil.devices.cia402.pdo import Pdos
 from hil.devices.cia402.sdo import SdoServer
 from hil.devices.plant_drive import PlantFault, plant_faults
 
-INTERNAL_LIMIT = 0x0800
-"""Statusword bit 11: internal limit active (the target torque is clipped to 0x6072 / 0x6073)."""
-HALT = 0x0100
-"""Controlword bit 8."""
 ERROR_CODE = {
     PlantFault.UNPOWERED: ErrorCode.DC_LINK_UNDER_VOLTAGE,
     PlantFault.WATCHDOG: ErrorCode.COMMUNICATION,
@@ -99,17 +96,9 @@ class Drive(NmtSlave, SdoServer, Pdos, EmcyProducer):
 
     # ---------------------------------------------------------------- live objects of the 402 profile
     def statusword(self) -> int:
-        word = STATUS_BITS[self.state] | REMOTE
-        if self.powered and self.state in (
-            State.READY_TO_SWITCH_ON,
-            State.SWITCHED_ON,
-            State.OPERATION_ENABLED,
-            State.QUICK_STOP_ACTIVE,
-        ):
-            word |= VOLTAGE_ENABLED
-        if self.makes_torque and abs(self.target) > self.torque_limit():
-            word |= INTERNAL_LIMIT
-        return word
+        return status_word(
+            self.state, self.powered, self.makes_torque and abs(self.target) > self.torque_limit()
+        )
 
     def torque_limit(self) -> int:
         """Per mille of the rated torque: 0x6072, and 0x6073 (per mille of the rated current, the same per
@@ -133,40 +122,20 @@ class Drive(NmtSlave, SdoServer, Pdos, EmcyProducer):
         """The torque the power stage is told to make, Nm."""
         return self.torque_demand() * self.params[0x6076] * 1e-6
 
-    # ------------------------------------------------------------------------------ the state machine
+    # ------------------------------------------------------- the state machine (p402.py), faults
     def apply_controlword(self, cw: int) -> None:
         rising_reset = bool(cw & 0x80) and not self.controlword & 0x80
         self.controlword = cw
         s = self.state
-        if s in (State.FAULT, State.FAULT_REACTION_ACTIVE):
-            if rising_reset and self.powered and not self.forced_error:
-                self.state, self.error = State.SWITCH_ON_DISABLED, ErrorCode.NONE
-                self._emcy(0x0000, 0x00)  # error reset
-            return
-        if not cw & 0x02:  # disable voltage (transitions 7, 9, 10, 12)
-            self.state = State.SWITCH_ON_DISABLED
-        elif not cw & 0x04:  # quick stop (7, 10, 11)
-            if s is State.OPERATION_ENABLED:
-                # 0x605A -1 (manufacturer's): torque off at once, stay in QUICK STOP ACTIVE; 0: disable the
-                # drive function, the motor free, and on to SWITCH ON DISABLED (transition 12) at once.
-                quick_stop_stays = self.params[0x605A] < 0
-                self.state = State.QUICK_STOP_ACTIVE if quick_stop_stays else State.SWITCH_ON_DISABLED
-            elif s in (State.READY_TO_SWITCH_ON, State.SWITCHED_ON):
-                self.state = State.SWITCH_ON_DISABLED
-        elif cw & 0x87 == 0x06:  # shutdown (2, 6, 8)
-            if s in (State.SWITCH_ON_DISABLED, State.SWITCHED_ON, State.OPERATION_ENABLED):
-                self.state = State.READY_TO_SWITCH_ON
-        elif cw & 0x8F == 0x07:  # switch on (3) / disable operation (5)
-            if s in (State.READY_TO_SWITCH_ON, State.OPERATION_ENABLED):
-                self.state = State.SWITCHED_ON
-        elif cw & 0x8F == 0x0F and s in (
-            State.READY_TO_SWITCH_ON,
-            State.SWITCHED_ON,
-            State.QUICK_STOP_ACTIVE,
-        ):
-            self.state = (
-                State.OPERATION_ENABLED
-            )  # switch on + enable operation (3+4), enable operation (4, 16)
+        self.state = next_state(
+            s,
+            cw,
+            fault_reset=rising_reset and self.powered and not self.forced_error,
+            quick_stop_stays=self.params[0x605A] < 0,
+        )
+        if s in FAULTS and self.state is not s:
+            self.error = ErrorCode.NONE
+            self._emcy(0x0000, 0x00)  # error reset
 
     def fault(self, code: int) -> None:
         if self.state is State.FAULT:
@@ -177,7 +146,7 @@ class Drive(NmtSlave, SdoServer, Pdos, EmcyProducer):
 
     @property
     def makes_torque(self) -> bool:
-        return self.state is State.OPERATION_ENABLED and self.mode == CST and not self.controlword & HALT
+        return makes_torque(self.state, self.mode, self.controlword)
 
     # ------------------------------------------------------------------------------------ the plant
     def follow_plant(self, s: Mapping[str, float], counts_per_rev: int) -> None:
