@@ -31,7 +31,7 @@ class Task(Protocol):
 T = TypeVar("T", bound=Task)
 R = TypeVar("R")
 Run = Callable[[T, Path | None, Bench], R]
-"""How a worker runs one case (hil/suites/campaign.py's run_case): it travels by reference, so this module
+"""How a worker runs one case (hil/suites/campaign_run.py's run_case): it travels by reference, so this module
 needs nothing of the campaign's."""
 
 CONNECT_TIMEOUT = "20s"
