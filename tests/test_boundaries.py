@@ -453,3 +453,31 @@ def test_positive_control_a_second_writer_of_a_drive_is_seen():
         "            self.plant.drives.set_permission(False)\n"
     )
     assert drive_writes(source) == [(3, "Rig.tick", "set_command"), (5, "Rig.tick", "set_permission")]
+
+
+MAX_LINES = 600
+"""Issue 48, modules that each hold one thing: past this many lines a module of ours holds more than one
+(hil/devices/cia402/, hil/suites/campaign_*.py and safety/'s drive_monitor.py and reactions.py were split
+off at it)."""
+
+
+def lines_over(paths: list[Path], limit: int = MAX_LINES) -> dict[str, int]:
+    """The modules longer than `limit` lines (by path: relative to the repository, or as given): lengths."""
+    found = {}
+    for path in paths:
+        n = len(path.read_text().splitlines())
+        if n > limit:
+            found[str(path.relative_to(ROOT) if path.is_relative_to(ROOT) else path)] = n
+    return found
+
+
+def test_no_module_is_over_600_lines():
+    over = lines_over([path for package in sorted(OURS) for path in modules(package)])
+    assert not over, f"over {MAX_LINES} lines (split each into modules that hold one thing): {over}"
+
+
+def test_positive_control_a_module_over_600_lines_is_seen(tmp_path):
+    at, over = tmp_path / "at.py", tmp_path / "over.py"
+    at.write_text("x = 0\n" * MAX_LINES)
+    over.write_text("x = 0\n" * (MAX_LINES + 1))
+    assert lines_over([at, over]) == {str(over): MAX_LINES + 1}
