@@ -5,7 +5,7 @@ rig, no controller, no diagnosis: the law's own physics, case by case, against t
 coupled plane taken as a plane of its own (no product of inertia, no yaw in its feedback).
 
     python benchmarks/dead_drive.py            # 7 s on a quiet machine, 70 s on 2 loaded cores
-    python benchmarks/dead_drive.py --sweep    # a rider who heeds the alert: the largest speed kept upright
+    python benchmarks/dead_drive.py --sweep    # riders who heed the alert or not: the fastest kept upright
 
 Not timings: the figures are the models', the same on every machine and build. The campaign's dead-drive
 cases (configs/campaigns/diagnostics.toml) are the rig's figures: the diagnosis, the controller before it
@@ -130,30 +130,33 @@ SWEEP_SPEEDS = tuple(round(SWEEP_STEP * i, 6) for i in range(1, 6))
 
 
 def sweep() -> None:
-    """Each dead drive in straight riding and in a turn, the rider heeding the alert (issue 47's case):
-    how each run ends, and the largest speed that ends upright and at rest."""
+    """Each dead drive in straight riding and in a turn, with a rider who heeds the alert (issue 47's case)
+    and one who does not (the campaign's scripted riders): how each run ends, and the largest speed up to
+    which every run stayed upright."""
     rules = SupervisorConfig().recovery
-    print(f"s07 (73 kg) leaning {LEAN_PER_SPEED:.0f} deg per m/s, heeding the alert (1 s); fault at 3 s")
-    for turn in (0.0, 0.8):
-        for dead in (0, 1, 2):
-            kept, ends = 0.0, []
-            for speed in SWEEP_SPEEDS:
-                case = Case(
-                    "sweep",
-                    "s07_abi_73kg_176",
-                    [Ramp(to=LEAN_PER_SPEED * speed, duration=0.5)],
-                    speed,
-                    fault=3.0,
-                    duration=10.0,
-                    yaw_rate=turn * speed,
-                    heeds=True,
-                )
-                r = run(case, dead, rules)
-                ends.append(f"{speed:.1f}: {r['ended']}")
-                if r["cause"] is None and kept == round(speed - SWEEP_STEP, 6):
-                    kept = speed  # every slower run ended upright too
-            label = "in a turn" if turn else "straight"
-            print(f"  drive {dead + 1} dead, {label:<9} kept up to {kept:.1f} m/s; " + "; ".join(ends))
+    for heeds in (True, False):
+        rider = "heeding the alert (1 s)" if heeds else "not heeding the alert (leaning on)"
+        print(f"s07 (73 kg) leaning {LEAN_PER_SPEED:.0f} deg per m/s, {rider}; fault at 3 s")
+        for turn in (0.0, 0.8):
+            for dead in (0, 1, 2):
+                kept, ends = 0.0, []
+                for speed in SWEEP_SPEEDS:
+                    case = Case(
+                        "sweep",
+                        "s07_abi_73kg_176",
+                        [Ramp(to=LEAN_PER_SPEED * speed, duration=0.5)],
+                        speed,
+                        fault=3.0,
+                        duration=10.0,
+                        yaw_rate=turn * speed,
+                        heeds=heeds,
+                    )
+                    r = run(case, dead, rules)
+                    ends.append(f"{speed:.1f}: {r['ended']}")
+                    if r["cause"] is None and kept == round(speed - SWEEP_STEP, 6):
+                        kept = speed  # every slower run ended upright too
+                label = "in a turn" if turn else "straight"
+                print(f"  drive {dead + 1} dead, {label:<9} kept up to {kept:.1f} m/s; " + "; ".join(ends))
 
 
 def main() -> None:
