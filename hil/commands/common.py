@@ -156,7 +156,10 @@ def until_interrupted(
     stop = stop or stop_on_signals()
     print(message, flush=True)
     interrupted = True
-    while not stop.wait(ALIVE_CHECK if alive is not None else None):
+    # Never an untimed wait: a signal the kernel hands to another thread (zenoh's, a run's) only trips
+    # Python's flag, and its handler runs when the main thread next runs bytecode; blocked for good in
+    # the Event's lock, it never would (a served run once ignored its Ctrl-C for 15 minutes).
+    while not stop.wait(ALIVE_CHECK):
         if alive is not None and not alive():
             interrupted = False
             break
@@ -166,7 +169,7 @@ def until_interrupted(
 
 
 ALIVE_CHECK = 0.25
-"""s between looks at whether a part a command runs is still alive."""
+"""s between looks at whether a part a command runs is still alive, and at a signal another thread took."""
 
 
 def part_ended(command: str, part: str, node: object, interrupted: bool) -> int:
