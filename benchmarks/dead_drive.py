@@ -107,10 +107,9 @@ def run(case: Case, dead: int, rules: RecoveryRules) -> dict[str, float | str | 
             yaw, spin = max(yaw, abs(truth.yaw_rate)), max(spin, abs(velocity[2]))
             tilt = max(tilt, *(abs(math.degrees(a)) for a in truth.tilt))
         plant.step()
-    fell = plant.fallen
-    at_rest = math.hypot(*plant.velocity) < AT_REST
+    fell, speed = plant.fallen, math.hypot(*plant.velocity)
     return {
-        "ended": ("at rest" if at_rest else f"upright, {math.hypot(*plant.velocity):.2f} m/s")
+        "ended": ("at rest" if speed < AT_REST else f"upright, {speed:.2f} m/s")
         if fell is None
         else f"fell {plant.t - case.fault:.1f} s after",
         "cause": fell,
@@ -124,9 +123,11 @@ AT_REST = 0.05
 """m/s: below this at the end, the robot has come to rest."""
 LEAN_PER_SPEED = 8.0
 """deg of forward lean per m/s the sweep's rider rides at (HACS: the rider leans to ride)."""
+TURN_PER_SPEED = 0.8
+"""rad/s of turn per m/s in the sweep's turns (a 1.25 m radius)."""
 SWEEP_STEP = 0.2
 SWEEP_SPEEDS = tuple(round(SWEEP_STEP * i, 6) for i in range(1, 6))
-"""m/s before the fault; the turns at 0.8 rad/s per m/s (a 1.25 m radius)."""
+"""m/s before the fault."""
 
 
 def sweep() -> None:
@@ -137,7 +138,7 @@ def sweep() -> None:
     for heeds in (True, False):
         rider = "heeding the alert (1 s)" if heeds else "not heeding the alert (leaning on)"
         print(f"s07 (73 kg) leaning {LEAN_PER_SPEED:.0f} deg per m/s, {rider}; fault at 3 s")
-        for turn in (0.0, 0.8):
+        for turn in (0.0, TURN_PER_SPEED):
             for dead in (0, 1, 2):
                 kept, ends = 0.0, []
                 for speed in SWEEP_SPEEDS:
