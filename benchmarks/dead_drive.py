@@ -130,6 +130,13 @@ SWEEP_SPEEDS = tuple(round(SWEEP_STEP * i, 6) for i in range(1, 6))
 """m/s before the fault."""
 
 
+def riding(rider: str, speed: float, turn: float, heeds: bool) -> Case:
+    """The sweep's ride: `rider` leaning LEAN_PER_SPEED deg per m/s at `speed`, turning at `turn` rad/s per
+    m/s, a drive lost at 3 s."""
+    lean = [Ramp(to=LEAN_PER_SPEED * speed, duration=0.5)]
+    return Case("sweep", rider, lean, speed, fault=3.0, duration=10.0, yaw_rate=turn * speed, heeds=heeds)
+
+
 def sweep() -> None:
     """Each dead drive in straight riding and in a turn, with a rider who heeds the alert (issue 47's case)
     and one who does not (the campaign's scripted riders): how each run ends, and the largest speed up to
@@ -142,17 +149,7 @@ def sweep() -> None:
             for dead in (0, 1, 2):
                 kept, ends = 0.0, []
                 for speed in SWEEP_SPEEDS:
-                    case = Case(
-                        "sweep",
-                        "s07_abi_73kg_176",
-                        [Ramp(to=LEAN_PER_SPEED * speed, duration=0.5)],
-                        speed,
-                        fault=3.0,
-                        duration=10.0,
-                        yaw_rate=turn * speed,
-                        heeds=heeds,
-                    )
-                    r = run(case, dead, rules)
+                    r = run(riding("s07_abi_73kg_176", speed, turn, heeds), dead, rules)
                     ends.append(f"{speed:.1f}: {r['ended']}")
                     if r["cause"] is None and kept == round(speed - SWEEP_STEP, 6):
                         kept = speed  # every slower run ended upright too
@@ -165,7 +162,8 @@ def main() -> None:
         sweep()
         return
     law = SupervisorConfig().recovery
-    alone = msgspec.structs.replace(law, coupled_velocity_share=1.0, rider_roll_yaw_product=0.0)
+    own = msgspec.structs.replace(law.two_wheels, coupled_velocity_share=1.0)
+    alone = msgspec.structs.replace(law, two_wheels=own, rider_roll_yaw_product=0.0)
     print("peak yaw rate (rad/s), peak ball spin on the floor (rad/s), peak tilt (deg), how it ended")
     for case in CASES:
         print(f"{case.name}:")

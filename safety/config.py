@@ -265,6 +265,27 @@ class ScRules(_Strict, frozen=True):
     """Sources tracked at once; a request from one more is refused and counted."""
 
 
+class TwoWheelRules(_Strict, frozen=True):
+    """The recovery law's weights on two wheels (a dead drive), apart from the three-drive law's. On two
+    wheels every torque that brakes the coupled plane turns the chassis too, and a brake as hard as three
+    wheels' spins it past what the pair can hold. These weights hold the tilt loosely, damp the ball's
+    speed hard and let the anchor follow the robot: the rider's momentum comes down over seconds, at a yaw
+    the pair keeps. Searched, not derived: `python benchmarks/recovery_weights.py` (optuna) over riders of
+    45-120 kg, each drive, straight and turning at 0.8 and 1.0 m/s, riders who heed the alert (docs/safety.md
+    "A dead drive")."""
+
+    q_tilt: Positive = 80.0
+    q_position: Positive = 0.2
+    q_tilt_rate: Positive = 1.8
+    q_ball_rate: Positive = 300.0
+    r: Positive = 1.0
+    position_limit: Positive = 0.22
+    """m: how far from the anchor the position term pulls; beyond it the anchor follows the robot."""
+    coupled_velocity_share: Fraction = 0.75
+    """The share of the coupled plane's position and ball rate in its feedback; the rest of its ball rate
+    is the yaw rate, which the pair's torque changes with it (docs/safety.md "A dead drive")."""
+
+
 class RecoveryRules(_Strict, frozen=True):
     """The recovery law (safety/recovery.py): an LQR per plane on the supervisor's own model, weights on
     [tilt, ball angle since the takeover, tilt rate, ball rate] (docs/safety.md "Fail-operational")."""
@@ -292,9 +313,7 @@ class RecoveryRules(_Strict, frozen=True):
     rider_roll_yaw_product: float = 0.030
     """kg m² per kg of rider: −Σ m x z about the ball centre, the legs ahead and low, the trunk behind and
     high; it couples the chassis' roll to its yaw (two-wheel law only)."""
-    coupled_velocity_share: Fraction = 0.3
-    """On two wheels, the share of the coupled plane's position and ball rate in its feedback; the rest of
-    its ball rate is the yaw rate, which the pair's torque changes with it (docs/safety.md "A dead drive")."""
+    two_wheels: TwoWheelRules = TwoWheelRules()
     attitude_filter: Positive = 2.0
     """s: the integrated rates are pulled toward a trusted attitude with this time constant; once the
     attitude is found faulty they carry it alone."""

@@ -31,7 +31,7 @@ from drivers.bounds import G0
 from drivers.can_codec import ENCODERS, TILT_INPUTS
 from drivers.robot import RobotModel
 from drivers.rotations import body_frame, body_up, euler_rates, heading_frame
-from safety.config import RecoveryRules
+from safety.config import RecoveryRules, TwoWheelRules
 from safety.diagnostics import YawCheck, motor_jacobian
 
 ATTITUDE_WINDOW = 40
@@ -400,12 +400,18 @@ def accelerometer_tilt(a: float, norm: float, offset: float) -> float:
 
 
 def plane_gain(
-    robot: RobotModel, rules: RecoveryRules, rider_mass: float, inertia: float, chassis: float = 1.0
+    robot: RobotModel,
+    rules: RecoveryRules,
+    rider_mass: float,
+    inertia: float,
+    chassis: float = 1.0,
+    weights: RecoveryRules | TwoWheelRules | None = None,
 ) -> np.ndarray:
     """LQR gain K (τ = −K s, s = [θ, φ, θ̇, φ̇]) of the planar ballbot linearised upright (Fankhauser &
     Gwerder's model, the rider a point mass `rider_com` above the seat, the drivetrain's inertia left out:
     under 1 % of the body's here). `chassis`: how the chassis takes the reaction of a torque τ on the ball,
-    as −chassis·τ (1 in a plane of its own; a pair of wheels' coupled plane differs: `chassis_factor`)."""
+    as −chassis·τ (1 in a plane of its own; a pair of wheels' coupled plane differs: `chassis_factor`).
+    `weights`: the LQR's (`rules`' own, the three-drive law's, if None)."""
     ball, body = robot.ball, robot.body
     seat = body.top_height + body.seat_height + rules.rider_com
     mass = body.mass + rider_mass
@@ -422,8 +428,9 @@ def plane_gain(
     a[2, 0] = m11 * gravity / det
     a[3, 0] = -m12 * gravity / det
     b = np.array([[0.0], [0.0], [-(m11 * chassis + m12) / det], [(m22 + m12 * chassis) / det]])
-    q = np.diag([rules.q_tilt, rules.q_position, rules.q_tilt_rate, rules.q_ball_rate])
-    rr = np.array([[rules.r]])
+    w = rules if weights is None else weights
+    q = np.diag([w.q_tilt, w.q_position, w.q_tilt_rate, w.q_ball_rate])
+    rr = np.array([[w.r]])
     p = solve_continuous_are(a, b, q, rr)
     gain: np.ndarray = np.linalg.solve(rr, b.T @ p)[0]
     return gain
@@ -462,23 +469,24 @@ a 50-120 kg rider and up to 15 deg of tilt lie within ±3.5."""
 
 
 @functools.cache
-def gain_tables(robot: RobotModel, rules: RecoveryRules) -> tuple[np.ndarray, np.ndarray]:
-    """The gains for riders every RIDER_STEP kg, (roll, pitch) planes and the coupled plane of a pair for
-    every chassis factor: solved once per process and robot (a takeover only interpolates: a Riccati solve
-    at the takeover would delay its frame by milliseconds; the 171 of them take 0.7-1.6 s on a loaded 2-core
-    machine)."""
-    body = robot.body
-    planes = np.array(
-        [
-            [plane_gain(robot, rules, m, inertia) for inertia in (body.inertia_roll, body.inertia_pitch)]
-            for m in MASSES
-        ]
+def gain_tables(robot: RobotModel, rules: RecoveryRules) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The gains for riders every RIDER_STEP kg: the (roll, pitch) planes' on three wheels and on two (their
+    free axis), and the coupled plane of a pair for every chassis factor. Solved once per process and robot
+    (a takeover only interpolates: a Riccati solve at the takeover would delay its frame by milliseconds;
+    the 189 of them take about a second on a loaded 2-core machine)."""
+    body, pair_weights = robot.body, rules.two_wheels
+    inertias = (body.inertia_roll, body.inertia_pitch)
+    planes = np.array([[plane_gain(robot, rules, m, i) for i in inertias] for m in MASSES])
+    pair_planes = np.array(
+        [[plane_gain(robot, rules, m, i, 1.0, pair_weights) for i in inertias] for m in MASSES]
     )
     inertia = 0.5 * (body.inertia_roll + body.inertia_pitch)
-    coupled = np.array([[plane_gain(robot, rules, m, inertia, float(f)) for f in FACTORS] for m in MASSES])
-    planes.setflags(write=False)  # shared by every law of the process
-    coupled.setflags(write=False)
-    return planes, coupled
+    coupled = np.array(
+        [[plane_gain(robot, rules, m, inertia, float(f), pair_weights) for f in FACTORS] for m in MASSES]
+    )
+    for table in (planes, pair_planes, coupled):
+        table.setflags(write=False)  # shared by every law of the process
+    return planes, pair_planes, coupled
 
 
 class RecoveryLaw:
@@ -490,7 +498,10 @@ class RecoveryLaw:
     pair's torque ties the yaw rate to that plane's momentum (J_z ψ̇ + κ p = const), so that plane's
     velocity feedback is partly the yaw rate (`coupled_velocity_share`), and its gains follow how the
     chassis takes the pair's torque now: the rider's legs ahead of the axis and the chassis' own tilt couple
-    its roll to the yaw the torque brings (`chassis_factor`)."""
+    its roll to the yaw the torque brings (`chassis_factor`). Two wheels have weights of their own
+    (`TwoWheelRules`: the ball's speed damped hard, the tilt held loosely, so the rider's momentum comes
+    down at a yaw the pair keeps), and their tilt rates are the world-fixed tilt's (the heading frame turns
+    at several rad/s under them)."""
 
     def __init__(self, robot: RobotModel, rules: RecoveryRules):
         self.robot, self.rules = robot, rules
@@ -499,17 +510,19 @@ class RecoveryLaw:
         self._pairs = tuple(pair(jacobian, i) for i in range(3))
         self.limit = robot.drive.torque_limit
         self._masses = MASSES
-        self._table, self._coupled_table = gain_tables(robot, rules)
+        self._table, self._pair_table, self._coupled_table = gain_tables(robot, rules)
         self.gains = self.design(None)
 
     def design(self, seat_load: float | None) -> tuple[np.ndarray, np.ndarray]:
         """The (roll, pitch) gains for the rider the seat weighs (N; None: the configured rider mass)."""
         rider = self.rules.rider_mass if seat_load is None else seat_load / G0
         rider = min(max(rider, 0.0), MAX_RIDER)
-        gains = np.array(
-            [[np.interp(rider, self._masses, self._table[:, p, i]) for i in range(4)] for p in range(2)]
+        gains, pair_gains = (
+            np.array([[np.interp(rider, self._masses, t[:, p, i]) for i in range(4)] for p in range(2)])
+            for t in (self._table, self._pair_table)
         )
         self.gains = (gains[0], gains[1])
+        self._pair_gains = (pair_gains[0], pair_gains[1])
         self._coupled_gains = np.array(
             [
                 [np.interp(rider, self._masses, self._coupled_table[:, f, i]) for i in range(4)]
@@ -554,11 +567,19 @@ class RecoveryLaw:
 
     def torques(self, estimate: IsolatedEstimator, without: int | None = None) -> tuple[float, float, float]:
         """The motor torques for the estimate; `without`: a drive (0-2) that makes no torque."""
+        two_wheels = self.rules.two_wheels
         # Anti-windup: beyond the limit the anchor moves with the robot, so a rider who leaned it away and
         # then sits up is not driven back further than the limit.
-        estimate.hold_within(self.rules.position_limit / estimate.radius)
+        anchor = self.rules.position_limit if without is None else two_wheels.position_limit
+        estimate.hold_within(anchor / estimate.radius)
         roll, pitch = estimate.planes
         states = [(p.tilt, p.ball_angle, p.tilt_rate, p.ball_rate) for p in estimate.planes]
+        if without is not None:
+            # On two wheels the heading frame turns at several rad/s: the planes' LQR wants the rate of the
+            # tilt fixed in the world, not of its components in a turning frame (they differ by ψ̇ × θ).
+            yaw = estimate.yaw_rate
+            states[0] = (roll.tilt, roll.ball_angle, roll.tilt_rate - yaw * pitch.tilt, roll.ball_rate)
+            states[1] = (pitch.tilt, pitch.ball_angle, pitch.tilt_rate + yaw * roll.tilt, pitch.ball_rate)
         if without is None:
             ball = [
                 -sum(k * x for k, x in zip(g, s, strict=True))
@@ -571,7 +592,7 @@ class RecoveryLaw:
             (dx, dy), (ex, ey) = p.free, p.coupled
             free = [dx * a + dy * b for a, b in zip(*states, strict=True)]
             coupled = [ex * a + ey * b for a, b in zip(*states, strict=True)]
-            share = self.rules.coupled_velocity_share
+            share = two_wheels.coupled_velocity_share
             # The yaw rate stands in for part of the coupled plane's ball rate: the pair's torque changes
             # them together, ψ̇ by −κ/J_z per unit of that plane's momentum m11 φ̇.
             coupled[1] *= share
@@ -583,7 +604,7 @@ class RecoveryLaw:
                 * estimate.yaw_rate
             )
             factor = self.chassis_factor(without, roll.tilt, pitch.tilt)
-            gain_free = dx * dx * self.gains[0] + dy * dy * self.gains[1]
+            gain_free = dx * dx * self._pair_gains[0] + dy * dy * self._pair_gains[1]
             gain_coupled = [np.interp(factor, FACTORS, self._coupled_gains[:, i]) for i in range(4)]
             t_free = -sum(k * x for k, x in zip(gain_free, free, strict=True))
             t_coupled = -sum(k * x for k, x in zip(gain_coupled, coupled, strict=True))

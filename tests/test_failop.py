@@ -150,11 +150,12 @@ def test_the_chassis_takes_the_pairs_torque_reversed_with_a_riders_legs_and_more
     assert level < 0.0 and back < level
 
 
-def two_wheel_run(rules, lean, dead=0, fault=1.0, end=7.0):
+def two_wheel_run(rules, lean, dead=0, fault=1.0, end=7.0, speed=0.25, turn=0.0, heeds=False):
     """The 3-D plant and a 73 kg rider leaning `lean` deg forward, held by the truth balancer rolling at
-    0.25 m/s; at `fault` drive `dead` (0-2) stops making torque and the recovery law, its estimator fed the
-    sensors' samples (the wire's values), balances on the other two, its command applied the next tick.
-    Returns how it ended and the peak yaw rate."""
+    `speed` m/s (reached over 1.5 s) and turning at `turn` rad/s; at `fault` drive `dead` (0-2) stops making
+    torque and the recovery law, its estimator fed the sensors' samples (the wire's values), balances on the
+    other two, its command applied the next tick; a rider who `heeds` sits up after their reaction time.
+    Returns how it ended, the peak yaw rate after the fault and the final speed."""
     from hil.run.truth_balancer import TruthBalancer
     from plant.ballbot3d import Plant3D
     from plant.core import RiderIntent
@@ -165,11 +166,11 @@ def two_wheel_run(rules, lean, dead=0, fault=1.0, end=7.0):
     rider = load_toml(ROOT / "configs/riders/s07_abi_73kg_176.toml", RiderParams)
     robot = load_toml(ROOT / "configs/robot/pure.toml", RobotParams)
     plant = Plant3D(robot, rider, SimParams(), RiderIntent(pitch=[Ramp(to=lean, duration=0.5)]))
+    plant.heeds_alert = heeds
     geometry = load_toml(ROOT / "configs/robot/pure.toml", RobotModel)
     estimate, law = IsolatedEstimator(geometry, rules, plant.sim.dt), RecoveryLaw(geometry, rules)
     law.design(rider.mass * 9.80665)
     balancer = TruthBalancer(plant)
-    balancer.set_velocity(0.25)
     peak, command = 0.0, (0.0, 0.0, 0.0)
     while plant.t < end and not plant.fallen:
         imu, drives = plant.sample_imu(), plant.sample_drives()
@@ -177,29 +178,39 @@ def two_wheel_run(rules, lean, dead=0, fault=1.0, end=7.0):
             plant.t, imu.attitude[:2], imu.rate, [d.velocity for d in drives], frozenset(), imu.accel
         )
         if plant.t < fault:
+            ramp = min(plant.t / 1.5, 1.0)
+            balancer.set_velocity(speed * ramp)
+            balancer.yaw_rate_command = turn * ramp
             balancer.drive()
         else:
             if plant.drives.motors[dead].gain:
                 plant.drives.motors[dead].gain = 0.0
                 estimate.engage()
+                plant.alert(2)
             plant.drives.set_commands(command, True, plant.t)
             command = law.torques(estimate, dead)
             peak = max(peak, abs(plant.truth().yaw_rate))
         plant.step()
-    return plant.fallen, peak
+    return plant.fallen, peak, math.hypot(*plant.velocity)
 
 
 def test_on_two_wheels_a_coupled_plane_that_follows_the_chassis_and_the_yaw_keeps_the_robot_up():
-    """Drive 1 dead under a rider who holds a 12 deg lean (3-D plant): the law stays up turning at under 2
-    rad/s. Positive control: the same law with the coupled plane as a plane of its own (no product of
-    inertia, no yaw in its velocity feedback) spins the robot up more than twice as fast. (Before the
-    plant's drives had stiction, 2026-12-07, the control spun past 10 rad/s and fell; the drives' breakaway
-    now holds it.)"""
-    fallen, peak = two_wheel_run(CFG.recovery, 12.0)
+    """Drive 2 dead at 1.0 m/s in a 0.8 rad/s turn, the rider (leaning 8 deg) heeding the alert (3-D plant):
+    the law brings the robot to rest. Positive control: the same law with the coupled plane as a plane of
+    its own (no product of inertia, no yaw in its velocity feedback) falls."""
+    case = {"lean": 8.0, "dead": 1, "fault": 3.0, "end": 10.0, "speed": 1.0, "turn": 0.8, "heeds": True}
+    fallen, _, speed = two_wheel_run(CFG.recovery, **case)
+    assert fallen is None and speed < CFG.stop.standstill_speed
+    own = msgspec.structs.replace(CFG.recovery.two_wheels, coupled_velocity_share=1.0)
+    control = msgspec.structs.replace(CFG.recovery, two_wheels=own, rider_roll_yaw_product=0.0)
+    assert two_wheel_run(control, **case)[0] is not None
+
+
+def test_a_rider_who_leans_on_after_a_dead_drive_is_held_without_spinning_the_robot_up():
+    """Drive 1 dead under a rider who holds a 12 deg lean at 0.25 m/s and does not heed: the law stays up and
+    the chassis turns at under 2 rad/s."""
+    fallen, peak, _ = two_wheel_run(CFG.recovery, 12.0)
     assert fallen is None and peak < 2.0
-    control = msgspec.structs.replace(CFG.recovery, coupled_velocity_share=1.0, rider_roll_yaw_product=0.0)
-    _, control_peak = two_wheel_run(control, 12.0)
-    assert control_peak > 2.0 * peak and control_peak > 3.0
 
 
 # ------------------------------------------------------------------------------------------ whole runs
@@ -304,6 +315,42 @@ def test_a_drive_dead_at_speed_is_named_and_the_recovery_law_commands_only_the_o
     assert named_drive2 and not any(blamed_after), "Drive2 named; the ball's spin then blames no gyro"
     assert recovery and all(s["Torque2"] == 0.0 for s in recovery), "nothing asked of the dead drive"
     assert max(abs(s["Torque1"]) + abs(s["Torque3"]) for s in recovery) > 0.5, "the other two balance"
+
+
+CRUISING = load_toml(ROOT / "configs/scenarios/cruising.toml", Scenario)
+"""s07 cruising at about 1 m/s with a sideways sway, heeding the alert."""
+
+
+def off_in_motion(trace) -> bool:
+    """The drives were powered off while the robot still moved and had not fallen."""
+    speed = np.hypot(trace.velocity[:, 0], trace.velocity[:, 1])
+    return bool(np.any(~trace.powered.astype(bool) & (speed > CFG.stop.standstill_speed)))
+
+
+@pytest.mark.parametrize("motor", [1, 2, 3])
+def test_a_drive_lost_at_riding_speed_under_a_rider_who_heeds_ends_upright_at_rest_without_a_cut_in_motion(
+    motor, tmp_path
+):
+    """Issue 47's goal on the 3-D plant, through the rig: s07 cruises at 1.0 m/s and drive `motor` stops
+    making torque; the supervisor names it, its two-wheel law brings the robot to rest, and only then powers
+    off.
+    Positive controls: the same law with the three-drive law's weights and the old coupled share on two
+    wheels (the law before issue 47's but for the world-fixed tilt rates) falls, and without a recovery law
+    the power goes off at speed, which `off_in_motion` sees."""
+    fault = [{"kind": "plant.drive_torque", "motor": motor, "scale": 0.0, "at": 4.0}]
+    tr = run(CRUISING, fault, tmp_path / "law")
+    assert np.hypot(*tr.velocity[np.searchsorted(tr.t, 4.0)]) > 0.9, "the fault comes at riding speed"
+    assert any(e.to_state == "RECOVERY" for e in tr.safety_events)
+    assert at_rest_upright(tr) and not tr.powered[-1]
+    assert not off_in_motion(tr)
+    if motor == 2:
+        three = CFG.recovery
+        weights = {k: getattr(three, k) for k in ("q_tilt", "q_position", "q_tilt_rate", "q_ball_rate", "r")}
+        weights |= {"position_limit": three.position_limit, "coupled_velocity_share": 0.3}
+        old = run(CRUISING, fault, tmp_path / "old", safety={"recovery": {"two_wheels": weights}})
+        assert old.fallen, "three wheels' weights fall"
+        cut = run(CRUISING, fault, tmp_path / "cut", safety={"recovery": {"enabled": False}})
+        assert off_in_motion(cut)
 
 
 def test_a_cia402_drive_held_in_fault_is_named_once_it_stays_off_under_the_recovery_law(tmp_path):
