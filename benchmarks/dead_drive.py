@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 import os
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -54,6 +54,10 @@ class Case:
     """rad/s the truth balancer turns at before the fault (a turn)."""
     heeds: bool = False
     """The rider sits up and holds still `alert_reaction_time` after the fault (the alert)."""
+    sway: list = field(default_factory=list)
+    """The rider's roll lean profile (deg), as `lean`."""
+    twist: list = field(default_factory=list)
+    """The rider's twist torque profile (N m)."""
 
 
 CASES = (
@@ -76,7 +80,8 @@ CASES = (
 def run(case: Case, dead: int, rules: RecoveryRules) -> dict[str, float | str | None]:
     robot = load_toml(ROOT / "configs/robot/pure.toml", RobotParams)
     rider = load_toml(ROOT / f"configs/riders/{case.rider}.toml", RiderParams)
-    plant = Plant3D(robot, rider, SimParams(), RiderIntent(pitch=list(case.lean)))
+    intent = RiderIntent(pitch=list(case.lean), roll=list(case.sway), twist=list(case.twist))
+    plant = Plant3D(robot, rider, SimParams(), intent)
     plant.heeds_alert = case.heeds
     geometry = load_toml(ROOT / "configs/robot/pure.toml", RobotModel)
     estimate, law = IsolatedEstimator(geometry, rules, plant.sim.dt), RecoveryLaw(geometry, rules)

@@ -2,7 +2,8 @@
 optuna search over its LQR weights, anchor and coupled-plane share, each trial scored by the law alone on
 the 3-D plant (benchmarks/dead_drive.py `run`: the truth balancer rides until the fault, then one drive
 makes no torque and the law balances on the other two) over riders of 45-120 kg, each dead drive, straight
-and turning, at 0.8 and 1.0 m/s, the rider heeding the alert.
+and turning, at 0.8 and 1.0 m/s, the rider heeding the alert; and the diagnostics campaign's swaying
+`slalom` rider, who does not heed, at 0.66-1.0 m/s, checked (`--check`) but not searched over.
 
     python benchmarks/recovery_weights.py --trials 200 [--seed N] [--storage sqlite:///w.db]  # one per core
     python benchmarks/recovery_weights.py --check   # today's weights against the same cases
@@ -25,11 +26,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import msgspec
 from dead_drive import AT_REST, TURN_PER_SPEED, Case, riding, run
 
+from plant.rider import Hold, Ramp, Sine
 from safety.config import RecoveryRules, SupervisorConfig, TwoWheelRules
 
 RIDERS = ("s07_abi_73kg_176", "ref_60kg_180", "heavy_120kg_185", "light_45kg_150")
 SPEEDS = (0.8, 1.0)
 """m/s before the fault (issue 47's goal: up to 1.0)."""
+SWAYING_SPEEDS = (0.66, 0.8, 1.0)
+"""m/s of the swaying rider's runs (`slalom` loses its drive at 0.66)."""
 SPACE = {
     "q_tilt": (5.0, 3000.0),
     "q_position": (0.02, 100.0),
@@ -40,7 +44,16 @@ SPACE = {
 """Searched on a log scale; `coupled_velocity_share` on (0, 1]."""
 
 
+def swaying(speed: float) -> Case:
+    """The diagnostics campaign's `slalom` rider (s04, 50 kg, 10 deg forward, swaying 12 deg and twisting
+    12 N m at 0.25 Hz), who does not heed the alert: the law alone's stand-in for that campaign case."""
+    sine = [Hold(duration=2.0), Sine(amplitude=12.0, frequency_hz=0.25, duration=20.0)]
+    lean = [Ramp(to=10.0, duration=1.0)]
+    return Case("swaying", "s04_abi_50kg_164", lean, speed, fault=3.0, duration=10.0, sway=sine, twist=sine)
+
+
 def cases() -> list[tuple[int, Case]]:
+    """The search's rides: every rider heeding the alert (issue 47's goal)."""
     return [
         (dead, riding(rider, speed, turn, heeds=True))
         for rider in RIDERS
@@ -50,16 +63,21 @@ def cases() -> list[tuple[int, Case]]:
     ]
 
 
-def score(rules: RecoveryRules) -> tuple[float, list[str]]:
+def swaying_cases() -> list[tuple[int, Case]]:
+    """Not searched over, only checked: a rider who keeps swaying holds any loose law's tilt hostage."""
+    return [(dead, swaying(speed)) for speed in SWAYING_SPEEDS for dead in (0, 1, 2)]
+
+
+def score(rules: RecoveryRules, rides: list[tuple[int, Case]] | None = None) -> tuple[float, list[str]]:
     total, ends = 0.0, []
-    for dead, case in cases():
+    for dead, case in cases() if rides is None else rides:
         r = run(case, dead, rules)
         if r["cause"] is None:
             total += (1.5 if r["ended"] == "at rest" else 1.0) - 0.01 * float(r["tilt"])  # type: ignore[arg-type]
         else:
             total += -1.0 + 0.1 * float(str(r["ended"]).split()[1])
-        turn = "turning" if case.yaw_rate else "straight"
-        ends.append(f"{case.rider} drive {dead + 1} {case.speed:.1f} m/s {turn}: {r['ended']}")
+        how = "swaying" if case.sway else "turning" if case.yaw_rate else "straight"
+        ends.append(f"{case.rider} drive {dead + 1} {case.speed:.2f} m/s {how}: {r['ended']}")
     return total, ends
 
 
@@ -76,11 +94,12 @@ def main() -> None:
     p.add_argument("--check", action="store_true", help="score today's weights and list how each run ended")
     args = p.parse_args()
     if args.check:
-        total, ends = score(SupervisorConfig().recovery)
-        print("\n".join(ends))
-        kept = sum(1 for e in ends if "fell" not in e)
-        rest = sum(1 for e in ends if e.endswith("at rest"))
-        print(f"score {total:.2f}: {kept} of {len(ends)} upright, {rest} at rest (< {AT_REST} m/s at 10 s)")
+        for label, rides in (("heeding (searched)", cases()), ("swaying, not heeding", swaying_cases())):
+            total, ends = score(SupervisorConfig().recovery, rides)
+            print("\n".join(ends))
+            kept = sum(1 for e in ends if "fell" not in e)
+            rest = sum(1 for e in ends if e.endswith("at rest"))
+            print(f"{label}: score {total:.2f}: {kept} of {len(ends)} upright, {rest} at rest (< {AT_REST})")
         return
     import optuna
 

@@ -317,8 +317,11 @@ def test_a_drive_dead_at_speed_is_named_and_the_recovery_law_commands_only_the_o
     assert max(abs(s["Torque1"]) + abs(s["Torque3"]) for s in recovery) > 0.5, "the other two balance"
 
 
-CRUISING = load_toml(ROOT / "configs/scenarios/cruising.toml", Scenario)
-"""s07 cruising at about 1 m/s with a sideways sway, heeding the alert."""
+CRUISING = {
+    name: load_toml(ROOT / f"configs/scenarios/{name}.toml", Scenario)
+    for name in ("cruising", "cruising_turn")
+}
+"""s07 cruising at about 1 m/s with a sideways sway, straight or turning, heeding the alert."""
 
 
 def off_in_motion(trace) -> bool:
@@ -327,29 +330,30 @@ def off_in_motion(trace) -> bool:
     return bool(np.any(~trace.powered.astype(bool) & (speed > CFG.stop.standstill_speed)))
 
 
+@pytest.mark.parametrize("ride", list(CRUISING))
 @pytest.mark.parametrize("motor", [1, 2, 3])
 def test_a_drive_lost_at_riding_speed_under_a_rider_who_heeds_ends_upright_at_rest_without_a_cut_in_motion(
-    motor, tmp_path
+    motor, ride, tmp_path
 ):
-    """Issue 47's goal on the 3-D plant, through the rig: s07 cruises at 1.0 m/s and drive `motor` stops
-    making torque; the supervisor names it, its two-wheel law brings the robot to rest, and only then powers
-    off.
+    """Issue 47's goal on the 3-D plant, through the rig: s07 cruises at 0.9-1.0 m/s, straight or turning,
+    and drive `motor` stops making torque; the supervisor names it, its two-wheel law brings the robot to
+    rest, and only then powers off.
     Positive controls: the same law with the three-drive law's weights and the old coupled share on two
     wheels (the law before issue 47's but for the world-fixed tilt rates) falls, and without a recovery law
     the power goes off at speed, which `off_in_motion` sees."""
     fault = [{"kind": "plant.drive_torque", "motor": motor, "scale": 0.0, "at": 4.0}]
-    tr = run(CRUISING, fault, tmp_path / "law")
+    tr = run(CRUISING[ride], fault, tmp_path / "law")
     assert np.hypot(*tr.velocity[np.searchsorted(tr.t, 4.0)]) > 0.9, "the fault comes at riding speed"
     assert any(e.to_state == "RECOVERY" for e in tr.safety_events)
     assert at_rest_upright(tr) and not tr.powered[-1]
     assert not off_in_motion(tr)
-    if motor == 2:
+    if motor == 2 and ride == "cruising":
         three = CFG.recovery
         weights = {k: getattr(three, k) for k in ("q_tilt", "q_position", "q_tilt_rate", "q_ball_rate", "r")}
         weights |= {"position_limit": three.position_limit, "coupled_velocity_share": 0.3}
-        old = run(CRUISING, fault, tmp_path / "old", safety={"recovery": {"two_wheels": weights}})
+        old = run(CRUISING[ride], fault, tmp_path / "old", safety={"recovery": {"two_wheels": weights}})
         assert old.fallen, "three wheels' weights fall"
-        cut = run(CRUISING, fault, tmp_path / "cut", safety={"recovery": {"enabled": False}})
+        cut = run(CRUISING[ride], fault, tmp_path / "cut", safety={"recovery": {"enabled": False}})
         assert off_in_motion(cut)
 
 
