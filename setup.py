@@ -41,6 +41,7 @@ COMPILED = [
     "safety/monitors.py",
     "safety/drive_monitor.py",
     "safety/diagnostics.py",
+    "safety/estimator.py",
     "safety/recovery.py",
     "safety/arbiter.py",
     "safety/node.py",

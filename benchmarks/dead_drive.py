@@ -36,7 +36,8 @@ from plant.core import RiderIntent
 from plant.params import RiderParams, RobotParams, SimParams
 from plant.rider import Hold, Ramp
 from safety.config import RecoveryRules, SupervisorConfig
-from safety.recovery import IsolatedEstimator, RecoveryLaw
+from safety.estimator import IsolatedEstimator
+from safety.recovery import RecoveryLaw
 
 ROOT = Path(__file__).resolve().parents[1]
 

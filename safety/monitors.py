@@ -55,8 +55,8 @@ from safety.diagnostics import (
 )
 from safety.drive_monitor import Drive, Signals
 from safety.e2e_window import E2EWindow, WindowState
+from safety.estimator import IsolatedEstimator, leave_one_out
 from safety.observation import STREAMS, Finding, Observation
-from safety.recovery import IsolatedEstimator, leave_one_out
 
 IMU_CHANNELS: dict[str, tuple[str, str, str]] = {
     MessageName.IMU_ATTITUDE: ("Roll", "Pitch", "Yaw"),
@@ -332,11 +332,11 @@ class Monitors:
         What a check isolates by itself (an encoder's position against its velocity, a frozen or replayed
         channel) is named directly. A cross-check that fails names its likeliest input unless a direct
         finding already explains it: the yaw check the one of the gyro and the three encoders whose
-        exclusion leaves the smoothest ball rates (safety/recovery.py `odd_one_out`), unless a drive is
+        exclusion leaves the smoothest ball rates (safety/estimator.py `odd_one_out`), unless a drive is
         named (a dead drive's partners' yaw torque spins the ball on the floor: the encoders then disagree
         with the gyro although none lies; on the 3-D plant within 22 ms, before the torque check); an
         attitude or speed-trend check the plane's attitude, rate or accelerometer by the accelerometer's own
-        tilt (safety/recovery.py `blame`)."""
+        tilt (safety/estimator.py `blame`)."""
         named = self._named | self._e2e_named()
         failed = self._failed
         if not failed:

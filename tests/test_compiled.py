@@ -31,7 +31,7 @@ COMPILED_SUITE = (
     "tests/test_e2e_window.py",  # safety/e2e_window.py
     "tests/test_safety_diagnostics.py",  # safety/diagnostics.py
     "tests/test_safety_arbiter.py",  # safety/arbiter.py
-    "tests/test_failop.py",  # safety/recovery.py, and the Rig's takeover paths
+    "tests/test_failop.py",  # safety/estimator.py and recovery.py, and the Rig's takeover paths
     "tests/test_safety_node.py",  # safety/node.py standalone, on its own timer and on SYNC
     "tests/test_controller_units.py",  # controller/estimator.py, controller/balance.py, controller/core.py
     "tests/test_controller_closed_loop.py",

@@ -161,7 +161,8 @@ def two_wheel_run(rules, lean, dead=0, fault=1.0, end=7.0, speed=0.25, turn=0.0,
     from plant.core import RiderIntent
     from plant.params import RiderParams, RobotParams, SimParams
     from plant.rider import Ramp
-    from safety.recovery import IsolatedEstimator, RecoveryLaw
+    from safety.estimator import IsolatedEstimator
+    from safety.recovery import RecoveryLaw
 
     rider = load_toml(ROOT / "configs/riders/s07_abi_73kg_176.toml", RiderParams)
     robot = load_toml(ROOT / "configs/robot/pure.toml", RobotParams)
@@ -381,7 +382,7 @@ def test_a_controller_that_balances_at_standstill_on_healthy_inputs_is_never_tak
 # ------------------------------------------------------------------------------------------ isolation
 def _estimator():
     from safety.diagnostics import motor_jacobian
-    from safety.recovery import IsolatedEstimator
+    from safety.estimator import IsolatedEstimator
 
     robot = load_toml(ROOT / "configs/robot/pure.toml", RobotModel)
     return IsolatedEstimator(robot, CFG.recovery, DT), motor_jacobian(robot)
