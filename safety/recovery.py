@@ -202,14 +202,8 @@ class RecoveryLaw:
         anchor = self.rules.position_limit if without is None else two_wheels.position_limit
         estimate.hold_within(anchor / estimate.radius)
         roll, pitch = estimate.planes
-        states = [(p.tilt, p.ball_angle, p.tilt_rate, p.ball_rate) for p in estimate.planes]
-        if without is not None:
-            # On two wheels the heading frame turns at several rad/s: the planes' LQR wants the rate of the
-            # tilt fixed in the world, not of its components in a turning frame (they differ by ψ̇ × θ).
-            yaw = estimate.yaw_rate
-            states[0] = (roll.tilt, roll.ball_angle, roll.tilt_rate - yaw * pitch.tilt, roll.ball_rate)
-            states[1] = (pitch.tilt, pitch.ball_angle, pitch.tilt_rate + yaw * roll.tilt, pitch.ball_rate)
         if without is None:
+            states = [(p.tilt, p.ball_angle, p.tilt_rate, p.ball_rate) for p in estimate.planes]
             ball = [
                 -sum(k * x for k, x in zip(g, s, strict=True))
                 for g, s in zip(self.gains, states, strict=True)
@@ -217,6 +211,13 @@ class RecoveryLaw:
             ball.append(self.rules.yaw_gain * estimate.yaw_rate)
             motor = self._to_motor @ np.asarray(ball)
         else:
+            # On two wheels the heading frame turns at several rad/s: the planes' LQR wants the rate of the
+            # tilt fixed in the world, not of its components in a turning frame (they differ by ψ̇ × θ).
+            yaw = estimate.yaw_rate
+            states = [
+                (roll.tilt, roll.ball_angle, roll.tilt_rate - yaw * pitch.tilt, roll.ball_rate),
+                (pitch.tilt, pitch.ball_angle, pitch.tilt_rate + yaw * roll.tilt, pitch.ball_rate),
+            ]
             p = self._pairs[without]
             (dx, dy), (ex, ey) = p.free, p.coupled
             free = [dx * a + dy * b for a, b in zip(*states, strict=True)]
