@@ -288,7 +288,8 @@ class TwoWheelRules(_Strict, frozen=True):
 
 class RecoveryRules(_Strict, frozen=True):
     """The recovery law (safety/recovery.py): an LQR per plane on the supervisor's own model, weights on
-    [tilt, ball angle since the takeover, tilt rate, ball rate] (docs/safety.md "Fail-operational")."""
+    [tilt, ball angle since the takeover, tilt rate, ball rate] (docs/safety.md "Fail-operational"). These
+    are the three-drive law's; on two wheels `two_wheels` holds its own."""
 
     enabled: bool = True
     """False: no takeover; a cause the controller cannot stop from cuts power at once (the supervisor as it
