@@ -59,6 +59,9 @@ class Case:
     """The rider's roll lean profile (deg), as `lean`."""
     twist: list = field(default_factory=list)
     """The rider's twist torque profile (N m)."""
+    detection: float = 0.0
+    """s from the fault until the law takes over; until then the truth balancer goes on balancing on three
+    drives, one dead, as the rig's controller does until the diagnosis names the drive."""
 
 
 CASES = (
@@ -90,20 +93,22 @@ def run(case: Case, dead: int, rules: RecoveryRules) -> dict[str, float | str | 
     balancer = TruthBalancer(plant)
     ball, velocity = plant.model.body("ball").id, np.zeros(6)
     yaw = spin = tilt = 0.0
-    command = (0.0, 0.0, 0.0)
+    command, engaged = (0.0, 0.0, 0.0), False
     while plant.t < case.duration and not plant.fallen:
         imu, drives = plant.sample_imu(), plant.sample_drives()
         estimate.update(
             plant.t, imu.attitude[:2], imu.rate, [d.velocity for d in drives], frozenset(), imu.accel
         )
-        if plant.t < case.fault:
+        if plant.t >= case.fault:
+            plant.drives.motors[dead].gain = 0.0
+        if plant.t < case.fault + case.detection:
             ramp = min(plant.t / 1.5, 1.0)
             balancer.set_velocity(case.speed * ramp)
             balancer.yaw_rate_command = case.yaw_rate * ramp
             balancer.drive()
         else:
-            if plant.drives.motors[dead].gain:
-                plant.drives.motors[dead].gain = 0.0
+            if not engaged:
+                engaged = True
                 estimate.engage()
                 plant.alert(2)
             plant.drives.set_commands(command, True, plant.t)

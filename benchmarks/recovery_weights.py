@@ -7,6 +7,7 @@ and turning, at 0.8 and 1.0 m/s, the rider heeding the alert; and the diagnostic
 
     python benchmarks/recovery_weights.py --trials 200 [--seed N] [--storage sqlite:///w.db]  # one per core
     python benchmarks/recovery_weights.py --check   # today's weights against the same cases
+    python benchmarks/recovery_weights.py --check --detection 0.34   # the swaying rider as the rig names it
 
 A run scores 1.5 at rest, 1.0 upright but still moving, minus 0.01 per degree of its peak tilt; a fall
 scores -1 plus 0.1 per second it stayed up after the fault. Not a timing: the same on every machine.
@@ -44,12 +45,16 @@ SPACE = {
 """Searched on a log scale; `coupled_velocity_share` on (0, 1]."""
 
 
-def swaying(speed: float) -> Case:
+def swaying(speed: float, detection: float = 0.0) -> Case:
     """The diagnostics campaign's `slalom` rider (s04, 50 kg, 10 deg forward, swaying 12 deg and twisting
-    12 N m at 0.25 Hz), who does not heed the alert: the law alone's stand-in for that campaign case."""
+    12 N m at 0.25 Hz), who does not heed the alert: the law alone's stand-in for that campaign case.
+    `detection`: s until the law takes over (the rig names `slalom`'s dead drive 2 after 0.34 s: its
+    command is small when the torque is lost, and the torque check waits for a mismatch it can see)."""
     sine = [Hold(duration=2.0), Sine(amplitude=12.0, frequency_hz=0.25, duration=20.0)]
     lean = [Ramp(to=10.0, duration=1.0)]
-    return Case("swaying", "s04_abi_50kg_164", lean, speed, fault=3.0, duration=10.0, sway=sine, twist=sine)
+    return Case(
+        "swaying", "s04_abi_50kg_164", lean, speed, 3.0, 10.0, sway=sine, twist=sine, detection=detection
+    )
 
 
 def cases() -> list[tuple[int, Case]]:
@@ -63,9 +68,9 @@ def cases() -> list[tuple[int, Case]]:
     ]
 
 
-def swaying_cases() -> list[tuple[int, Case]]:
+def swaying_cases(detection: float = 0.0) -> list[tuple[int, Case]]:
     """Not searched over, only checked: a rider who keeps swaying holds any loose law's tilt hostage."""
-    return [(dead, swaying(speed)) for speed in SWAYING_SPEEDS for dead in (0, 1, 2)]
+    return [(dead, swaying(speed, detection)) for speed in SWAYING_SPEEDS for dead in (0, 1, 2)]
 
 
 def score(rules: RecoveryRules, rides: list[tuple[int, Case]] | None = None) -> tuple[float, list[str]]:
@@ -92,9 +97,11 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--storage", default=None, help="an optuna storage URL, to share trials between processes")
     p.add_argument("--check", action="store_true", help="score today's weights and list how each run ended")
+    p.add_argument("--detection", type=float, default=0.0, help="--check: s to the swaying ride's takeover")
     args = p.parse_args()
     if args.check:
-        for label, rides in (("heeding (searched)", cases()), ("swaying, not heeding", swaying_cases())):
+        sway_rides = swaying_cases(args.detection)
+        for label, rides in (("heeding (searched)", cases()), ("swaying, not heeding", sway_rides)):
             total, ends = score(SupervisorConfig().recovery, rides)
             print("\n".join(ends))
             kept = sum(1 for e in ends if "fell" not in e)
