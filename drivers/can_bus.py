@@ -43,17 +43,9 @@ def private_channel(prefix: str = "pure") -> str:
 
 def queued_frames(bus: can.BusABC) -> queue.SimpleQueue[can.Message] | None:
     """The receive queue of an in-process shared bus (drivers/shared_bus.py), which the tick's drains take
-    from directly (what it had queued stays there after a shutdown, where its `recv` would raise); None for
-    any other bus (its own `recv`)."""
+    from directly, without a Python `recv` call a frame, about 40 a tick (what it had queued stays there
+    after a shutdown, where its `recv` would raise); None for any other bus (its own `recv(0)`)."""
     return bus.frames if isinstance(bus, SharedBus) else None
-
-
-def take_queued(bus: can.BusABC, queued: queue.SimpleQueue[can.Message] | None) -> can.Message | None:
-    """The next frame already received, without waiting (`bus.recv(0)`): from `queued` (see `queued_frames`)
-    without a Python call when there is one, about 40 a tick."""
-    if queued is None:
-        return bus.recv(0.0)
-    return None if queued.empty() else queued.get_nowait()
 
 
 WARNED_IDS = 16
@@ -295,7 +287,11 @@ class CanNode:
         (the tick's drains): the next queued catalog frame, past any rejected ones (they are counted), and
         no clock read."""
         if timeout == 0.0:
-            while (msg := take_queued(self.bus, self._queued)) is not None:
+            queued = self._queued  # the shared bus's queue, read here: no call between it and the decode
+            while queued is None or not queued.empty():
+                msg = self.bus.recv(0.0) if queued is None else queued.get_nowait()
+                if msg is None:
+                    return None
                 if self.rx_hook is not None and (msg := self.rx_hook(msg)) is None:
                     continue
                 if (frame := self.decode(msg)) is not None:
@@ -372,7 +368,10 @@ class BusRecorder:
     def poll(self) -> None:
         """Write every frame queued so far."""
         sinks, bus, queued = self._sinks, self.bus, self._queued
-        while (msg := take_queued(bus, queued)) is not None:
+        while queued is None or not queued.empty():
+            msg = bus.recv(0.0) if queued is None else queued.get_nowait()
+            if msg is None:
+                return
             for sink in sinks:
                 sink(msg)
             self.frames += 1

@@ -407,11 +407,10 @@ class ZenohLink:
         finally:
             listener.undeclare()
 
-    def put(self, key: str, payload: Payload) -> None:
-        self.put_bytes(key, encode(payload))
-
-    def put_bytes(self, key: str, data: bytes, tick: int | None = None) -> None:
-        """`tick`: the rig's tick the sample belongs to, attached for readers that may lag (`drain(tick)`)."""
+    def put(self, key: str, payload: Payload | bytes, tick: int | None = None) -> None:
+        """`payload`: a message, or its encoding (a node that records what it puts encodes it once). `tick`:
+        the rig's tick the sample belongs to, attached for readers that may lag (`drain(tick)`)."""
+        data = payload if isinstance(payload, bytes) else encode(payload)
         pub = self.publisher(key)
         if tick is None:
             pub.put(data)

@@ -159,7 +159,20 @@ class SafetyMachine:
             self._stop(controlled[0], controlled[1], obs)
         else:
             self._limit(obs)
-        return self._decision(obs)
+        # The Decision: what the state this update leaves the machine in allows.
+        cap = self.active_cap()
+        return Decision(
+            self.state,
+            self.cause,
+            self.state is not State.ESTOP,
+            cap,
+            self.forward(obs.request, cap),
+            self.since,
+            self.contactor_closed,
+            self.takeover,
+            self.alert(),
+            self.estop_by,
+        )
 
     def _immediate(self, obs: Observation, armed: bool) -> tuple[Cause, str] | None:
         """The first immediate cause that holds, from source to consequence, and what it saw."""
@@ -505,21 +518,6 @@ class SafetyMachine:
         if r is None or not speed.enforce_requested_cap:
             return speed.absolute_cap
         return min(speed.absolute_cap, r.speed_limit())
-
-    def _decision(self, obs: Observation) -> Decision:
-        cap = self.active_cap()
-        return Decision(
-            self.state,
-            self.cause,
-            self.state is not State.ESTOP,
-            cap,
-            self.forward(obs.request, cap),
-            self.since,
-            self.contactor_closed,
-            self.takeover,
-            self.alert(),
-            self.estop_by,
-        )
 
     def alert(self) -> int:
         """What the rider is told: slow down while limited, stop (sit up, hold still) from a stop on."""

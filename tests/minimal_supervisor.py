@@ -116,7 +116,7 @@ class MinimalSupervisor:
 
     def _put(self, key: str, payload: Payload) -> None:
         data = encode(payload)
-        self.link.put_bytes(key, data)
+        self.link.put(key, data)
         if self.on_put is not None:
             self.on_put(key, data)
 

@@ -244,7 +244,7 @@ def test_a_supervisor_behind_the_rig_judges_each_zenoh_input_at_the_tick_it_was_
     # when they arrive: here, held at k - 1 or further behind, before their own tick.
     class UntaggedRig(AheadRig):
         def _put_bytes(self, tick, key, data, link=None):
-            (link or self.link).put_bytes(key, data)
+            (link or self.link).put(key, data)
             self._record(tick, key, data)
 
     monkeypatch.setattr(build, "Rig", UntaggedRig)

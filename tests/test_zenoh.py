@@ -251,16 +251,16 @@ def test_a_reader_behind_the_rig_leaves_later_ticks_queued(hub_and_member):
     sub = rx.subscribe(key, TesWrench)
     assert wait_matching(tx.publisher(key))
     data = {i: encode(msgspec.structs.replace(SAMPLES[0], seq=i)) for i in range(5)}
-    tx.put_bytes(key, data[0])  # untagged
-    tx.put_bytes(key, data[1], tick=TICK_MODULO - 1)
-    tx.put_bytes(key, data[2], tick=TICK_MODULO)  # wraps to 0: one tick later
-    tx.put_bytes(key, data[3], tick=TICK_MODULO + 2)
+    tx.put(key, data[0])  # untagged
+    tx.put(key, data[1], tick=TICK_MODULO - 1)
+    tx.put(key, data[2], tick=TICK_MODULO)  # wraps to 0: one tick later
+    tx.put(key, data[3], tick=TICK_MODULO + 2)
     assert wait_for(lambda: sub.received == 4)
     seqs = lambda payloads: [p.seq for p in payloads]  # noqa: E731
     assert seqs(sub.drain(tick=TICK_MODULO - 1)) == [0, 1]
     assert seqs(sub.drain(tick=TICK_MODULO - 1)) == []
     assert seqs(sub.drain(tick=TICK_MODULO + 1)) == [2]  # the reader counts on past the wrap, unwrapped
-    tx.put_bytes(key, data[4])
+    tx.put(key, data[4])
     assert wait_for(lambda: sub.received == 5)
     assert seqs(sub.drain(tick=1)) == [], "in order: the untagged one waits behind tick 2's"
     assert seqs(sub.drain()) == [3, 4]

@@ -287,7 +287,7 @@ class Rig:
         self._put_bytes(k, key, encode(payload), link)
 
     def _put_bytes(self, k: int, key: str, data: bytes, link: ZenohLink | None = None) -> None:
-        (link or self.link).put_bytes(key, data, tick=k)
+        (link or self.link).put(key, data, tick=k)
         self._record(k, key, data)
 
     def _send_sync(self, k: int, due: float) -> None:

@@ -121,7 +121,7 @@ def replay(run_dir: Path, bench: Bench | None = None, limit: int | None = None) 
         """Until its first answer the fresh controller may still send boot-up heartbeats: not compared."""
         for i, tick in enumerate(ticks):
             for key, data in inputs.get(first_tick + i, ()):
-                link.put_bytes(key, data)
+                link.put(key, data)
             link.put_fence(first_tick + i, 0.0)
             for msg in tick.rig_frames:
                 bus.send(can.Message(arbitration_id=msg.arbitration_id, is_extended_id=False, data=msg.data))
