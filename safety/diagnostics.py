@@ -354,11 +354,13 @@ class TorqueCheck(Check):
         producing: bool,
         speed: float = 0.0,
         speed_before: float | None = None,
+        asked: bool = False,
     ) -> Finding | None:
         """`commanded`: the torque the drive was last told (None: not yet); `producing`: it reports itself
         enabled on a live bus, and that command asked it to enable (else it must make none); `speed`,
         `speed_before`: its motor's last two reported velocities, rad/s (the drive set its torque somewhere
-        between them: near the top speed what it may make moves with the speed)."""
+        between them: near the top speed what it may make moves with the speed); `asked`: the command asked
+        it to enable, whatever it reports."""
         if commanded is None:
             return None
         expected = self.expected(commanded, speed) if producing else 0.0
@@ -369,6 +371,13 @@ class TorqueCheck(Check):
                 residual = 0.0
             elif abs(measured - other) < abs(residual):
                 expected, residual = other, measured - other
+        elif not producing and asked:
+            # It reports itself off yet makes what it was told: its report is what is wrong, not its torque
+            # (a status bit flipped where nothing protects the frame, as on CAN Simple or CANopen's PDOs);
+            # the state machine judges the report (DRIVE_FAULT).
+            told = self.expected(commanded, speed)
+            if abs(measured - told) < abs(residual):
+                expected, residual = told, measured - told
         bound = self.tolerance + self.relative * abs(expected)
         self.over = self.over + 1 if self.exceeds(residual, bound) else 0
         if self.over < self.samples:

@@ -47,6 +47,8 @@ class Drive:
         self.enable_since: float | None = None
         self.idle_since: float | None = None
         """Since when, under the recovery law, this drive has reported itself making no torque."""
+        self.fault_since: float | None = None
+        """Since when the drive has reported a fault without a break."""
         self.findings: dict[str, Finding | None] = {}
 
     def feedback(self, s: Signals, t: float, lost: int) -> None:
@@ -58,6 +60,10 @@ class Drive:
         self.velocity, self.counts, self.seen = float(s["Velocity"]), counts, t
         self.enabled, self.watchdog = bool(s["Enabled"]), bool(s["WatchdogTripped"])
         self.fault, self.bus_powered = bool(s["Fault"]), bool(s["BusPowered"])
+        if not self.fault:
+            self.fault_since = None
+        elif self.fault_since is None:
+            self.fault_since = t
         self.findings["encoder"] = self.encoder.frame(counts, self.velocity, 1 + lost)
         frozen = self.stuck.sample(s["Velocity"], moved)
         self.findings["stuck"] = (
@@ -79,11 +85,18 @@ class Drive:
             self.enable_since = t
 
     def measured(self, torque: float) -> None:
-        producing = self.enabled and self.bus_powered and self.command is not None and self.command[1]
+        asked = self.command is not None and self.command[1]
+        producing = self.enabled and self.bus_powered and asked
         commanded = None if self.command is None else self.command[0]
         self.findings["torque"] = self.torque.sample(
-            torque, commanded, producing, self.velocity, self.velocity_before
+            torque, commanded, producing, self.velocity, self.velocity_before, asked
         )
+
+    def faulted(self, t: float, confirm: float) -> bool:
+        """The drive has reported a fault for `confirm`: one report is not enough to name it lost for good
+        (a bit flipped where nothing protects the frame, as on CAN Simple, reads as one; a drive that has
+        faulted reports it frame after frame). The state machine reacts to the first report all the same."""
+        return self.fault_since is not None and t - self.fault_since >= confirm - 1e-9
 
     def dead_to_the_law(self, t: float, held: bool, confirm: float) -> bool:
         """Held by the recovery law (`held`), the drive has reported itself off, its watchdog tripped or

@@ -344,8 +344,11 @@ class Monitors:
         out = set(named)
         if "yaw" in failed and not named & {*ENCODERS, "RateZ", *DRIVES}:
             out.add(self.isolated.odd_one_out())
+        # The speed trend rests on the encoders too: a named encoder explains it (a corrupted velocity fails
+        # the trend in the same tick, before the encoder's own check has named it).
+        encoder_named = not named.isdisjoint(ENCODERS)
         for i, (plane, attitude, rate) in enumerate(PLANES):
-            trend = f"{plane} trend" in failed
+            trend = f"{plane} trend" in failed and not encoder_named
             if (plane in failed or trend) and not named & {attitude, rate, "Accel"}:
                 blamed = self.isolated.blame(i, accel_suspect=plane not in failed)
                 out.add({"attitude": attitude, "rate": rate, "accel": "Accel"}[blamed])
@@ -452,9 +455,9 @@ class Monitors:
         held, self._law_commanded = self._law_commanded, False
         confirm = self.config.drives.confirm
         for drive in self.drives:
-            # A drive's own fault names it at once; a drive that stays off under the recovery law names
+            # A drive's own fault names it once it persists; one that stays off under the recovery law names
             # itself too (its commands are lost, as on cia402 where the law's torques ride in its RPDO1).
-            if drive.fault or drive.dead_to_the_law(t, held, confirm):
+            if drive.faulted(t, confirm) or drive.dead_to_the_law(t, held, confirm):
                 self._named.add(f"Drive{drive.index}")
         return tuple(found)
 

@@ -403,3 +403,20 @@ def test_a_dead_load_cell_that_hides_in_the_weight_band_is_seen_in_its_raw_readi
     assert not any(run(dead=False, with_cells=True)), "a live cell's noise never repeats"
     # Positive control: the wrench alone (a seat that does not publish its cells) never shows it.
     assert not any(run(dead=True, with_cells=False))
+
+
+def test_a_drive_that_reports_itself_off_yet_makes_what_it_was_told_is_not_a_torque_mismatch():
+    """Told to enable, a drive whose status says off (a bit flipped where nothing protects the frame, as in
+    CAN Simple's heartbeat or a CANopen PDO) but whose measured torque follows the command is not named for
+    its torque: what is wrong is its report, which the state machine judges (DRIVE_FAULT). Named as before:
+    one that makes nothing while on, and one that reports itself off and makes something it was not told."""
+    check = TorqueCheck(1, 0.15, 0.1, 3, 3.75)
+    assert [check.sample(1.2, 1.2, False, asked=True) for _ in range(5)] == [None] * 5
+    assert [check.sample(0.0, 1.2, False, asked=True) for _ in range(5)] == [None] * 5, "off, and makes none"
+    wrong = [check.sample(-1.2, 1.2, False, asked=True) for _ in range(3)]
+    assert wrong[2] is not None and wrong[2].cause is Cause.ACTUATOR_MISMATCH
+    not_asked = TorqueCheck(1, 0.15, 0.1, 3, 3.75)
+    found = [not_asked.sample(1.2, 1.2, False, asked=False) for _ in range(3)]
+    assert found[2] is not None, "told to stay off, it makes torque: named"
+    dead = TorqueCheck(1, 0.15, 0.1, 3, 3.75)
+    assert [dead.sample(0.0, 1.2, True, asked=True) for _ in range(3)][2] is not None, "a dead drive: named"

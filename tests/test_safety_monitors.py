@@ -291,3 +291,84 @@ def test_one_drives_monitor_reports_only_what_is_fresh_and_times_a_drive_that_st
     assert ticks.index(True) == round(confirm / period), "named after exactly `confirm` off"
     drive.feedback({**frame, "Enabled": 1, "WatchdogTripped": 0}, 1.1, 0)
     assert not drive.dead_to_the_law(1.1, held=True, confirm=confirm), "back on: the count starts again"
+
+
+# ----------------------------------------------------------------------- a drive's frame that lies
+def rolling_frames(
+    rng: np.random.Generator,
+    t: float,
+    ball_rate: float = 0.0,
+    lie: float = 0.0,
+    fault1: int = 0,
+    accel_x: float = 0.0,
+):
+    """The contract's frames of a robot rolling sideways at a steady `ball_rate` (rad/s about the ball's x
+    axis), upright, not turning: drive 1's reported velocity off by `lie` rad/s (its position true) and
+    reporting `fault1`; the accelerometer off by `accel_x` m/s² forward."""
+    robot = load_toml(ROBOT, RobotModel)
+    velocities = motor_jacobian(robot) @ np.array([ball_rate, 0.0, 0.0])
+    per_rad = robot.encoder.counts_per_rev / (2 * math.pi)
+    tx, rx = CanNode(FakeBus(), name="tx"), CanNode(FakeBus(), name="rx")
+    sample = imu_near_rest(rng)
+    sample["IMU_ACCEL"]["AccX"] += accel_x
+    for i, v in enumerate(velocities, 1):
+        sample[f"DRIVE{i}_FEEDBACK"] = {
+            "Position": round(v * t * per_rad),
+            "Velocity": v + rng.normal(0.0, 0.05) + (lie if i == 1 else 0.0),  # live: not frozen
+            "Enabled": 1,
+            "WatchdogTripped": 0,
+            "Fault": fault1 if i == 1 else 0,
+            "BusPowered": 1,
+        }
+    return [rx.decode(tx.message(name, values)) for name, values in sample.items()]
+
+
+def named_over(m: Monitors, rng: np.random.Generator, ticks: int, t0: float, **how) -> list[frozenset[str]]:
+    """`ticks` updates at 400 Hz from t0 on `rolling_frames(how)`: what the diagnosis names after each."""
+    out = []
+    for k in range(ticks):
+        t = t0 + k / 400
+        for rx in rolling_frames(rng, t, **how):
+            m.frame(rx, t)
+        m.observe(t)
+        out.append(frozenset(m.named))
+    return out
+
+
+IMU_PARTS = {"Accel", "Roll", "Pitch", "RateX", "RateY", "RateZ"}
+
+
+def test_a_lying_encoder_that_fails_the_speed_trend_first_leaves_the_imu_unblamed():
+    """The speed trend rests on the encoders and the accelerometer. In motion a drive's velocity that jumps
+    for a frame (a bit flipped where no CRC guards it, as on CAN Simple) fails the trend at once, while the
+    encoder's own position-vs-velocity window, whose bound grows with the speed, names it a frame later;
+    the trend's blame fell on an IMU channel in between. Once the encoder is named it explains the trend:
+    the IMU is not blamed any more (it stayed blamed, and on odrive's `slalom` the recovery law balanced
+    without the accelerometer and the pitch rate, and fell)."""
+    m, rng = monitors(), np.random.default_rng(3)
+    assert not any(named_over(m, rng, 400, 0.0, ball_rate=5.0)), "rolling, honest frames: nothing named"
+    lied = named_over(m, rng, 1, 1.0, ball_rate=5.0, lie=40.0) + named_over(m, rng, 40, 1.0025, ball_rate=5.0)
+    assert lied[0] & IMU_PARTS and "Encoder1" not in lied[0], "the trend fails first and blames the IMU"
+    assert lied[-1] == {"Encoder1"}, lied[-1]
+    # Positive control: the accelerometer lying, the encoders honest, is still what the trend blames.
+    m = monitors()
+    named_over(m, rng, 400, 0.0, ball_rate=5.0)
+    accel = named_over(m, rng, 120, 1.0, ball_rate=5.0, accel_x=3.0)
+    assert accel[-1] == {"Accel"}, accel[-1]
+
+
+def test_one_fault_report_does_not_name_a_drive_lost_and_one_that_persists_does():
+    """A drive's own fault report names it lost to the recovery law only once it has stood for
+    drives.confirm: one frame with the bit set (a flipped bit where nothing protects the frame) is ridden
+    through, as a burst shorter than an E2E window is. The state machine still reacts to the first report
+    (DRIVE_FAULT: safety/machine.py); this is only whom the law leaves out."""
+    m, rng = monitors(), np.random.default_rng(5)
+    named_over(m, rng, 400, 0.0)
+    m.recovery_commanded((0.1, 0.1, 0.1))
+    once = named_over(m, rng, 1, 1.0, fault1=1) + named_over(m, rng, 40, 1.0025)
+    assert not any("Drive1" in named for named in once), "one report: not named"
+    confirm_ticks = round(SupervisorConfig().drives.confirm * 400)
+    held = named_over(m, rng, 20, 2.0, fault1=1)
+    first = next(k for k, named in enumerate(held) if "Drive1" in named)
+    assert first == confirm_ticks, "named once the report has stood for `confirm`"
+    assert "Drive1" in named_over(m, rng, 5, 2.05)[-1], "latched"
