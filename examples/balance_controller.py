@@ -29,6 +29,7 @@ import math
 import signal
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import can
@@ -243,22 +244,42 @@ class BalanceController:
                     self.frame(*frame)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--can", default="socketcan:vcan0", help="INTERFACE:CHANNEL for python-can")
-    parser.add_argument("--dbc", type=Path, default=DBC)
-    args = parser.parse_args(argv)
-    interface, _, channel = args.can.partition(":")
+def run(channel: str, interface: str, stop: threading.Event, wire: Callable[[can.BusABC], Wire]) -> None:
+    """Balance through `wire(bus)`, the bus `interface:channel`, until `stop`."""
     bus = can.Bus(interface=interface, channel=channel or None)
+    try:
+        BalanceController(wire(bus)).run(stop)
+    finally:
+        bus.shutdown()
+
+
+def command_line(doc: str) -> argparse.ArgumentParser:
+    """An example's command line: `--can INTERFACE:CHANNEL`, then its own options."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+    parser.add_argument("--can", default="socketcan:vcan0", help="INTERFACE:CHANNEL for python-can")
+    return parser
+
+
+def serve(can_option: str, example: Callable[[str, str, threading.Event], object]) -> int:
+    """Run `example(channel, interface, stop)` on the bus `--can` names until SIGTERM or Ctrl-C stops it."""
+    interface, _, channel = can_option.partition(":")
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
-        BalanceController(Wire(bus, args.dbc)).run(stop)
+        example(channel, interface, stop)
     except KeyboardInterrupt:
-        pass
-    finally:
-        bus.shutdown()
+        stop.set()
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = command_line(__doc__)
+    parser.add_argument("--dbc", type=Path, default=DBC)
+    args = parser.parse_args(argv)
+    return serve(
+        args.can,
+        lambda channel, interface, stop: run(channel, interface, stop, lambda bus: Wire(bus, args.dbc)),
+    )
 
 
 if __name__ == "__main__":

@@ -28,10 +28,8 @@ through the contract's DBC (balance_controller.py's Wire).
 
 from __future__ import annotations
 
-import argparse
 import logging
 import math
-import signal
 import sys
 import threading
 import time
@@ -42,7 +40,7 @@ import canopen
 from canopen.sdo.exceptions import SdoError
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from balance_controller import DBC, HEARTBEAT, TICK, BalanceController, Wire
+from balance_controller import DBC, HEARTBEAT, TICK, BalanceController, Wire, command_line, serve
 
 EDS = Path(__file__).resolve().parents[1] / "configs" / "devices" / "cia402.eds"
 COUNTS_PER_REV = 8192  # encoder increments per motor revolution
@@ -227,20 +225,12 @@ def run(channel: str, interface: str, nodes: list[int], stop: threading.Event) -
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--can", default="socketcan:vcan0", help="INTERFACE:CHANNEL for python-can")
+    parser = command_line(__doc__)
     parser.add_argument(
         "--nodes", type=int, nargs=3, default=[1, 2, 3], help="the drives' node ids, motor 1 first"
     )
     args = parser.parse_args(argv)
-    interface, _, channel = args.can.partition(":")
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    try:
-        run(channel, interface, args.nodes, stop)
-    except KeyboardInterrupt:
-        stop.set()
-    return 0
+    return serve(args.can, lambda channel, interface, stop: run(channel, interface, args.nodes, stop))
 
 
 if __name__ == "__main__":

@@ -15,10 +15,8 @@ supervisor's, CONTROLLER_HEARTBEAT) still go through the contract's DBC.
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import math
-import signal
 import sys
 import threading
 from pathlib import Path
@@ -28,7 +26,7 @@ from odrive_can import ODriveCAN
 from odrive_can.odrive import DriveError, HeartbeatError
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from balance_controller import DBC, HEARTBEAT, BalanceController, Wire
+from balance_controller import DBC, HEARTBEAT, BalanceController, Wire, command_line, serve
 
 
 class OdriveDrives:
@@ -101,20 +99,14 @@ async def run(channel: str, interface: str, nodes: list[int], stop: threading.Ev
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--can", default="socketcan:vcan0", help="INTERFACE:CHANNEL for python-can")
+    parser = command_line(__doc__)
     parser.add_argument(
         "--nodes", type=int, nargs=3, default=[1, 2, 3], help="the axes' node ids, motor 1 first"
     )
     args = parser.parse_args(argv)
-    interface, _, channel = args.can.partition(":")
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    try:
-        asyncio.run(run(channel, interface, args.nodes, stop))
-    except KeyboardInterrupt:
-        stop.set()
-    return 0
+    return serve(
+        args.can, lambda channel, interface, stop: asyncio.run(run(channel, interface, args.nodes, stop))
+    )
 
 
 if __name__ == "__main__":
