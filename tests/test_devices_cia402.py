@@ -28,8 +28,8 @@ from drivers.devices.cia402 import CST, ErrorCode, State, eds_path, state_of
 from hil.devices.cia402 import Cia402Drives, makes_torque, next_state, status_word
 from plant.drives import DriveState
 from tests.device_bench import TICK, WATCHDOG, DevicesOnABench
+from tests.device_runs import balance_with_example, speed_limiting_on
 from tests.device_runs import frames as whole_frames
-from tests.device_runs import speed_limiting_on
 from tests.zenoh_helpers import private_bench
 
 canopen = pytest.importorskip("canopen", reason="the cia402 profile needs python-canopen (a dependency)")
@@ -573,25 +573,16 @@ def test_a_controller_on_python_canopens_basenode402_master_balances_the_robot(t
     still sends RPDO1 every tick (no missing command), and the robot falls at 0.6 s; with the velocity
     taken as rad/s without converting from increments/s, it falls at 0.2 s."""
 
-    from hil.pipeline import load_scenario, run
     from tests.helpers import load_example
 
     example = load_example("cia402_controller")
     channel = private_channel("cia402-client")
-    stop = threading.Event()
-    thread = threading.Thread(
-        target=example.run, args=(channel, "pure_shared", list(NODES), stop), daemon=True
+    bench = private_bench(BENCH, controller="external", can=BusConfig(channel=channel))
+    result = balance_with_example(
+        bench, tmp_path, lambda stop: example.run(channel, "pure_shared", list(NODES), stop)
     )
-    thread.start()
-    try:
-        bench = private_bench(BENCH, controller="external", can=BusConfig(channel=channel))
-        result = run(load_scenario("balance"), bench, out=tmp_path)
-    finally:
-        stop.set()
-        thread.join(timeout=10)
     assert result.passed, [v for v in result.verdicts if not v.passed]
     assert result.trace.stats.missing_commands == 0
-    assert not thread.is_alive()
     # Its drives push together from the first torque on (the walks end at different SYNCs): a wheel pushing
     # alone for 1-3 SYNCs turned the chassis at 0.015-0.045 rad/s (docs/devices.md).
     start = result.trace.t <= 0.1
