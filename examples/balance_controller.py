@@ -210,11 +210,14 @@ class BalanceController:
             self.state = DISABLED  # stopped on its own: at rest, drives off
         balancing = self.state == BALANCING
         torques = self.torques() if balancing else (0.0, 0.0, 0.0)
-        enable = int(balancing and self.permitted)
-        for i, torque in enumerate(torques, 1):
-            command = {"Torque": torque if enable else 0.0, "Tick": k, "Enable": enable}
-            self.wire.send(f"DRIVE{i}_COMMAND", command)
+        self.command(k, torques, balancing and self.permitted)
         self.wire.send("CONTROLLER_HEARTBEAT", {**HEARTBEAT, "State": self.state})
+
+    def command(self, k: int, torques: tuple[float, float, float], enable: bool) -> None:
+        """Tick k's motor torques to the drives: the contract's DRIVE1..3_COMMAND."""
+        for i, torque in enumerate(torques, 1):
+            command = {"Torque": torque if enable else 0.0, "Tick": k, "Enable": int(enable)}
+            self.wire.send(f"DRIVE{i}_COMMAND", command)
 
     def supervisor_lost(self, k: int) -> bool:
         """True once the supervisor has been silent and the robot has stood still and upright for 0.3 s."""
@@ -257,6 +260,15 @@ def command_line(doc: str) -> argparse.ArgumentParser:
     """An example's command line: `--can INTERFACE:CHANNEL`, then its own options."""
     parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("--can", default="socketcan:vcan0", help="INTERFACE:CHANNEL for python-can")
+    return parser
+
+
+def drives_command_line(doc: str) -> argparse.ArgumentParser:
+    """A drive profile's example's command line: `--can`, and `--nodes`, its three drives' CAN node ids."""
+    parser = command_line(doc)
+    parser.add_argument(
+        "--nodes", type=int, nargs=3, default=[1, 2, 3], help="the drives' node ids, motor 1 first"
+    )
     return parser
 
 

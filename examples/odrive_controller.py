@@ -26,7 +26,7 @@ from odrive_can import ODriveCAN
 from odrive_can.odrive import DriveError, HeartbeatError
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from balance_controller import DBC, HEARTBEAT, BalanceController, Wire, command_line, serve
+from balance_controller import DBC, BalanceController, Wire, drives_command_line, serve
 
 
 class OdriveDrives:
@@ -68,16 +68,8 @@ class OdriveBalanceController(BalanceController):
 
     drives: OdriveDrives
 
-    def tick(self, k: int) -> None:
-        ready = self.attitude is not None and self.rate is not None and None not in self.velocity
-        if self.state == 0 and ready:  # INIT -> BALANCING
-            self.state = 3
-        if self.state == 3 and self.supervisor_lost(k):
-            self.state = 1
-        balancing = self.state == 3
-        torques = self.torques() if balancing else (0.0, 0.0, 0.0)
-        self.drives.command(torques, balancing and self.permitted)
-        self.wire.send("CONTROLLER_HEARTBEAT", {**HEARTBEAT, "State": self.state})
+    def command(self, k: int, torques: tuple[float, float, float], enable: bool) -> None:
+        self.drives.command(torques, enable)
 
 
 async def run(channel: str, interface: str, nodes: list[int], stop: threading.Event) -> None:
@@ -99,11 +91,7 @@ async def run(channel: str, interface: str, nodes: list[int], stop: threading.Ev
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = command_line(__doc__)
-    parser.add_argument(
-        "--nodes", type=int, nargs=3, default=[1, 2, 3], help="the axes' node ids, motor 1 first"
-    )
-    args = parser.parse_args(argv)
+    args = drives_command_line(__doc__).parse_args(argv)
     return serve(
         args.can, lambda channel, interface, stop: asyncio.run(run(channel, interface, args.nodes, stop))
     )
