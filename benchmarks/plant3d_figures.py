@@ -157,14 +157,9 @@ def free_energy_drift(seed: int, steps: int) -> float:
     """Largest |ΔE| / E0 over 10 s from a random start (tilts, limp torso, every joint's rate in ±1.5)."""
     rng = np.random.default_rng(seed)
     tilt = tuple(float(a) for a in rng.uniform(-deg(25.0), deg(25.0), 2))
-    plant = checks.plant3d(robot(friction=NO_FRICTION), tilt=tilt, mujoco=MujocoParams(steps_per_tick=steps))
-    plant.torso = None
-    m, d = plant.model, plant.data
-    m.opt.gravity[:] = 0.0
-    m.geom_conaffinity[:] = 0
-    m.jnt_limited[:] = 0  # the trunk's stops are soft constraints, which take energy at each hit
-    d.qvel[:] = rng.uniform(-1.5, 1.5, m.nv)
-    checks.mujoco.mj_forward(m, d)
+    plant = checks.free_plant(
+        tilt, lambda nv: rng.uniform(-1.5, 1.5, nv), mujoco=MujocoParams(steps_per_tick=steps)
+    )
     e0, drift = plant.energy(), 0.0
     for _ in range(4000):
         plant.step()
@@ -174,12 +169,7 @@ def free_energy_drift(seed: int, steps: int) -> float:
 
 
 def floor_swing() -> tuple[float, float]:
-    plant = checks.plant3d(robot(friction=NO_FRICTION), rider=None, tilt=(deg(150.0), deg(-20.0)))
-    m = plant.model
-    m.geom_contype[checks.mujoco.mj_name2id(m, checks.mujoco.mjtObj.mjOBJ_GEOM, "chassis_rim")] = 0
-    plant._settle()  # settled with the rim, below the floor here, carrying the robot
-    for _ in range(10):
-        plant.step()
+    plant = checks.hanging_plant(NO_FRICTION)
     e0, kinetic = plant.energy(), 0.0
     for _ in range(4000):
         plant.step()

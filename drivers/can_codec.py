@@ -85,6 +85,17 @@ class _Signal:
     """In an 8-byte payload read as two 32-bit halves: 0 low, 1 high, 2 across both."""
 
 
+def raw_range(signal: cantools.database.Signal) -> tuple[int, int]:
+    """The raw values a signal may take: its width's, narrowed to the DBC's minimum and maximum."""
+    lo = -(1 << (signal.length - 1)) if signal.is_signed else 0
+    hi = (1 << (signal.length - 1)) - 1 if signal.is_signed else (1 << signal.length) - 1
+    if signal.minimum is not None:
+        lo = max(lo, round((signal.minimum - signal.offset) / signal.scale))
+    if signal.maximum is not None:
+        hi = min(hi, round((signal.maximum - signal.offset) / signal.scale))
+    return lo, hi
+
+
 class MessageCodec:
     """Encode/decode one message; signals little-endian (Intel), as every message of the catalog."""
 
@@ -100,12 +111,7 @@ class MessageCodec:
                 raise CanCodecError(
                     f"{message.name}.{s.name}: only little-endian integer signals are supported"
                 )
-            lo = -(1 << (s.length - 1)) if s.is_signed else 0
-            hi = (1 << (s.length - 1)) - 1 if s.is_signed else (1 << s.length) - 1
-            if s.minimum is not None:
-                lo = max(lo, round((s.minimum - s.offset) / s.scale))
-            if s.maximum is not None:
-                hi = min(hi, round((s.maximum - s.offset) / s.scale))
+            lo, hi = raw_range(s)
             integer = s.scale == 1 and s.offset == 0
             sign_bit = 1 << (s.length - 1) if s.is_signed else 0
             half = 1 if s.start >= 32 else 0 if s.start + s.length <= 32 else 2

@@ -29,6 +29,7 @@ import math
 import signal
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import can
@@ -209,11 +210,14 @@ class BalanceController:
             self.state = DISABLED  # stopped on its own: at rest, drives off
         balancing = self.state == BALANCING
         torques = self.torques() if balancing else (0.0, 0.0, 0.0)
-        enable = int(balancing and self.permitted)
-        for i, torque in enumerate(torques, 1):
-            command = {"Torque": torque if enable else 0.0, "Tick": k, "Enable": enable}
-            self.wire.send(f"DRIVE{i}_COMMAND", command)
+        self.command(k, torques, balancing and self.permitted)
         self.wire.send("CONTROLLER_HEARTBEAT", {**HEARTBEAT, "State": self.state})
+
+    def command(self, k: int, torques: tuple[float, float, float], enable: bool) -> None:
+        """Tick k's motor torques to the drives: the contract's DRIVE1..3_COMMAND."""
+        for i, torque in enumerate(torques, 1):
+            command = {"Torque": torque if enable else 0.0, "Tick": k, "Enable": int(enable)}
+            self.wire.send(f"DRIVE{i}_COMMAND", command)
 
     def supervisor_lost(self, k: int) -> bool:
         """True once the supervisor has been silent and the robot has stood still and upright for 0.3 s."""
@@ -243,22 +247,51 @@ class BalanceController:
                     self.frame(*frame)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--can", default="socketcan:vcan0", help="INTERFACE:CHANNEL for python-can")
-    parser.add_argument("--dbc", type=Path, default=DBC)
-    args = parser.parse_args(argv)
-    interface, _, channel = args.can.partition(":")
+def run(channel: str, interface: str, stop: threading.Event, wire: Callable[[can.BusABC], Wire]) -> None:
+    """Balance through `wire(bus)`, the bus `interface:channel`, until `stop`."""
     bus = can.Bus(interface=interface, channel=channel or None)
+    try:
+        BalanceController(wire(bus)).run(stop)
+    finally:
+        bus.shutdown()
+
+
+def command_line(doc: str) -> argparse.ArgumentParser:
+    """An example's command line: `--can INTERFACE:CHANNEL`, then its own options."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+    parser.add_argument("--can", default="socketcan:vcan0", help="INTERFACE:CHANNEL for python-can")
+    return parser
+
+
+def drives_command_line(doc: str) -> argparse.ArgumentParser:
+    """A drive profile's example's command line: `--can`, and `--nodes`, its three drives' CAN node ids."""
+    parser = command_line(doc)
+    parser.add_argument(
+        "--nodes", type=int, nargs=3, default=[1, 2, 3], help="the drives' node ids, motor 1 first"
+    )
+    return parser
+
+
+def serve(can_option: str, example: Callable[[str, str, threading.Event], object]) -> int:
+    """Run `example(channel, interface, stop)` on the bus `--can` names until SIGTERM or Ctrl-C stops it."""
+    interface, _, channel = can_option.partition(":")
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
     try:
-        BalanceController(Wire(bus, args.dbc)).run(stop)
+        example(channel, interface, stop)
     except KeyboardInterrupt:
-        pass
-    finally:
-        bus.shutdown()
+        stop.set()
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = command_line(__doc__)
+    parser.add_argument("--dbc", type=Path, default=DBC)
+    args = parser.parse_args(argv)
+    return serve(
+        args.can,
+        lambda channel, interface, stop: run(channel, interface, stop, lambda bus: Wire(bus, args.dbc)),
+    )
 
 
 if __name__ == "__main__":

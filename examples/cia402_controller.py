@@ -28,10 +28,8 @@ through the contract's DBC (balance_controller.py's Wire).
 
 from __future__ import annotations
 
-import argparse
 import logging
 import math
-import signal
 import sys
 import threading
 import time
@@ -42,7 +40,7 @@ import canopen
 from canopen.sdo.exceptions import SdoError
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from balance_controller import DBC, HEARTBEAT, TICK, BalanceController, Wire
+from balance_controller import DBC, HEARTBEAT, TICK, BalanceController, Wire, drives_command_line, serve
 
 EDS = Path(__file__).resolve().parents[1] / "configs" / "devices" / "cia402.eds"
 COUNTS_PER_REV = 8192  # encoder increments per motor revolution
@@ -193,15 +191,10 @@ class Cia402BalanceController(BalanceController):
             self.wire.send("CONTROLLER_HEARTBEAT", {**HEARTBEAT, "State": self.state})
             return
         self.velocity = self.drives.velocities()
-        ready = self.attitude is not None and self.rate is not None and None not in self.velocity
-        if self.state == 0 and ready:  # INIT -> BALANCING
-            self.state = 3
-        if self.state == 3 and self.supervisor_lost(k):
-            self.state = 1
-        balancing = self.state == 3
-        torques = self.torques() if balancing else (0.0, 0.0, 0.0)
-        self.drives.command(torques, balancing and self.permitted)
-        self.wire.send("CONTROLLER_HEARTBEAT", {**HEARTBEAT, "State": self.state})
+        super().tick(k)
+
+    def command(self, k: int, torques: tuple[float, float, float], enable: bool) -> None:
+        self.drives.command(torques, enable)
 
 
 def run(channel: str, interface: str, nodes: list[int], stop: threading.Event) -> None:
@@ -227,20 +220,8 @@ def run(channel: str, interface: str, nodes: list[int], stop: threading.Event) -
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--can", default="socketcan:vcan0", help="INTERFACE:CHANNEL for python-can")
-    parser.add_argument(
-        "--nodes", type=int, nargs=3, default=[1, 2, 3], help="the drives' node ids, motor 1 first"
-    )
-    args = parser.parse_args(argv)
-    interface, _, channel = args.can.partition(":")
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    try:
-        run(channel, interface, args.nodes, stop)
-    except KeyboardInterrupt:
-        stop.set()
-    return 0
+    args = drives_command_line(__doc__).parse_args(argv)
+    return serve(args.can, lambda channel, interface, stop: run(channel, interface, args.nodes, stop))
 
 
 if __name__ == "__main__":

@@ -15,10 +15,8 @@ supervisor's, CONTROLLER_HEARTBEAT) still go through the contract's DBC.
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import math
-import signal
 import sys
 import threading
 from pathlib import Path
@@ -28,7 +26,7 @@ from odrive_can import ODriveCAN
 from odrive_can.odrive import DriveError, HeartbeatError
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from balance_controller import DBC, HEARTBEAT, BalanceController, Wire
+from balance_controller import DBC, BalanceController, Wire, drives_command_line, serve
 
 
 class OdriveDrives:
@@ -70,16 +68,8 @@ class OdriveBalanceController(BalanceController):
 
     drives: OdriveDrives
 
-    def tick(self, k: int) -> None:
-        ready = self.attitude is not None and self.rate is not None and None not in self.velocity
-        if self.state == 0 and ready:  # INIT -> BALANCING
-            self.state = 3
-        if self.state == 3 and self.supervisor_lost(k):
-            self.state = 1
-        balancing = self.state == 3
-        torques = self.torques() if balancing else (0.0, 0.0, 0.0)
-        self.drives.command(torques, balancing and self.permitted)
-        self.wire.send("CONTROLLER_HEARTBEAT", {**HEARTBEAT, "State": self.state})
+    def command(self, k: int, torques: tuple[float, float, float], enable: bool) -> None:
+        self.drives.command(torques, enable)
 
 
 async def run(channel: str, interface: str, nodes: list[int], stop: threading.Event) -> None:
@@ -101,20 +91,10 @@ async def run(channel: str, interface: str, nodes: list[int], stop: threading.Ev
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--can", default="socketcan:vcan0", help="INTERFACE:CHANNEL for python-can")
-    parser.add_argument(
-        "--nodes", type=int, nargs=3, default=[1, 2, 3], help="the axes' node ids, motor 1 first"
+    args = drives_command_line(__doc__).parse_args(argv)
+    return serve(
+        args.can, lambda channel, interface, stop: asyncio.run(run(channel, interface, args.nodes, stop))
     )
-    args = parser.parse_args(argv)
-    interface, _, channel = args.can.partition(":")
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    try:
-        asyncio.run(run(channel, interface, args.nodes, stop))
-    except KeyboardInterrupt:
-        stop.set()
-    return 0
 
 
 if __name__ == "__main__":

@@ -19,9 +19,7 @@ the contract's DBC.
 
 from __future__ import annotations
 
-import argparse
 import math
-import signal
 import struct
 import sys
 import threading
@@ -30,7 +28,8 @@ from pathlib import Path
 import can
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from balance_controller import DBC, BalanceController, Wire
+import balance_controller
+from balance_controller import DBC, Wire, command_line, serve
 
 SAMPLE_TIME, GROUP_COUNTER, STATUS_WORD, EULER_ANGLES, RATE_OF_TURN = 0x005, 0x006, 0x011, 0x022, 0x032
 FILTER_VALID = 1 << 1
@@ -82,28 +81,16 @@ class XsensWire(Wire):
 
 
 def run(channel: str, interface: str, base: int, stop: threading.Event) -> None:
-    bus = can.Bus(interface=interface, channel=channel or None)
-    try:
-        BalanceController(XsensWire(bus, DBC, base)).run(stop)
-    finally:
-        bus.shutdown()
+    balance_controller.run(channel, interface, stop, lambda bus: XsensWire(bus, DBC, base))
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--can", default="socketcan:vcan0", help="INTERFACE:CHANNEL for python-can")
+    parser = command_line(__doc__)
     parser.add_argument(
         "--xsens-base", type=lambda text: int(text, 0), default=0x100, help="the MTi's ids: base + XCID"
     )
     args = parser.parse_args(argv)
-    interface, _, channel = args.can.partition(":")
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    try:
-        run(channel, interface, args.xsens_base, stop)
-    except KeyboardInterrupt:
-        stop.set()
-    return 0
+    return serve(args.can, lambda channel, interface, stop: run(channel, interface, args.xsens_base, stop))
 
 
 if __name__ == "__main__":

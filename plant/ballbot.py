@@ -15,9 +15,9 @@ from mypy_extensions import mypyc_attr
 from drivers.bounds import G0
 from drivers.rotations import quaternion_zyx, rotate
 from plant.anthropometry import composite, robot_body_segment, seat_rider, yaw_inertia
-from plant.core import PITCH, ROLL, PlantCore, Pose, RiderIntent, Truth
+from plant.core import PITCH, ROLL, PlantCore, Pose, Truth
 from plant.omniwheel import wheel_inertia_equivalents
-from plant.params import RiderParams, RobotParams, SimParams
+from plant.params import RiderParams, RobotParams
 from plant.plane import STICK_TIME_CONSTANT, HipPolicy, PlaneDynamics, PlaneParams
 
 PLANES = ("pitch", "roll")
@@ -67,15 +67,8 @@ class Plant(PlantCore):
     """PURE ballbot + rider in two vertical planes and yaw. Per tick: `drives.set_commands(...)`, `step()`,
     then sample or read `truth()`."""
 
-    def __init__(
-        self,
-        robot: RobotParams,
-        rider: RiderParams | None,
-        sim: SimParams,
-        intent: RiderIntent | None = None,
-        initial_tilt: tuple[float, float] = (0.0, 0.0),
-    ):
-        super().__init__(robot, rider, sim, intent)
+    def _build_mechanics(self, initial_tilt: tuple[float, float]) -> None:
+        robot, rider, sim = self.robot, self.rider, self.sim
         self.h = sim.dt / sim.substeps
         self.planes = tuple(PlaneDynamics(plane_params(robot, rider, name)) for name in PLANES)
         _, theta_w_yaw = wheel_inertia_equivalents(robot.ball.radius, robot.drivetrain)

@@ -17,7 +17,7 @@ import numpy as np
 from mypy_extensions import mypyc_attr
 
 from drivers.rotations import euler_rates, euler_zyx, quaternion_zyx
-from plant.core import PITCH, ROLL, PlantCore, Pose, RiderIntent, Truth
+from plant.core import PITCH, ROLL, PlantCore, Pose, Truth
 from plant.model3d import (
     BALL,
     CHASSIS,
@@ -34,7 +34,7 @@ from plant.model3d import (
     apply_dof_parameters,
     build_model,
 )
-from plant.params import RiderParams, RobotParams, SimParams
+from plant.params import RobotParams
 
 SLIP_SPEED = 0.01
 """m/s of the ball's contact point over the floor beyond which a tick counts as slipping."""
@@ -113,15 +113,8 @@ class Plant3D(PlantCore):
     """PURE ballbot + rider in 3-D. Per tick: `drives.set_commands(...)`, `step()`, then sample or read
     `truth()`, as the planar plant."""
 
-    def __init__(
-        self,
-        robot: RobotParams,
-        rider: RiderParams | None,
-        sim: SimParams,
-        intent: RiderIntent | None = None,
-        initial_tilt: tuple[float, float] = (0.0, 0.0),
-    ):
-        super().__init__(robot, rider, sim, intent)
+    def _build_mechanics(self, initial_tilt: tuple[float, float]) -> None:
+        robot, rider, sim = self.robot, self.rider, self.sim
         info = build_model(robot, rider, sim.mujoco, sim.dt)
         self.model_xml = info.xml
         self.model = m = mujoco.MjModel.from_xml_string(info.xml)

@@ -128,8 +128,9 @@ class Truth(Record):
 @mypyc_attr(allow_interpreted_subclasses=True)  # a lab's own plant (hil/run/plants.py) may be one
 class PlantCore:
     """What both plants share: the drives, the sensors' models, the rider's intent and torso control, the
-    supervisor's alert, pushes and the outputs' per-tick caches. A plant adds its mechanics: `step()`,
-    `truth()`, `imu_truth()`, `motor_angles_and_rates()`, `_compute_seat_wrench()`, `energy()`."""
+    supervisor's alert, pushes and the outputs' per-tick caches. A plant adds its mechanics:
+    `_build_mechanics()`, `step()`, `truth()`, `imu_truth()`, `motor_angles_and_rates()`,
+    `_compute_seat_wrench()`, `energy()`."""
 
     def __init__(
         self,
@@ -137,7 +138,9 @@ class PlantCore:
         rider: RiderParams | None,
         sim: SimParams,
         intent: RiderIntent | None = None,
+        initial_tilt: tuple[float, float] = (0.0, 0.0),
     ):
+        """The plant plug's call (hil/run/plants.py): what every plant shares, then its own mechanics."""
         self.robot, self.rider, self.sim = robot, rider, sim
         self.dt = sim.dt
         self.clamped = sim.fixture == "clamped"
@@ -181,6 +184,12 @@ class PlantCore:
         hold the robot where it is, as `clamped` does, until a drive is powered again."""
         self._outputs_tick = self._wrench_tick = -1
         self._wrench: tuple[float, float, float, float, float, float] = (0.0,) * 6
+        self._build_mechanics(initial_tilt)
+
+    def _build_mechanics(self, initial_tilt: tuple[float, float]) -> None:
+        """Build this plant's bodies on the shared parts above, at rest, tilted `initial_tilt` (pitch,
+        roll), rad."""
+        raise NotImplementedError
 
     def alert(self, level: int) -> None:
         """The supervisor's alert reaches the rider (0 none, 1 slow down, 2 stop). A rider who heeds it

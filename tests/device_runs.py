@@ -1,14 +1,19 @@
 """The whole rig on a device profile's bench: `speed_limiting` passes, runs deterministically and replays byte
-for byte. Shared by the profiles' tests (tests/test_devices_*.py)."""
+for byte; `balance` with a lab's example controller. Shared by the profiles' tests (tests/test_devices_*.py,
+tests/test_xsens_client.py)."""
 
 from __future__ import annotations
 
 import json
+import threading
+from collections.abc import Callable
 from pathlib import Path
 
 import msgspec
 
+from hil.bench.bench import Bench
 from hil.pipeline import load_scenario, run
+from hil.run.judge import RunResult
 from hil.suites.replay import ReplayResult, replay
 from tests.zenoh_helpers import private_bench
 
@@ -46,3 +51,18 @@ def speed_limiting_on(
     (again / "summary.json").write_text(json.dumps(summary))
     assert not replay(again, private_bench(), limit=50).identical
     return replayed
+
+
+def balance_with_example(bench: Bench, out: Path, example: Callable[[threading.Event], object]) -> RunResult:
+    """`balance` on `bench`, its controller external: an example of examples/, `example(stop)`, on a thread of
+    this process on the in-process bus. The example must end once told to after the run."""
+    stop = threading.Event()
+    thread = threading.Thread(target=example, args=(stop,), daemon=True)
+    thread.start()
+    try:
+        result = run(load_scenario("balance"), bench, out=out)
+    finally:
+        stop.set()
+        thread.join(timeout=10)
+    assert not thread.is_alive(), "the example did not end when told to"
+    return result

@@ -4,7 +4,12 @@ from __future__ import annotations
 
 import importlib.util
 import math
+import os
+import subprocess
+import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from types import ModuleType
 
@@ -46,6 +51,28 @@ def wait_for(predicate, timeout: float = 5.0, step: float = 0.01):
             return value
         time.sleep(step)
     return predicate()
+
+
+@contextmanager
+def serving(tmp_path: Path, endpoint: str, env: dict[str, str] | None = None) -> Iterator[subprocess.Popen]:
+    """`pure-hil serve` on the hub `endpoint`, its rig card in tmp_path/"rigs", its runs in tmp_path/"runs",
+    up (it said its hub); killed on the way out unless the test ended it. `env`: the process's own."""
+    pure_hil = str(Path(sys.executable).with_name("pure-hil"))
+    env = env or {**os.environ, "PURE_HIL_RIGS": str(tmp_path / "rigs"), "PURE_HIL_HUB": endpoint}
+    serve = subprocess.Popen(
+        [pure_hil, "serve", "--hub", endpoint, "--out", str(tmp_path / "runs")],
+        stdout=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
+    try:
+        first = serve.stdout.readline() if serve.stdout else ""
+        assert f"hub {endpoint}" in first, first
+        yield serve
+    finally:
+        if serve.poll() is None:
+            serve.kill()
+            serve.communicate()
 
 
 TWO_CASES = f"""

@@ -24,7 +24,7 @@ from drivers.can_bus import (
     open_bus,
     private_channel,
 )
-from drivers.can_codec import Catalog, MessageCodec
+from drivers.can_codec import Catalog, MessageCodec, raw_range
 from drivers.e2e import E2EChecker, E2EProtector, E2EStatus, counter_of, crc8, is_protected, with_counter
 from drivers.shared_bus import MESSAGE_FIELDS
 
@@ -32,19 +32,9 @@ CATALOG = Catalog()
 DB = CATALOG.database
 
 
-def raw_strategy(sig):
-    lo = -(1 << (sig.length - 1)) if sig.is_signed else 0
-    hi = (1 << (sig.length - 1)) - 1 if sig.is_signed else (1 << sig.length) - 1
-    if sig.minimum is not None:
-        lo = max(lo, round((sig.minimum - sig.offset) / sig.scale))
-    if sig.maximum is not None:
-        hi = min(hi, round((sig.maximum - sig.offset) / sig.scale))
-    return st.integers(lo, hi)
-
-
 @st.composite
 def message_values(draw, message):
-    return {s.name: draw(raw_strategy(s)) * s.scale + s.offset for s in message.signals}
+    return {s.name: draw(st.integers(*raw_range(s))) * s.scale + s.offset for s in message.signals}
 
 
 @pytest.mark.parametrize("message", DB.messages, ids=lambda m: m.name)

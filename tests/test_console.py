@@ -183,6 +183,12 @@ def page_wait(browser, script: str, timeout: float = 30.0, what: str = ""):
     return value
 
 
+def page_message(browser, includes: str, what: str = "") -> str:
+    """The page's message line once it includes `includes`."""
+    script = f"const m = document.getElementById('message').textContent; return m.includes('{includes}') && m"
+    return page_wait(browser, script, what=what)
+
+
 ESTOP_RECT = "return JSON.stringify(document.getElementById('estop').getBoundingClientRect())"
 ROW_1 = "const r = document.querySelector('#history tr[data-run=\"1\"]'); "
 
@@ -236,11 +242,7 @@ def test_the_page_starts_a_run_estops_it_holds_the_latch_and_refuses_a_gone_or_d
         assert browser.find_element(By.ID, "a-controller").text.endswith("ago"), "fresh while the run goes"
 
         browser.find_element(By.ID, "estop").click()
-        message = page_wait(
-            browser,
-            "const m = document.getElementById('message').textContent; return m.includes('latched by') && m",
-            what="the supervisor's confirmation",
-        )
+        message = page_message(browser, "latched by", what="the supervisor's confirmation")
         assert "OPERATOR_ESTOP" in message and "console operator" in message, message
         banner = browser.find_element(By.ID, "estop-latched")
         assert banner.is_displayed() and banner.text.startswith("E-STOP LATCHED by console operator"), (
@@ -281,11 +283,7 @@ def test_the_page_starts_a_run_estops_it_holds_the_latch_and_refuses_a_gone_or_d
         assert summary["verdict"] == "ESTOPPED"
 
         browser.find_element(By.ID, "reset").click()
-        cleared = page_wait(
-            browser,
-            "const m = document.getElementById('message').textContent; return m.includes('cleared') && m",
-            what="the reset on the console",
-        )
+        cleared = page_message(browser, "cleared", what="the reset on the console")
         assert "no supervisor listens" in cleared and "console operator" in cleared, cleared
         page_wait(browser, "return !document.getElementById('start').disabled", what="Start allowed again")
         assert not browser.find_element(By.ID, "estop-latched").is_displayed()
@@ -304,10 +302,7 @@ def test_the_page_starts_a_run_estops_it_holds_the_latch_and_refuses_a_gone_or_d
         assert browser.find_element(By.ID, "banner-service").is_displayed()
         assert browser.find_element(By.ID, "start").get_attribute("disabled")
         browser.find_element(By.ID, "estop").click()
-        said = page_wait(
-            browser,
-            "const m = document.getElementById('message').textContent; return m.includes('HTTP') && m",
-        )
+        said = page_message(browser, "HTTP")
         assert "(HTTP 502)" in said and "nothing was sent" in said, said
 
         # Another rig takes the endpoint: shown, and refused, the E-STOP included; the history still reads.
@@ -1144,11 +1139,7 @@ def test_in_the_browser_each_person_logs_in_and_acts_with_their_role(rig, tmp_pa
             browser, "return document.getElementById('run-age').textContent == 'live'", what="the run live"
         )
         browser.find_element(By.ID, "estop").click()
-        message = page_wait(
-            browser,
-            "const m = document.getElementById('message').textContent; return m.includes('latched by') && m",
-            what="the supervisor's confirmation",
-        )
+        message = page_message(browser, "latched by", what="the supervisor's confirmation")
         assert "latched by console operator alice" in message, message
         browser.find_element(By.ID, "stop").click()
         assert service.wait_idle(60)

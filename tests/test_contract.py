@@ -63,6 +63,7 @@ def test_the_example_imports_nothing_of_this_project():
         "signal",
         "threading",
         "time",
+        "collections",
         "pathlib",
         "can",
         "cantools",

@@ -28,8 +28,8 @@ from drivers.devices.cia402 import CST, ErrorCode, State, eds_path, state_of
 from hil.devices.cia402 import Cia402Drives, makes_torque, next_state, status_word
 from plant.drives import DriveState
 from tests.device_bench import TICK, WATCHDOG, DevicesOnABench
+from tests.device_runs import balance_with_example, speed_limiting_on
 from tests.device_runs import frames as whole_frames
-from tests.device_runs import speed_limiting_on
 from tests.zenoh_helpers import private_bench
 
 canopen = pytest.importorskip("canopen", reason="the cia402 profile needs python-canopen (a dependency)")
@@ -76,6 +76,27 @@ def _up(network, node) -> None:
     _until(lambda: node.nmt.state == "OPERATIONAL" and node.tpdo[1].is_received)
 
 
+@contextmanager
+def fed(node, torque: list[int]):
+    """The master's cyclic RPDO1 every 5 ms (faster than the drives' watchdog): the controlword
+    BaseNode402 last set and the target torque `torque[0]` (per mille of 0x6076)."""
+    stop = threading.Event()
+
+    def feed() -> None:
+        while not stop.is_set():
+            node.rpdo[1][0x6071].raw = torque[0]
+            node.rpdo[1].transmit()
+            time.sleep(0.005)
+
+    feeder = threading.Thread(target=feed, daemon=True)
+    feeder.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        feeder.join()
+
+
 def test_python_canopens_master_configures_starts_enables_and_commands_torque(master):
     bench, network, nodes = master
     node, motor = nodes[2], bench.drives.motors[1]
@@ -91,24 +112,13 @@ def test_python_canopens_master_configures_starts_enables_and_commands_torque(ma
     assert node.state == "SWITCH ON DISABLED"
     node.op_mode = "CYCLIC SYNCHRONOUS TORQUE"
     assert node.op_mode == "CYCLIC SYNCHRONOUS TORQUE"
-    # The master's cyclic RPDO1 (much faster than the drives' watchdog): it repeats the controlword
-    # BaseNode402 last set in the map and the target torque.
-    stop, torque = threading.Event(), [0.0]
-
-    def feed() -> None:
-        while not stop.is_set():
-            node.rpdo[1][0x6071].raw = round(torque[0] * 1000)
-            node.rpdo[1].transmit()
-            time.sleep(0.005)
-
-    feeder = threading.Thread(target=feed, daemon=True)
-    feeder.start()
-    try:
+    torque = [0]
+    with fed(node, torque):
         time.sleep(0.05)
         assert motor.state is not DriveState.ENABLED, "SWITCH ON DISABLED: a target torque makes no torque"
         node.state = "OPERATION ENABLED"  # the walk: READY TO SWITCH ON, SWITCHED ON, OPERATION ENABLED
         assert node.state == "OPERATION ENABLED"
-        torque[0] = 0.8
+        torque[0] = 800
         _until(lambda: motor.state is DriveState.ENABLED and motor.command == pytest.approx(0.8))
         # The TPDOs as the master decodes them: position in increments, velocity in increments/s.
         _until(lambda: node.tpdo[2].is_received)
@@ -121,9 +131,6 @@ def test_python_canopens_master_configures_starts_enables_and_commands_torque(ma
         assert node.state == "OPERATION ENABLED" and motor.state is DriveState.ENABLED
         node.state = "SWITCH ON DISABLED"
         _until(lambda: motor.state is DriveState.DISABLED)
-    finally:
-        stop.set()
-        feeder.join()
 
 
 def test_the_watchdog_faults_the_drive_with_emcy_until_fault_reset(master):
@@ -132,20 +139,8 @@ def test_the_watchdog_faults_the_drive_with_emcy_until_fault_reset(master):
     emcys = []
     node.emcy.add_callback(emcys.append)
     _up(network, node)
-    stop = threading.Event()
-
-    def feed() -> None:
-        while not stop.is_set():
-            node.rpdo[1].transmit()
-            time.sleep(0.005)
-
-    feeder = threading.Thread(target=feed, daemon=True)
-    feeder.start()
-    try:
+    with fed(node, [0]):
         node.state = "OPERATION ENABLED"  # fed on the way: the walk must not race the watchdog
-    finally:
-        stop.set()
-        feeder.join()
     node.rpdo[1][0x6071].raw = 300
     node.rpdo[1].transmit()  # one target torque, then silence: the drive's watchdog trips
     _until(lambda: motor.state is DriveState.WATCHDOG)
@@ -258,27 +253,6 @@ def test_a_master_reads_every_object_of_a_cia301_torque_drive_and_the_device_nam
     with pytest.raises(SdoAbortedError) as unknown:
         node.sdo.upload(0x2000, 0)
     assert unknown.value.code == 0x06020000, "the positive control: an object it does not have"
-
-
-@contextmanager
-def fed(node, torque: list[int]):
-    """The master's cyclic RPDO1 every 5 ms (faster than the drives' watchdog): the controlword
-    BaseNode402 last set and the target torque `torque[0]` (per mille of 0x6076)."""
-    stop = threading.Event()
-
-    def feed() -> None:
-        while not stop.is_set():
-            node.rpdo[1][0x6071].raw = torque[0]
-            node.rpdo[1].transmit()
-            time.sleep(0.005)
-
-    feeder = threading.Thread(target=feed, daemon=True)
-    feeder.start()
-    try:
-        yield
-    finally:
-        stop.set()
-        feeder.join()
 
 
 def test_the_torque_objects_follow_the_plant_and_max_torque_limits_it(master):
@@ -573,25 +547,16 @@ def test_a_controller_on_python_canopens_basenode402_master_balances_the_robot(t
     still sends RPDO1 every tick (no missing command), and the robot falls at 0.6 s; with the velocity
     taken as rad/s without converting from increments/s, it falls at 0.2 s."""
 
-    from hil.pipeline import load_scenario, run
     from tests.helpers import load_example
 
     example = load_example("cia402_controller")
     channel = private_channel("cia402-client")
-    stop = threading.Event()
-    thread = threading.Thread(
-        target=example.run, args=(channel, "pure_shared", list(NODES), stop), daemon=True
+    bench = private_bench(BENCH, controller="external", can=BusConfig(channel=channel))
+    result = balance_with_example(
+        bench, tmp_path, lambda stop: example.run(channel, "pure_shared", list(NODES), stop)
     )
-    thread.start()
-    try:
-        bench = private_bench(BENCH, controller="external", can=BusConfig(channel=channel))
-        result = run(load_scenario("balance"), bench, out=tmp_path)
-    finally:
-        stop.set()
-        thread.join(timeout=10)
     assert result.passed, [v for v in result.verdicts if not v.passed]
     assert result.trace.stats.missing_commands == 0
-    assert not thread.is_alive()
     # Its drives push together from the first torque on (the walks end at different SYNCs): a wheel pushing
     # alone for 1-3 SYNCs turned the chassis at 0.015-0.045 rad/s (docs/devices.md).
     start = result.trace.t <= 0.1

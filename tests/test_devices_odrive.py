@@ -12,7 +12,6 @@ import asyncio
 import json
 import math
 import struct
-import threading
 import time
 
 import can
@@ -244,28 +243,17 @@ def test_a_controller_on_odrive_cans_own_client_balances_the_robot(tmp_path):
     """examples/odrive_controller.py: the example's law with its drives driven through odrive-can's client
     (arming, setpoints, the cyclic estimates through its callback), as a lab with ODrive drives would write
     it; an external controller to the rig, here on a thread of this process on the in-process bus."""
-    import asyncio
-
-    from drivers.bus_config import BusConfig
-    from hil.pipeline import load_scenario, run
+    from tests.device_runs import balance_with_example
     from tests.helpers import load_example
 
     example = load_example("odrive_controller")
     channel = private_channel("odrive-client")
-    stop = threading.Event()
-    thread = threading.Thread(
-        target=lambda: asyncio.run(example.run(channel, "pure_shared", list(NODES), stop)), daemon=True
+    bench = private_bench("odrive", controller="external", can=BusConfig(channel=channel))
+    result = balance_with_example(
+        bench, tmp_path, lambda stop: asyncio.run(example.run(channel, "pure_shared", list(NODES), stop))
     )
-    thread.start()
-    try:
-        bench = private_bench("odrive", controller="external", can=BusConfig(channel=channel))
-        result = run(load_scenario("balance"), bench, out=tmp_path)
-    finally:
-        stop.set()
-        thread.join(timeout=10)
     assert result.passed, [v for v in result.verdicts if not v.passed]
     assert result.trace.stats.missing_commands == 0
-    assert not thread.is_alive()
 
 
 # ----------------------------------------------------------------------------------- protocol faults

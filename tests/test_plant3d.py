@@ -157,17 +157,36 @@ def test_a_held_tilt_loads_the_seat_with_the_riders_weight():
 
 
 # ------------------------------------------------------------------------------------- energy
-def test_energy_is_conserved_without_friction_or_inputs():
-    # 10 s of free motion with gravity and the floor away: ball and chassis turning apart about every axis,
-    # the limp torso flailing, all of it spinning. What is left is the model's inertias and joints.
-    plant = plant3d(robot(friction=NO_FRICTION), tilt=(deg(20.0), deg(-20.0)))
+def free_plant(tilt, rates, **sim_fields) -> Plant3D:
+    """The robot and a limp rider in free motion, without friction, gravity or the floor: what is left is
+    the model's inertias and joints. `rates(nv)`: every joint's rate at the start, rad/s or m/s."""
+    plant = plant3d(robot(friction=NO_FRICTION), tilt=tilt, **sim_fields)
     plant.torso = None
     m, d = plant.model, plant.data
     m.opt.gravity[:] = 0.0
     m.geom_conaffinity[:] = 0
     m.jnt_limited[:] = 0  # the trunk's stops are soft constraints, which take energy at each hit
-    d.qvel[:] = np.linspace(-1.5, 1.5, m.nv)
+    d.qvel[:] = rates(m.nv)
     mujoco.mj_forward(m, d)
+    return plant
+
+
+def hanging_plant(friction) -> Plant3D:
+    """The robot without a rider hanging from its ball through the floor (only the ball touches it),
+    swinging from a tilt of 150°, its contact settled under the swinging load."""
+    plant = plant3d(robot(friction=friction), rider=None, tilt=(deg(150.0), deg(-20.0)))
+    m = plant.model
+    m.geom_contype[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "chassis_rim")] = 0
+    plant._settle()  # the plant settled the ball with the rim, below the floor here, carrying it
+    for _ in range(10):  # the contact finds its depth under the swinging load
+        plant.step()
+    return plant
+
+
+def test_energy_is_conserved_without_friction_or_inputs():
+    # 10 s of free motion: ball and chassis turning apart about every axis, the limp torso flailing, all of
+    # it spinning.
+    plant = free_plant((deg(20.0), deg(-20.0)), lambda nv: np.linspace(-1.5, 1.5, nv))
     e0 = plant.energy()
     drift = swing = 0.0
     for _ in range(4000):
@@ -182,12 +201,7 @@ def test_on_the_floor_energy_never_grows_and_friction_takes_it():
     # The same robot hanging from its ball through the floor (only the ball touches it), swinging: MuJoCo's
     # soft contact takes a little (docs/physics.md §11.4), friction takes more, nothing adds any.
     def swing(friction):
-        plant = plant3d(robot(friction=friction), rider=None, tilt=(deg(150.0), deg(-20.0)))
-        m = plant.model
-        m.geom_contype[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "chassis_rim")] = 0
-        plant._settle()  # the plant settled the ball with the rim, below the floor here, carrying it
-        for _ in range(10):  # the contact finds its depth under the swinging load
-            plant.step()
+        plant = hanging_plant(friction)
         e, kinetic = [plant.energy()], 0.0
         for _ in range(2000):
             plant.step()

@@ -309,25 +309,18 @@ def test_serve_prints_its_hub_and_a_client_finds_it_without_a_hub(tmp_path):
     import sys
     from pathlib import Path
 
+    from tests.helpers import serving
+
     pure_hil = str(Path(sys.executable).with_name("pure-hil"))
     endpoint = hub_endpoint()
     env = {**os.environ, "PURE_HIL_RIGS": str(tmp_path / "rigs")}
     env.pop("PURE_HIL_HUB", None)
-    serve = subprocess.Popen(
-        [pure_hil, "serve", "--hub", endpoint, "--out", str(tmp_path / "runs")],
-        stdout=subprocess.PIPE,
-        text=True,
-        env=env,
-    )
-    try:
-        first = serve.stdout.readline()
-        assert f"hub {endpoint}" in first, first
+    with serving(tmp_path, endpoint, env) as serve:
         status = subprocess.run(
             [pure_hil, "rig", "status"], capture_output=True, text=True, env=env, timeout=60
         )
         assert status.returncode == 0, status.stderr
         assert json.loads(status.stdout)["state"] == "idle"
-    finally:
         serve.send_signal(signal.SIGINT)
         serve.communicate(timeout=60)
     assert not list((tmp_path / "rigs").glob("*.json")), "a stopped rig leaves no card behind"

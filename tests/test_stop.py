@@ -6,10 +6,8 @@ and exits 2. No test here times anything: a run ends, or it does not (benchmarks
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -20,6 +18,7 @@ from drivers.zenoh_link import LOOPBACK, open_session
 from hil.cli import main
 from hil.service import RigService
 from tests.fault_bench import Bench
+from tests.helpers import serving
 from tests.test_service import ask
 from tests.zenoh_helpers import hub_endpoint, private_bench
 
@@ -182,8 +181,7 @@ def test_a_flood_the_bus_cannot_carry_is_refused_and_one_it_can_ends_on_rig_stop
 def test_sigterm_ends_a_served_flooded_run_and_its_folder_is_written(tmp_path):
     endpoint = hub_endpoint()
     runs = tmp_path / "runs"
-    serve = _serve(tmp_path, endpoint)
-    try:
+    with serving(tmp_path, endpoint) as serve:
         client = open_session(role="member", hub_endpoint=endpoint)
         try:
             assert ask(client, "start", LONG)["ok"]
@@ -197,10 +195,6 @@ def test_sigterm_ends_a_served_flooded_run_and_its_folder_is_written(tmp_path):
             client.close()
         serve.send_signal(signal.SIGTERM)
         out, _ = serve.communicate(timeout=ENDS)
-    finally:
-        if serve.poll() is None:
-            serve.kill()
-            serve.communicate()
     said = f"exit {serve.returncode}, it said: {out!r}"  # what a rare failure needs to be understood
     assert serve.returncode == 130 and "pure-hil serve: stopped" in out, f"stopped as `run` is: {said}"
     folders = list(runs.glob("flooded-*"))
@@ -219,29 +213,11 @@ def next_line(process: subprocess.Popen) -> str:
     return line[0] if line else ""
 
 
-def _serve(tmp_path, endpoint: str) -> subprocess.Popen:
-    pure_hil = str(Path(sys.executable).with_name("pure-hil"))
-    env = {**os.environ, "PURE_HIL_RIGS": str(tmp_path / "rigs"), "PURE_HIL_HUB": endpoint}
-    serve = subprocess.Popen(
-        [pure_hil, "serve", "--hub", endpoint, "--out", str(tmp_path / "runs")],
-        stdout=subprocess.PIPE,
-        text=True,
-        env=env,
-    )
-    assert f"hub {endpoint}" in serve.stdout.readline()
-    return serve
-
-
 def test_serve_stopped_by_ctrl_c_exits_130_as_run_does(tmp_path):
     """`run` stopped by Ctrl-C exits 130 (README's exit codes); `serve` exited 0."""
-    serve = _serve(tmp_path, hub_endpoint())
-    try:
+    with serving(tmp_path, hub_endpoint()) as serve:
         serve.send_signal(signal.SIGINT)
         out, _ = serve.communicate(timeout=ENDS)
-    finally:
-        if serve.poll() is None:
-            serve.kill()
-            serve.communicate()
     assert serve.returncode == 130 and out.rstrip().endswith("pure-hil serve: stopped"), out
 
 
@@ -252,8 +228,7 @@ def test_a_second_ctrl_c_leaves_at_once_and_the_runs_history_row_is_completed(tm
     import sqlite3
 
     endpoint = hub_endpoint()
-    serve = _serve(tmp_path, endpoint)
-    try:
+    with serving(tmp_path, endpoint) as serve:
         client = open_session(role="member", hub_endpoint=endpoint)
         try:
             run_id = ask(client, "start", LONG)["run"]
@@ -267,10 +242,6 @@ def test_a_second_ctrl_c_leaves_at_once_and_the_runs_history_row_is_completed(tm
         assert "stopping the run" in said, f"{said!r}: the run had not started, or the stop hung"
         serve.send_signal(signal.SIGINT)
         out, _ = serve.communicate(timeout=ENDS)
-    finally:
-        if serve.poll() is None:
-            serve.kill()
-            serve.communicate()
     assert serve.returncode == 130, out
     # Read as the file is (hil.history.History itself would complete a dead process's row on opening).
     db = sqlite3.connect(tmp_path / "runs" / "history.sqlite")

@@ -47,25 +47,14 @@ DROPOUT = parse_fault({"kind": "zenoh.wrench_dropout", "at": 1.0})
 
 def trace(n: int = 800, **changes) -> Trace:
     """A run of n ticks at 400 Hz, standing still and powered, with `changes`."""
-    zeros, pairs = np.zeros(n), np.zeros((n, 2))
-    return dataclasses.replace(
-        Trace.empty(None),  # type: ignore[arg-type]  # a run that ended as planned
-        t=np.arange(1, n + 1) / 400.0,
-        velocity=pairs,
-        tilt=pairs,
-        lean=pairs,
-        position=pairs,
-        yaw_rate=zeros,
-        ball_rate=pairs,
-        command_speed=pairs,
-        tilt_command=pairs,
-        motor_torque=np.zeros((n, 3)),
-        safety_state=np.zeros(n, np.int8),
-        safety_speed=zeros,
-        powered=np.ones(n, bool),
-        resting=np.zeros(n, bool),
-        **changes,
-    )
+    empty = Trace.empty(None)  # type: ignore[arg-type]  # a run that ended as planned
+    columns = {
+        f.name: np.zeros((n, *column.shape[1:]), column.dtype)
+        for f in dataclasses.fields(empty)
+        if isinstance(column := getattr(empty, f.name), np.ndarray)
+    }
+    columns.update(t=np.arange(1, n + 1) / 400.0, powered=np.ones(n, bool), safety_state=np.zeros(n, np.int8))
+    return dataclasses.replace(empty, **{**columns, **changes})
 
 
 def judged(tr: Trace, **scenario) -> RunResult:

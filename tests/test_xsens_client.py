@@ -170,27 +170,20 @@ def test_a_controller_reading_the_mti_as_a_lab_would_balances_the_robot(tmp_path
     xsens bench, in lockstep, on a thread of this process on the in-process bus. Checked by hand (positive
     control): the same example reading the fields little-endian makes the supervisor take the drives at
     0.52 s (RECOVERY; the run FAILED, the robot caught by the recovery law)."""
-    import threading
-
-    from hil.pipeline import load_scenario, run
+    from tests.device_runs import balance_with_example
     from tests.helpers import ROOT, load_example
     from tests.zenoh_helpers import private_bench
 
     example = load_example("xsens_controller")
     channel = private_channel("xsens-lab")
-    stop = threading.Event()
-    thread = threading.Thread(target=example.run, args=(channel, "pure_shared", BASE, stop), daemon=True)
-    thread.start()
-    try:
-        bench = private_bench(
-            str(ROOT / "configs" / "benches" / "xsens.toml"),
-            controller="external",
-            can=BusConfig(channel=channel),
-        )
-        result = run(load_scenario("balance"), bench, out=tmp_path)
-    finally:
-        stop.set()
-        thread.join(timeout=10)
+    bench = private_bench(
+        str(ROOT / "configs" / "benches" / "xsens.toml"),
+        controller="external",
+        can=BusConfig(channel=channel),
+    )
+    result = balance_with_example(
+        bench, tmp_path, lambda stop: example.run(channel, "pure_shared", BASE, stop)
+    )
     # The commands the rig missed are this harness's, not the example's: controller and rig share one
     # process, and on a machine loaded by other work (load 21 on 2 cores, 1647 of 6000 missed once; 0 on a
     # quiet one) a guard that expires makes the rig stop waiting for a controller until it speaks again.
@@ -198,4 +191,3 @@ def test_a_controller_reading_the_mti_as_a_lab_would_balances_the_robot(tmp_path
     assert failed == [] and result.trace.fallen is None
     assert not [e for e in result.trace.safety_events if e.kind == "transition"], "the supervisor in NORMAL"
     assert result.trace.stats.missing_commands <= 0.3 * 3 * result.trace.stats.ticks
-    assert not thread.is_alive()
