@@ -344,8 +344,8 @@ class Monitors:
         out = set(named)
         if "yaw" in failed and not named & {*ENCODERS, "RateZ", *DRIVES}:
             out.add(self.isolated.odd_one_out())
-        # The speed trend rests on the encoders too: a named encoder explains it (a corrupted velocity fails
-        # the trend in the same tick, before the encoder's own check has named it).
+        # The speed trend rests on the encoders too: a named encoder explains it (in motion a corrupted
+        # velocity fails the trend a frame or two before the encoder's own window names it).
         encoder_named = not named.isdisjoint(ENCODERS)
         for i, (plane, attitude, rate) in enumerate(PLANES):
             trend = f"{plane} trend" in failed and not encoder_named
