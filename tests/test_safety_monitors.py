@@ -1,6 +1,7 @@
 """The supervisor's observations from real frames: its own speed estimate against the plant's truth,
 integrity counting, and the per-update parts."""
 
+import functools
 import math
 
 import numpy as np
@@ -294,6 +295,13 @@ def test_one_drives_monitor_reports_only_what_is_fresh_and_times_a_drive_that_st
 
 
 # ----------------------------------------------------------------------- a drive's frame that lies
+@functools.cache
+def rolling_geometry() -> tuple[np.ndarray, float]:
+    """The robot file's motor Jacobian and encoder counts per rad, read once for every tick's frames."""
+    robot = load_toml(ROBOT, RobotModel)
+    return motor_jacobian(robot), robot.encoder.counts_per_rev / (2 * math.pi)
+
+
 def rolling_frames(
     rng: np.random.Generator,
     t: float,
@@ -305,9 +313,8 @@ def rolling_frames(
     """The contract's frames of a robot rolling sideways at a steady `ball_rate` (rad/s about the ball's x
     axis), upright, not turning: drive 1's reported velocity off by `lie` rad/s (its position true) and
     reporting `fault1`; the accelerometer off by `accel_x` m/s² forward."""
-    robot = load_toml(ROBOT, RobotModel)
-    velocities = motor_jacobian(robot) @ np.array([ball_rate, 0.0, 0.0])
-    per_rad = robot.encoder.counts_per_rev / (2 * math.pi)
+    jacobian, per_rad = rolling_geometry()
+    velocities = jacobian @ np.array([ball_rate, 0.0, 0.0])
     tx, rx = CanNode(FakeBus(), name="tx"), CanNode(FakeBus(), name="rx")
     sample = imu_near_rest(rng)
     sample["IMU_ACCEL"]["AccX"] += accel_x
